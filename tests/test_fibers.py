@@ -1,0 +1,419 @@
+"""Tests of warp_hair.fibers: the fiber container, its two file formats and the procedural generators."""
+
+import struct
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from warp_hair.fibers import (
+    FiberAssembly,
+    FiberDataError,
+    curly,
+    fur,
+    load_fibers,
+    save_fibers,
+    swatch,
+    wavy,
+)
+
+BENCH_FIBERS = Path(__file__).parents[1] / "benchmarks" / "standard_swatch_fibers.txt"
+GENERATORS = [swatch, wavy, curly, fur]
+
+
+def mixed_assembly():
+    """Three strands of 2, 3 and 5 vertices with distinct radii."""
+    rng = np.random.default_rng(7)
+    strands = [(rng.normal(size=(n, 3)), rng.uniform(0.001, 0.01, n)) for n in (2, 3, 5)]
+    return FiberAssembly.from_strands(strands)
+
+
+# --- FiberAssembly ---------------------------------------------------------------------------------------------
+
+
+def test_accessors():
+    fibers = mixed_assembly()
+    assert (fibers.num_strands, fibers.num_vertices, fibers.num_segments) == (3, 10, 7)
+    assert fibers.points.dtype == np.float32 and fibers.radii.dtype == np.float32
+    assert fibers.strand_offsets.tolist() == [0, 2, 5, 10]
+    assert fibers.vertex_counts.tolist() == [2, 3, 5]
+    points, radii = fibers.strand(1)
+    np.testing.assert_array_equal(points, fibers.points[2:5])
+    np.testing.assert_array_equal(radii, fibers.radii[2:5])
+    np.testing.assert_array_equal(fibers.strand(-1)[0], fibers.points[5:])
+    with pytest.raises(IndexError):
+        fibers.strand(3)
+
+
+def test_segments_shapes_and_strand_ids():
+    fibers = mixed_assembly()
+    p0, p1, r0, r1, strand_id, index = fibers.segments()
+    assert p0.shape == p1.shape == (7, 3)
+    assert r0.shape == r1.shape == (7,)
+    assert strand_id.dtype == index.dtype == np.int32
+    assert strand_id.tolist() == [0, 1, 1, 2, 2, 2, 2]
+    assert index.tolist() == [0, 0, 1, 0, 1, 2, 3]
+    for k, i, a, b, ra, rb in zip(strand_id, index, p0, p1, r0, r1):
+        points, radii = fibers.strand(k)
+        np.testing.assert_array_equal([a, b], points[i : i + 2])
+        np.testing.assert_array_equal([ra, rb], radii[i : i + 2])
+
+
+def test_bounds_include_radii():
+    fibers = FiberAssembly([[0, 0, 0], [1, 2, 3]], [0.5, 0.25], [0, 2])
+    lo, hi = fibers.bounds()
+    np.testing.assert_allclose(lo, [-0.5, -0.5, -0.5])
+    np.testing.assert_allclose(hi, [1.25, 2.25, 3.25])
+
+
+def test_concatenate_keeps_strands_in_order():
+    a, b = mixed_assembly(), swatch(count=8, layers=2, seed=3)
+    both = FiberAssembly.concatenate([a, b])
+    assert both.num_strands == a.num_strands + b.num_strands
+    np.testing.assert_array_equal(both.strand(3)[0], b.strand(0)[0])
+    np.testing.assert_array_equal(both.strand(2)[1], a.strand(2)[1])
+    assert FiberAssembly.concatenate([]).num_strands == 0
+
+
+def test_arrays_are_private_and_read_only():
+    points = np.zeros((2, 3))
+    fibers = FiberAssembly(points, [1, 1], [0, 2])
+    points[0, 0] = np.nan
+    assert np.isfinite(fibers.points).all()
+    with pytest.raises(ValueError):
+        fibers.points[0, 0] = 1.0
+
+
+@pytest.mark.parametrize(
+    "points, radii, offsets, expected",
+    [
+        ([[0, 0, 0], [1, 0, 0], [2, 0, 0]], [1, 1, 1], [0, 2, 3], "strand 1: has 1 vertex"),
+        ([[0, 0, 0], [1, 0, 0], [2, np.nan, 0], [3, 0, 0]], [1] * 4, [0, 2, 4], "strand 1, vertex 0"),
+        ([[0, 0, 0], [1, 0, 0], [2, 0, 0], [3, 0, 0]], [1, 1, 1, np.inf], [0, 2, 4], "strand 1, vertex 1"),
+        ([[0, 0, 0], [1, 0, 0], [2, 0, 0], [3, 0, 0]], [1, 0, 1, 1], [0, 2, 4], "strand 0, vertex 1"),
+        ([[0, 0, 0], [1, 0, 0], [2, 0, 0], [3, 0, 0]], [1, 1, -1, 1], [0, 2, 4], "strand 1, vertex 0"),
+    ],
+)
+def test_construction_names_the_bad_strand(points, radii, offsets, expected):
+    with pytest.raises(FiberDataError, match=expected):
+        FiberAssembly(points, radii, offsets, source="hair.txt")
+
+
+# --- Files -----------------------------------------------------------------------------------------------------
+
+
+def assert_same_fibers(a, b, atol=0.0):
+    np.testing.assert_array_equal(a.strand_offsets, b.strand_offsets)
+    np.testing.assert_allclose(a.points, b.points, rtol=0, atol=atol)
+    np.testing.assert_allclose(a.radii, b.radii, rtol=0, atol=atol)
+
+
+@pytest.mark.parametrize("fibers", [mixed_assembly(), curly(count=12, layers=2, seed=4)], ids=["mixed", "curly"])
+def test_hair_round_trip_is_exact(tmp_path, fibers):
+    save_fibers(fibers, tmp_path / "fibers.hair")
+    assert_same_fibers(load_fibers(tmp_path / "fibers.hair"), fibers)
+
+
+@pytest.mark.parametrize("fibers", [mixed_assembly(), curly(count=12, layers=2, seed=4)], ids=["mixed", "curly"])
+def test_text_round_trip(tmp_path, fibers):
+    save_fibers(fibers, tmp_path / "fibers.txt")
+    assert_same_fibers(load_fibers(tmp_path / "fibers.txt"), fibers, atol=1e-6)
+
+
+def test_hair_writer_follows_the_format(tmp_path):
+    fibers = mixed_assembly()
+    save_fibers(fibers, tmp_path / "f.hair")
+    data = (tmp_path / "f.hair").read_bytes()
+    signature, strands, points, flags = struct.unpack_from("<4s3I", data)
+    assert (signature, strands, points, flags) == (b"HAIR", 3, 10, 0b111)
+    segments = np.frombuffer(data, "<u2", 3, 128)
+    assert segments.tolist() == [1, 2, 4]
+    xyz = np.frombuffer(data, "<f4", 30, 134).reshape(-1, 3)
+    thickness = np.frombuffer(data, "<f4", 10, 134 + 120)
+    np.testing.assert_array_equal(xyz, fibers.points)
+    np.testing.assert_array_equal(thickness, 2 * fibers.radii)  # thickness is the diameter
+    assert len(data) == 134 + 120 + 40
+
+
+def hair_bytes(
+    segments=None,
+    points=None,
+    thickness=None,
+    transparency=None,
+    colour=None,
+    *,
+    strands,
+    total,
+    default_segments=0,
+    default_thickness=1.0,
+    signature=b"HAIR",
+):
+    """A .hair file built straight from the format description, independently of the writer."""
+    arrays = [(segments, "<u2"), (points, "<f4"), (thickness, "<f4"), (transparency, "<f4"), (colour, "<f4")]
+    flags = sum(1 << bit for bit, (array, _) in enumerate(arrays) if array is not None)
+    header = struct.pack(
+        "<4s4I5f88s", signature, strands, total, flags, default_segments, default_thickness, 0, 1, 1, 1, b"test"
+    )
+    return header + b"".join(np.asarray(a, dtype).tobytes() for a, dtype in arrays if a is not None)
+
+
+def test_hair_reader_uses_defaults_for_absent_arrays(tmp_path):
+    points = np.arange(18, dtype=np.float32).reshape(6, 3)
+    data = hair_bytes(
+        points=points,
+        transparency=np.zeros(6),
+        colour=np.ones((6, 3)),
+        strands=2,
+        total=6,
+        default_segments=2,
+        default_thickness=0.01,
+    )
+    (tmp_path / "defaults.hair").write_bytes(data)
+    fibers = load_fibers(tmp_path / "defaults.hair")
+    assert fibers.vertex_counts.tolist() == [3, 3]
+    np.testing.assert_array_equal(fibers.points, points)
+    np.testing.assert_array_equal(fibers.radii, np.float32(0.005))
+
+
+def test_hair_writer_rejects_strands_longer_than_uint16(tmp_path):
+    long_strand = FiberAssembly(np.zeros((65537, 3)), np.ones(65537), [0, 65537])
+    with pytest.raises(ValueError, match="strand 3: has 65536 segments"):
+        save_fibers(FiberAssembly.concatenate([mixed_assembly(), long_strand]), tmp_path / "long.hair")
+
+
+GOOD_POINTS = np.arange(27, dtype=np.float32).reshape(9, 3)
+GOOD_HAIR = dict(segments=[2, 3, 1], points=GOOD_POINTS, thickness=np.full(9, 0.02), strands=3, total=9)
+
+
+def with_nan_at(index):
+    points = GOOD_POINTS.copy()
+    points[index, 1] = np.nan
+    return points
+
+
+def with_thickness(index, value):
+    thickness = np.full(9, 0.02)
+    thickness[index] = value
+    return thickness
+
+
+# (file bytes, what the message must also say). Strands of 3, 4 and 2 vertices: 0-2, 3-6, 7-8.
+MALFORMED_HAIR = {
+    "header truncated": (hair_bytes(**GOOD_HAIR)[:100], "header"),
+    "bad signature": (hair_bytes(**GOOD_HAIR, signature=b"HAIX"), "signature"),
+    "segments truncated": (hair_bytes(**GOOD_HAIR)[: 128 + 3], "strand 1"),
+    "points truncated": (hair_bytes(**GOOD_HAIR)[: 134 + 12 * 5 + 4], "strand 1"),
+    "thickness truncated": (hair_bytes(**GOOD_HAIR)[: 134 + 108 + 4 * 8], "strand 2"),
+    "default layout truncated": (
+        hair_bytes(points=GOOD_POINTS, strands=3, total=9, default_segments=2)[: 128 + 12 * 7],
+        "strand 2",
+    ),
+    "NaN point": (hair_bytes(**{**GOOD_HAIR, "points": with_nan_at(4)}), "strand 1, vertex 1"),
+    "infinite thickness": (hair_bytes(**{**GOOD_HAIR, "thickness": with_thickness(8, np.inf)}), "strand 2"),
+    "zero thickness": (hair_bytes(**{**GOOD_HAIR, "thickness": with_thickness(3, 0.0)}), "strand 1, vertex 0"),
+    "one-vertex strand": (hair_bytes(**{**GOOD_HAIR, "segments": [2, 0, 4]}), "strand 1: has 1 vertex"),
+    "too many points in strands": (hair_bytes(**{**GOOD_HAIR, "segments": [2, 6, 1]}), "strand 1"),
+    "too few points in strands": (hair_bytes(**{**GOOD_HAIR, "segments": [2, 2, 1]}), "strand 2"),
+    "no points array": (hair_bytes(segments=[1], strands=1, total=2), "no points"),
+}
+
+
+@pytest.mark.parametrize("case", MALFORMED_HAIR)
+def test_malformed_hair_names_file_and_strand(tmp_path, case):
+    data, expected = MALFORMED_HAIR[case]
+    path = tmp_path / "bad_model.hair"
+    path.write_bytes(data)
+    with pytest.raises(ValueError, match="bad_model.hair") as raised:
+        load_fibers(path)
+    assert expected in str(raised.value)
+
+
+def test_good_hair_bytes_load(tmp_path):
+    (tmp_path / "good.hair").write_bytes(hair_bytes(**GOOD_HAIR))
+    fibers = load_fibers(tmp_path / "good.hair")
+    assert fibers.vertex_counts.tolist() == [3, 4, 2]
+    np.testing.assert_array_equal(fibers.radii, np.float32(0.01))
+
+
+GOOD_TEXT = """# three strands
+0 0 0 0.1
+0 1 0 0.1
+
+1 0 0 0.1
+1 1 0 0.1
+1 2 0 0.1
+
+2 0 0 0.1
+2 1 0 0.1
+"""
+
+
+def test_text_reader_handles_comments_blank_runs_and_whitespace(tmp_path):
+    text = "\n\n" + GOOD_TEXT.replace("1 1 0 0.1", "# inside a strand\n\t1  1 0 0.1  ").replace("\n\n", "\n \n\n")
+    (tmp_path / "messy.txt").write_text(text)
+    fibers = load_fibers(tmp_path / "messy.txt")
+    assert fibers.vertex_counts.tolist() == [2, 3, 2]
+    np.testing.assert_array_equal(fibers.strand(1)[0][1], [1, 1, 0])
+
+
+def test_text_writer_format(tmp_path):
+    save_fibers(mixed_assembly(), tmp_path / "f.txt")
+    lines = (tmp_path / "f.txt").read_text().splitlines()
+    assert lines[0].startswith("#")
+    assert sum(not line for line in lines) == 2
+    assert all(len(line.split()) == 4 for line in lines[1:] if line)
+
+
+@pytest.mark.parametrize(
+    "replacement",
+    ["1 1 0", "1 1 0 0.1 5", "1 x 0 0.1", "1 nan 0 0.1", "1 1 inf 0.1", "1 1 0 0", "1 1 0 -0.1", "1 1 0 1e40"],
+)
+def test_malformed_text_names_file_line_and_strand(tmp_path, replacement):
+    path = tmp_path / "bad_curves.txt"
+    path.write_text(GOOD_TEXT.replace("1 1 0 0.1", replacement))
+    with pytest.raises(ValueError, match="bad_curves.txt: line 6: strand 1"):
+        load_fibers(path)
+
+
+def test_text_strand_of_one_vertex(tmp_path):
+    path = tmp_path / "short.txt"
+    path.write_text(GOOD_TEXT.replace("2 1 0 0.1\n", ""))
+    with pytest.raises(ValueError, match="short.txt: line 9: strand 2: has 1 vertex"):
+        load_fibers(path)
+
+
+def test_binary_file_with_text_extension(tmp_path):
+    path = tmp_path / "binary.txt"
+    path.write_bytes(b"\xff\xfe\x00HAIR")
+    with pytest.raises(ValueError, match="binary.txt"):
+        load_fibers(path)
+
+
+def test_unknown_extension(tmp_path):
+    with pytest.raises(ValueError, match="unknown fiber file extension '.obj'"):
+        load_fibers(tmp_path / "model.obj")
+    with pytest.raises(ValueError, match="model.ply"):
+        save_fibers(mixed_assembly(), tmp_path / "model.ply")
+
+
+def test_bench_swatch_loads():
+    fibers = load_fibers(BENCH_FIBERS)
+    assert fibers.num_strands == 640
+    assert (fibers.vertex_counts == 9).all()
+    np.testing.assert_array_equal(fibers.radii, np.float32(0.004))
+
+
+# --- Generators ------------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("generator", GENERATORS)
+def test_generators_are_deterministic_per_seed(generator):
+    a, b, c = generator(seed=1), generator(seed=1), generator(seed=2)
+    assert_same_fibers(a, b)
+    assert a.strand_offsets.tolist() == c.strand_offsets.tolist()
+    assert not np.array_equal(a.points, c.points)
+
+
+def layer_slices(fibers, layers):
+    per_layer = fibers.num_strands // layers
+    points = fibers.points.reshape(fibers.num_strands, -1, 3)
+    return [points[k * per_layer : (k + 1) * per_layer] for k in range(layers)]
+
+
+def test_swatch_defaults():
+    fibers = swatch()
+    assert fibers.num_strands == 640
+    assert (fibers.vertex_counts == 9).all()
+    np.testing.assert_array_equal(fibers.radii, np.float32(0.004))
+    y = fibers.points[:, 1]
+    assert y.min() == pytest.approx(-0.7) and y.max() == pytest.approx(0.7)
+    # The documented default width: spacing 2.1 r / (1 - 1.25 jitter) times 160 fibers per layer.
+    width = 160 * 2.1 * 0.004 / (1 - 1.25 * 0.25)
+    x = fibers.points[:, 0]
+    assert np.abs(x).max() <= width / 2
+    assert x.max() - x.min() > 0.97 * width
+
+
+def test_swatch_layers_at_distinct_depths():
+    layers = layer_slices(swatch(), 4)
+    z_ranges = [(layer[..., 2].min(), layer[..., 2].max()) for layer in layers]
+    assert z_ranges[0][1] <= 0.004  # the front layer lies at z = 0
+    for (front_lo, _), (_, back_hi) in zip(z_ranges, z_ranges[1:]):
+        assert back_hi < front_lo
+
+
+@pytest.mark.parametrize("kwargs", [{}, {"jitter": 0.4, "seed": 5}, {"count": 90, "layers": 3, "radius": 0.01}])
+def test_swatch_fibers_never_intersect(kwargs):
+    fibers = swatch(**kwargs)
+    points = fibers.points.reshape(fibers.num_strands, -1, 3)
+    radius = fibers.radii[0]
+    for row in range(points.shape[1]):
+        xz = points[:, row, [0, 2]].astype(np.float64)
+        distance = np.linalg.norm(xz[:, None] - xz[None], axis=-1)
+        np.fill_diagonal(distance, np.inf)
+        assert distance.min() >= 2 * radius
+
+
+def test_swatch_half_spacing_stagger_closes_gaps():
+    fibers = swatch(jitter=0.0)
+    front, second = (np.sort(layer[:, 0, 0]) for layer in layer_slices(fibers, 4)[:2])
+    spacing = np.diff(front).mean()
+    np.testing.assert_allclose(second - front, spacing / 2, atol=1e-6)
+    # Seen from +z, neighbouring silhouettes of the two front layers overlap: nothing shows through.
+    edges = np.sort(np.concatenate([front, second]))
+    assert np.diff(edges).max() < 2 * 0.004
+
+
+def test_swatch_width_and_spacing():
+    narrow = swatch(width=1.2)
+    assert np.abs(narrow.points[:, 0]).max() <= 0.6
+    assert np.ptp(narrow.points[:, 0]) > 1.15
+    spaced = swatch(count=40, layers=2, spacing=0.02, jitter=0.0)
+    assert np.ptp(spaced.points[:, 0]) == pytest.approx(20 * 0.02 - 0.02 / 2)
+    uneven = swatch(count=10, layers=3)
+    assert uneven.num_strands == 10
+    with pytest.raises(ValueError, match="not both"):
+        swatch(width=1.0, spacing=0.01)
+    with pytest.raises(ValueError, match="jitter"):
+        swatch(jitter=0.5)
+    with pytest.raises(ValueError, match="layers"):
+        swatch(count=3, layers=4)
+
+
+def test_wavy_waves_are_resolved_and_have_the_amplitude():
+    fibers = wavy(count=8, layers=1, amplitude=0.05, wavelength=0.2, jitter=0.0)
+    points = fibers.points.reshape(8, -1, 3)
+    assert points.shape[1] >= 12 * 1.4 / 0.2
+    swing = points[..., 0] - points[..., 0].mean(axis=1, keepdims=True)
+    assert np.abs(swing).max() == pytest.approx(0.05, rel=0.02)
+    assert np.all(points[..., 2] == points[:, :1, 2])  # waves stay in the swatch plane
+
+
+def test_curly_helices_have_the_curl_radius():
+    fibers = curly(count=6, layers=1, length=1.0, curl_radius=0.03, pitch=0.1, jitter=0.0)
+    points = fibers.points.reshape(6, -1, 3).astype(np.float64)[:, :-1]  # whole turns only
+    axis = points.mean(axis=1, keepdims=True)
+    distance = np.hypot(points[..., 0] - axis[..., 0], points[..., 2] - axis[..., 2])
+    np.testing.assert_allclose(distance, 0.03, rtol=1e-4)
+    assert fibers.vertex_counts[0] == 16 * 10 + 1
+
+
+def test_fur_rises_from_the_patch():
+    fibers = fur(count=500, patch=(0.4, 0.2), length=0.1, root_radius=0.002, tip_radius=0.0005, seed=3)
+    points = fibers.points.reshape(500, -1, 3)
+    roots, tips = points[:, 0], points[:, -1]
+    assert np.all(np.abs(roots[:, 0]) <= 0.2) and np.all(np.abs(roots[:, 1]) <= 0.1)
+    np.testing.assert_array_equal(roots[:, 2], 0)
+    assert np.all(np.diff(points[..., 2], axis=1) > 0)  # every fiber keeps rising: tips above roots
+    assert np.all(tips[:, 2] > roots[:, 2])
+    lengths = np.linalg.norm(np.diff(points, axis=1), axis=-1).sum(axis=1)
+    assert np.all((lengths >= 0.08 - 1e-6) & (lengths <= 0.12 + 1e-6))
+    radii = fibers.radii.reshape(500, -1)
+    np.testing.assert_allclose(radii[:, 0], 0.002)
+    np.testing.assert_allclose(radii[:, -1], 0.0005)
+    assert np.all(np.diff(radii, axis=1) < 0)
+
+
+def test_fur_rejects_fibers_that_would_not_rise():
+    with pytest.raises(ValueError, match="lean"):
+        fur(lean=60, bend=40)

@@ -1,0 +1,209 @@
+"""The Chiang et al. hair/fur BSDF as Warp functions for the renderer's kernels.
+
+Local frame (MODEL.md, pbrt-v4): x along the fiber, z the surface normal at the hit, y = z × x;
+sin θ = w.x, φ = atan2(w.z, w.y). wo points toward the viewer, wi toward the light, h ∈ [−1, 1] is the
+signed offset of the hit from the fiber axis.
+
+Usage inside a kernel:
+    setup = lobe_setup(coeffs, wo, h)          # everything that depends on wo and h only
+    s_value = hair_value(setup, wi)            # S, the cosine-weighted BSDF (RGB)
+    density = hair_pdf(setup, wi)              # solid-angle pdf of hair_sample
+    wi = hair_sample(coeffs, setup, u)         # u: three uniforms in [0, 1)
+Nothing allocates; everything is float32.
+"""
+
+import numpy as np
+import warp as wp
+
+from .lobes import (
+    INV_TWO_PI,
+    PI64,
+    TWO_PI64,
+    attenuation,
+    fresnel_dielectric,
+    longitudinal_scattering,
+    mat43,
+    sample_longitudinal_sin,
+    sample_trimmed_logistic,
+    trimmed_logistic,
+    wrap_angle,
+)
+from .params import HairParams
+
+
+@wp.struct
+class HairCoefficients:
+    """What the kernels need of a HairParams: derived once per material on the host (float64 → float32)."""
+
+    sigma_a: wp.vec3  # absorption per unit fiber radius, RGB
+    eta: float
+    v: wp.vec4  # longitudinal variance of R, TT, TRT, residual
+    s: float  # logistic scale of the azimuthal lobes
+    sin_2k_alpha: wp.vec3  # sin(α), sin(2α), sin(4α)
+    cos_2k_alpha: wp.vec3
+
+
+def hair_coefficients(params: HairParams) -> HairCoefficients:
+    c = HairCoefficients()
+    c.sigma_a = wp.vec3(*params.sigma_a)
+    c.eta = float(params.eta)
+    c.v = wp.vec4(*params.lobe_variances)
+    c.s = float(params.logistic_scale)
+    angles = np.radians(params.alpha) * np.array([1.0, 2.0, 4.0])
+    c.sin_2k_alpha = wp.vec3(*np.sin(angles))
+    c.cos_2k_alpha = wp.vec3(*np.cos(angles))
+    return c
+
+
+@wp.struct
+class LobeSetup:
+    """The wo- and h-dependent half of the model, shared by value, pdf and sample."""
+
+    sin_o: wp.vec4  # sin θ_o tilted per lobe (R: θ_o − 2α, TT: θ_o + α, TRT: θ_o + 4α, residual: θ_o)
+    cos_o: wp.vec4  # |cos| of the same angles
+    phi_o: wp.float64
+    phi_center: wp.vec3d  # Φ(p) = 2pγ_t − 2γ_o + pπ, the azimuthal centre of R, TT, TRT
+    A: mat43  # attenuation per lobe (rows), RGB
+    prob: wp.vec4  # lobe selection probabilities ∝ channel mean of A_p
+    v: wp.vec4
+    s: float
+
+
+@wp.func
+def cos_from_sin(sin_x: float):
+    """cos x ≥ 0 from sin x as sqrt((1 − sin)(1 + sin)): no cancellation near grazing, unlike 1 − sin²."""
+    return wp.sqrt(wp.max(0.0, (1.0 - sin_x) * (1.0 + sin_x)))
+
+
+@wp.func
+def lobe_setup(c: HairCoefficients, wo: wp.vec3, h: float):
+    sin_o = wp.clamp(wo[0], -1.0, 1.0)
+    cos_o = cos_from_sin(sin_o)
+    h = wp.clamp(h, -1.0, 1.0)
+
+    # Refraction: θ_t by Snell, γ_t in the normal plane with the Bravais index η' (MODEL.md); the form
+    # h cos θ_o / sqrt(η² − sin² θ_o) = h / η' has no division by cos θ_o.
+    sin_t = sin_o / c.eta
+    cos_t = cos_from_sin(sin_t)
+    sin_gamma_t = h * cos_o / wp.sqrt(c.eta * c.eta - sin_o * sin_o)
+    cos_gamma_t = cos_from_sin(sin_gamma_t)
+    T = wp.vec3(
+        wp.exp(-c.sigma_a[0] * 2.0 * cos_gamma_t / cos_t),
+        wp.exp(-c.sigma_a[1] * 2.0 * cos_gamma_t / cos_t),
+        wp.exp(-c.sigma_a[2] * 2.0 * cos_gamma_t / cos_t),
+    )
+    f = fresnel_dielectric(cos_o * cos_from_sin(h), c.eta)
+
+    L = LobeSetup()
+    L.A = attenuation(f, T)
+    mean_a = wp.vec4(0.0)
+    for p in range(4):
+        mean_a[p] = (L.A[p, 0] + L.A[p, 1] + L.A[p, 2]) / 3.0
+    L.prob = mean_a / (mean_a[0] + mean_a[1] + mean_a[2] + mean_a[3])
+
+    # Cuticle tilt: rotate θ_o by −2α, +α, +4α (pbrt-v4, Mitsuba 3); |cos| keeps the rotated angle in
+    # [−π/2, π/2] when the rotation passes the pole.
+    sa = c.sin_2k_alpha
+    ca = c.cos_2k_alpha
+    L.sin_o = wp.vec4(sin_o * ca[1] - cos_o * sa[1], sin_o * ca[0] + cos_o * sa[0], sin_o * ca[2] + cos_o * sa[2], sin_o)
+    L.cos_o = wp.vec4(
+        wp.abs(cos_o * ca[1] + sin_o * sa[1]),
+        wp.abs(cos_o * ca[0] - sin_o * sa[0]),
+        wp.abs(cos_o * ca[2] - sin_o * sa[2]),
+        cos_o,
+    )
+    # The azimuthal centres are formed in float64: a narrow logistic (s ≈ 2e-3 at β_n = 0) turns the
+    # float32 rounding of atan2, asin and the 2π wrap (~1e-6 rad) into a 1e-3 relative error of N_p.
+    sin_o_d = wp.float64(sin_o)
+    cos_o_d = wp.sqrt(wp.max(wp.float64(0.0), (wp.float64(1.0) - sin_o_d) * (wp.float64(1.0) + sin_o_d)))
+    eta_d = wp.float64(c.eta)
+    h_d = wp.float64(h)
+    gamma_o = wp.asin(h_d)
+    gamma_t = wp.asin(h_d * cos_o_d / wp.sqrt(eta_d * eta_d - sin_o_d * sin_o_d))
+    L.phi_o = wp.atan2(wp.float64(wo[2]), wp.float64(wo[1]))
+    L.phi_center = wp.vec3d(
+        wp.float64(-2.0) * gamma_o,
+        wp.float64(2.0) * gamma_t - wp.float64(2.0) * gamma_o + PI64,
+        wp.float64(4.0) * gamma_t - wp.float64(2.0) * gamma_o + wp.float64(2.0) * PI64,
+    )
+    L.v = c.v
+    L.s = c.s
+    return L
+
+
+@wp.func
+def lobe_densities(L: LobeSetup, wi: wp.vec3):
+    """M_p N_p for each lobe (N_3 = 1/2π): the solid-angle density each lobe would sample alone."""
+    sin_i = wp.clamp(wi[0], -1.0, 1.0)
+    cos_i = cos_from_sin(sin_i)
+    dphi = wp.atan2(wp.float64(wi[2]), wp.float64(wi[1])) - L.phi_o
+    d = wp.vec4(0.0)
+    for p in range(3):
+        m = longitudinal_scattering(sin_i, cos_i, L.sin_o[p], L.cos_o[p], L.v[p])
+        d[p] = m * trimmed_logistic(float(wrap_angle(dphi - L.phi_center[p])), L.s)
+    d[3] = longitudinal_scattering(sin_i, cos_i, L.sin_o[3], L.cos_o[3], L.v[3]) * INV_TWO_PI
+    return d
+
+
+@wp.func
+def hair_value(L: LobeSetup, wi: wp.vec3):
+    """S(wo, wi, h) = Σ_p A_p M_p N_p, the cosine-weighted BSDF (pbrt's f times |cos θ_i|, Mitsuba's eval)."""
+    d = lobe_densities(L, wi)
+    return d[0] * L.A[0] + d[1] * L.A[1] + d[2] * L.A[2] + d[3] * L.A[3]
+
+
+@wp.func
+def hair_pdf(L: LobeSetup, wi: wp.vec3):
+    return wp.dot(L.prob, lobe_densities(L, wi))
+
+
+@wp.func
+def choose_lobe(prob: wp.vec4, u: float):
+    """The lobe whose interval of [0, 1) holds u (lobes in order R, TT, TRT, residual), and where in it.
+
+    In the upper half the intervals are located from the top with 1 − u, which is exact there: the
+    residual lobe's probability can be 1e-8 (dark hair), finer than float32 cumulative sums near 1 resolve.
+    """
+    p = int(0)
+    u_rot = float(0.0)
+    if u < 0.5:
+        p = 3
+        lo = float(0.0)
+        for q in range(3):
+            if p == 3 and u < lo + prob[q]:
+                p = q
+                u_rot = (u - lo) / prob[q]
+            lo += prob[q]
+        if p == 3:
+            u_rot = (u - lo) / prob[3]
+    else:
+        t = 1.0 - u
+        hi = float(0.0)
+        found = bool(False)
+        for k in range(3):
+            q = 3 - k
+            if not found and t <= hi + prob[q]:
+                found = True
+                p = q
+                u_rot = 1.0 - (t - hi) / prob[q]
+            hi += prob[q]
+        if not found:
+            u_rot = 1.0 - (t - hi) / prob[0]
+    return p, wp.clamp(u_rot, 0.0, 1.0)
+
+
+@wp.func
+def hair_sample(L: LobeSetup, u: wp.vec3):
+    """A direction wi drawn exactly from hair_pdf: lobe by u[0], then M_p by u[1] and N_p by u[2].
+
+    The remainder of u[0] after the lobe choice drives the rotation about the longitudinal cone, where an
+    error in it moves wi linearly; reusing it for the logistic azimuth (as pbrt does) would amplify its
+    float32 rounding in the logistic's tails.
+    """
+    p, u_rot = choose_lobe(L.prob, u[0])
+    sin_i, cos_i = sample_longitudinal_sin(u[1], u_rot, L.sin_o[p], L.cos_o[p], L.v[p])
+    dphi = TWO_PI64 * wp.float64(u[2])
+    if p < 3:
+        dphi = L.phi_center[p] + wp.float64(sample_trimmed_logistic(u[2], L.s))
+    phi_i = L.phi_o + dphi
+    return wp.vec3(sin_i, cos_i * float(wp.cos(phi_i)), cos_i * float(wp.sin(phi_i)))

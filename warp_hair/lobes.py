@@ -1,0 +1,179 @@
+"""The three factors of every lobe of the Chiang et al. model, as allocation-free Warp functions.
+
+S = Σ_p M_p(θ_i, θ_o) A_p(θ_o, h) N_p(Δφ, h): M is d'Eon et al.'s longitudinal scattering, A the
+attenuation along the internal path, N the azimuthal distribution (a trimmed logistic). All in float32,
+arranged so that no step overflows or cancels catastrophically at the extremes (tiny or huge variance,
+grazing angles, h = ±1, σ_a = 0).
+"""
+
+import math
+
+import warp as wp
+
+PI = wp.constant(math.pi)
+TWO_PI = wp.constant(2.0 * math.pi)
+INV_TWO_PI = wp.constant(1.0 / (2.0 * math.pi))
+PI64 = wp.constant(wp.float64(math.pi))
+TWO_PI64 = wp.constant(wp.float64(2.0 * math.pi))
+
+mat43 = wp.types.matrix(shape=(4, 3), dtype=wp.float32)
+
+
+@wp.func
+def bessel_i0e(x: float):
+    """I0(x)·e^(−x) for x ≥ 0 (Abramowitz & Stegun 9.8.1–9.8.2, relative error < 5e-7).
+
+    The scaled form never overflows, and its e^(−x) cancels the e^(+a) of M analytically (see below).
+    """
+    if x < 3.75:
+        t = x / 3.75
+        t = t * t
+        i0 = 1.0 + t * (3.5156229 + t * (3.0899424 + t * (1.2067492 + t * (0.2659732 + t * (0.0360768 + t * 0.0045813)))))
+        return i0 * wp.exp(-x)
+    y = 3.75 / x
+    poly = 0.39894228 + y * (
+        0.01328592
+        + y * (0.00225319 + y * (-0.00157565 + y * (0.00916281 + y * (-0.02057706 + y * (0.02635537 + y * (-0.01647633 + y * 0.00392377))))))
+    )
+    return poly / wp.sqrt(x)
+
+
+@wp.func
+def one_minus_exp_neg(y: float):
+    """1 − e^(−y) for y ≥ 0 without the cancellation of the direct form at small y (rough lobes, v ≫ 1)."""
+    if y < 0.1:
+        return y * (1.0 - y * (0.5 - y * (1.0 / 6.0 - y * (1.0 / 24.0))))
+    return 1.0 - wp.exp(-y)
+
+
+@wp.func
+def cos_sum_minus_one(sin_a: float, cos_a: float, sin_b: float, cos_b: float):
+    """cos(a + b) − 1, accurate near 0 where the direct difference would lose all digits."""
+    cos_sum = cos_a * cos_b - sin_a * sin_b
+    if cos_sum < 0.0:
+        return cos_sum - 1.0
+    sin_sum = sin_a * cos_b + cos_a * sin_b
+    return -sin_sum * sin_sum / (1.0 + cos_sum)
+
+
+@wp.func
+def longitudinal_scattering(sin_i: float, cos_i: float, sin_o: float, cos_o: float, v: float):
+    """M(θ_i, θ_o; v) = I0(cos θ_i cos θ_o / v) e^(−sin θ_i sin θ_o / v) / (2 v sinh(1/v)) (d'Eon 2011).
+
+    With a = cos θ_i cos θ_o / v and 2 sinh(1/v) = e^(1/v)(1 − e^(−2/v)):
+        M = I0e(a) · exp((cos(θ_i + θ_o) − 1) / v) / (v (1 − e^(−2/v))),
+    because a − sin θ_i sin θ_o / v − 1/v = (cos(θ_i + θ_o) − 1)/v. Every factor is ≤ 1 or a plain
+    division, so tiny v (log-space territory in pbrt) and huge v are both exact to float32 precision.
+    """
+    e = cos_sum_minus_one(sin_i, cos_i, sin_o, cos_o)
+    return bessel_i0e(cos_i * cos_o / v) * wp.exp(e / v) / (v * one_minus_exp_neg(2.0 / v))
+
+
+@wp.func
+def log1p(x: float):
+    """ln(1 + x) to full relative precision for small x (Goldberg's trick: the rounding of 1 + x cancels)."""
+    y = 1.0 + x
+    if y == 1.0:
+        return x
+    return wp.log(y) * x / (y - 1.0)
+
+
+@wp.func
+def sample_longitudinal_cone(u: float, v: float):
+    """(1 − cos θ, 1 + cos θ) for a sample of the cone angle θ about the mirror direction of M(·, θ_o; v).
+
+    d'Eon's inversion is 1 − cos θ = −v ln(u + (1 − u) e^(−2/v)). Each factor is formed where it is
+    small: ln(1 − x) through log1p when u is near 1 (narrow cones), and 1 + cos θ = v ln(1 + u(e^(2/v) − 1))
+    when the sample lands in the far hemisphere (very rough lobes), so sin θ = sqrt((1 − cos)(1 + cos))
+    keeps its digits at both poles. The floor −2/v catches e^(−2/v) underflowing for narrow lobes.
+    """
+    x = (1.0 - u) * one_minus_exp_neg(2.0 / v)
+    log_arg = float(0.0)
+    if x < 0.5:
+        log_arg = log1p(-x)
+    else:
+        log_arg = wp.log(u + (1.0 - u) * wp.exp(-2.0 / v))
+    a = float(2.0)
+    if log_arg > -2.0 / v:
+        a = wp.min(-v * log_arg, 2.0)
+    b = 2.0 - a
+    if a > 1.0 and v > 0.025:  # e^(2/v) stays finite in float32
+        b = v * log1p(u * wp.exp(2.0 / v) * one_minus_exp_neg(2.0 / v))
+    return a, b
+
+
+@wp.func
+def sample_longitudinal_sin(u_cone: float, u_rot: float, sin_o: float, cos_o: float, v: float):
+    """(sin θ_i, cos θ_i) of a sample of M(·, θ_o; v): a cone of angle θ about the mirror direction −θ_o,
+    rotated by 2π u_rot. cos θ_i is built from the orthogonal components, not from 1 − sin² θ_i.
+    """
+    a, b = sample_longitudinal_cone(u_cone, v)
+    cos_t = 1.0 - a
+    if a > 1.0:
+        cos_t = b - 1.0
+    sin_t = wp.sqrt(a * b)
+    c_rot = wp.cos(TWO_PI * u_rot)
+    s_rot = wp.sin(TWO_PI * u_rot)
+    sin_i = -cos_t * sin_o + sin_t * c_rot * cos_o
+    along = cos_t * cos_o + sin_t * c_rot * sin_o
+    across = sin_t * s_rot
+    return sin_i, wp.sqrt(along * along + across * across)
+
+
+@wp.func
+def fresnel_dielectric(cos_i: float, eta: float):
+    """Unpolarized Fresnel reflectance entering a dielectric of index eta > 1 (no total internal reflection)."""
+    sin2_t = (1.0 - cos_i * cos_i) / (eta * eta)
+    cos_t = wp.sqrt(wp.max(0.0, 1.0 - sin2_t))
+    r_parl = (eta * cos_i - cos_t) / (eta * cos_i + cos_t)
+    r_perp = (cos_i - eta * cos_t) / (cos_i + eta * cos_t)
+    return 0.5 * (r_parl * r_parl + r_perp * r_perp)
+
+
+@wp.func
+def attenuation(f: float, T: wp.vec3):
+    """A_p for R, TT, TRT and the residual lobe (rows); the residual carries the whole series p ≥ 3.
+
+    A_0 = f, A_1 = (1−f)² T, A_2 = A_1 f T, A_3 = A_2 f T / (1 − f T) = Σ_{p≥3} (1−f)² f^(p−1) T^p.
+    1 − fT is formed as (1 − f) + f(1 − T) to keep digits when both f and T approach 1; when it is 0
+    (f = 1 and T = 1, grazing with σ_a = 0) A_2 is 0 as well and so is the sum.
+    """
+    one = wp.vec3(1.0, 1.0, 1.0)
+    a0 = f * one
+    a1 = (1.0 - f) * (1.0 - f) * T
+    a2 = f * wp.cw_mul(a1, T)
+    a3 = wp.vec3(0.0, 0.0, 0.0)
+    for c in range(3):
+        denom = (1.0 - f) + f * (1.0 - T[c])
+        if denom > 0.0:
+            a3[c] = a2[c] * f * T[c] / denom
+    return wp.matrix_from_rows(a0, a1, a2, a3)
+
+
+@wp.func
+def wrap_angle(x: wp.float64):
+    """x wrapped to [−π, π), in float64 (see LobeSetup.phi_center)."""
+    return x - TWO_PI64 * wp.floor((x + PI64) / TWO_PI64)
+
+
+@wp.func
+def trimmed_logistic(x: float, s: float):
+    """The logistic density of scale s restricted to [−π, π] and renormalized there.
+
+    The normalizer CDF(π) − CDF(−π) equals tanh(π / 2s).
+    """
+    e = wp.exp(-wp.abs(x) / s)
+    return e / (s * (1.0 + e) * (1.0 + e) * wp.tanh(PI / (2.0 * s)))
+
+
+@wp.func
+def sample_trimmed_logistic(u: float, s: float):
+    """Inverse CDF of the trimmed logistic on [−π, π].
+
+    With c = CDF(−π) and k = CDF(π) − CDF(−π) = 1 − 2c, the sample is s·ln(y / (1 − y)) for y = c + u k;
+    1 − y is formed as c + (1 − u) k so neither tail cancels.
+    """
+    c = 1.0 / (1.0 + wp.exp(PI / s))
+    k = 1.0 - 2.0 * c
+    x = s * wp.log((c + u * k) / (c + (1.0 - u) * k))
+    return wp.clamp(x, -PI, PI)

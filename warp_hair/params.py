@@ -1,0 +1,252 @@
+"""The six artist controls of the Chiang et al. hair/fur model and their mappings to model coefficients.
+
+Everything here is plain float64 NumPy: it runs once per material, not per sample. The Warp kernels read
+the derived coefficients (σ_a, per-lobe longitudinal variance, logistic scale, tilt) from
+`warp_hair.hair_bsdf.HairCoefficients`.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from dataclasses import dataclass, field
+
+import numpy as np
+
+# Below this roughness the lobes are narrower than float32 angles can resolve, and at 0 the mappings give
+# v = s = 0 (a delta lobe no path tracer can sample). pbrt, Mitsuba and Cycles clamp the same way.
+BETA_FLOOR = 0.01
+
+# d'Eon et al. 2011 absorption of the two melanins per unit fiber radius (MODEL.md, "From artist controls").
+EUMELANIN_SIGMA_A = np.array([0.419, 0.697, 1.37])
+PHEOMELANIN_SIGMA_A = np.array([0.187, 0.4, 1.05])
+
+ALPHA_RANGE_DEG = (-30.0, 30.0)
+
+CONTROL_NAMES = (
+    "albedo",
+    "sigma_a",
+    "eumelanin",
+    "pheomelanin",
+    "beta_m",
+    "beta_n",
+    "alpha",
+    "eta",
+    "r_roughness_scale",
+)
+
+
+def effective_beta(beta):
+    """The roughness the lobes use: β below BETA_FLOOR behaves as BETA_FLOOR."""
+    return np.maximum(beta, BETA_FLOOR)
+
+
+def longitudinal_variance(beta_m):
+    """v(β_m) = (0.726 β + 0.812 β² + 3.7 β²⁰)², the variance of the R... TRT base lobe (MODEL.md)."""
+    b = effective_beta(beta_m)
+    return (0.726 * b + 0.812 * b**2 + 3.7 * b**20) ** 2
+
+
+def lobe_variances(beta_m, r_roughness_scale=1.0):
+    """Per-lobe longitudinal variances [R, TT, TRT, residual]: v·scale, v/4, 4v, 4v."""
+    v = longitudinal_variance(beta_m)
+    return np.array([v * r_roughness_scale, 0.25 * v, 4.0 * v, 4.0 * v])
+
+
+def logistic_scale(beta_n):
+    """s(β_n) = sqrt(π/8)(0.265 β + 1.194 β² + 5.372 β²²); the talk omits sqrt(π/8), all renderers keep it."""
+    b = effective_beta(beta_n)
+    return math.sqrt(math.pi / 8.0) * (0.265 * b + 1.194 * b**2 + 5.372 * b**22)
+
+
+def albedo_denominator(beta_n):
+    """The β_n polynomial of the talk's albedo inversion, fitted by Chiang et al. to brute-force simulations."""
+    b = effective_beta(beta_n)
+    return 5.969 - 0.215 * b + 2.532 * b**2 - 10.73 * b**3 + 5.574 * b**4 + 0.245 * b**5
+
+
+def sigma_a_from_albedo(albedo, beta_n):
+    """σ_a = (ln c / poly(β_n))²: the absorption that gives multiple-scattering albedo c (talk, Controllability)."""
+    return (np.log(np.asarray(albedo, dtype=np.float64)) / albedo_denominator(beta_n)) ** 2
+
+
+def sigma_a_from_melanin(eumelanin, pheomelanin):
+    return eumelanin * EUMELANIN_SIGMA_A + pheomelanin * PHEOMELANIN_SIGMA_A
+
+
+def _real(name, value):
+    try:
+        x = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a number, got {value!r}") from None
+    if not math.isfinite(x):
+        raise ValueError(f"{name} must be finite, got {x}")
+    return x
+
+
+def _rgb(name, value):
+    """An RGB triple from a number (grey) or a sequence of three numbers."""
+    values = np.atleast_1d(np.asarray(value, dtype=object)).ravel()
+    if values.size == 1:
+        values = np.repeat(values, 3)
+    if values.size != 3:
+        raise ValueError(f"{name} must be one number or three (RGB), got {value!r}")
+    return tuple(_real(f"{name}[{c}]", v) for c, v in zip("rgb", values))
+
+
+def _check_range(name, value, lo, hi, lo_open=False, hi_open=False):
+    below = value <= lo if lo_open else value < lo
+    above = value >= hi if hi_open else value > hi
+    if below or above:
+        interval = f"{'(' if lo_open else '['}{lo}, {hi}{')' if hi_open else ']'}"
+        raise ValueError(f"{name} = {value} is outside the allowed range {interval}")
+
+
+@dataclass(frozen=True)
+class HairParams:
+    """The artist controls of the Chiang et al. 2015 hair/fur model.
+
+    Colour: give exactly one of
+      - ``albedo``: RGB multiple-scattering albedo, each channel in (0, 1] (a single number means grey);
+        σ_a follows from the talk's albedo inversion, which depends on β_n;
+      - ``sigma_a``: RGB absorption coefficient per unit fiber radius, each ≥ 0;
+      - ``eumelanin`` and/or ``pheomelanin``: pigment concentrations ≥ 0 (blonde ≈ 0.3, brown ≈ 1.3, black ≈ 8).
+    Roughness ``beta_m`` (longitudinal) and ``beta_n`` (azimuthal) in [0, 1]; values below 0.01 are rendered
+    as 0.01 (with a warning), because a zero-width lobe cannot be sampled. ``alpha`` is the cuticle tilt in
+    degrees, ``eta`` the index of refraction (> 1), ``r_roughness_scale`` the species control: a factor on the
+    primary reflection (R) lobe's longitudinal variance only.
+    """
+
+    albedo: tuple | None = None
+    sigma_a_input: tuple | None = field(default=None, repr=False)
+    eumelanin: float | None = None
+    pheomelanin: float | None = None
+    beta_m: float = 0.3
+    beta_n: float = 0.3
+    alpha: float = 2.0
+    eta: float = 1.55
+    r_roughness_scale: float = 1.0
+
+    def __init__(
+        self,
+        *,
+        albedo=None,
+        sigma_a=None,
+        eumelanin=None,
+        pheomelanin=None,
+        beta_m=0.3,
+        beta_n=0.3,
+        alpha=2.0,
+        eta=1.55,
+        r_roughness_scale=1.0,
+    ):
+        given = [name for name, v in (("albedo", albedo), ("sigma_a", sigma_a)) if v is not None]
+        if eumelanin is not None or pheomelanin is not None:
+            given.append("eumelanin/pheomelanin")
+        if len(given) != 1:
+            found = ", ".join(given) if given else "none"
+            raise ValueError(
+                "HairParams needs exactly one colour input: albedo, sigma_a, or eumelanin/pheomelanin "
+                f"(got {found})"
+            )
+        set_ = object.__setattr__
+        if albedo is not None:
+            albedo = _rgb("albedo", albedo)
+            for c, a in zip("rgb", albedo):
+                _check_range(f"albedo[{c}]", a, 0.0, 1.0, lo_open=True)
+        if sigma_a is not None:
+            sigma_a = _rgb("sigma_a", sigma_a)
+            for c, s in zip("rgb", sigma_a):
+                _check_range(f"sigma_a[{c}]", s, 0.0, math.inf, hi_open=True)
+        if eumelanin is not None or pheomelanin is not None:
+            eumelanin = _real("eumelanin", 0.0 if eumelanin is None else eumelanin)
+            pheomelanin = _real("pheomelanin", 0.0 if pheomelanin is None else pheomelanin)
+            _check_range("eumelanin", eumelanin, 0.0, math.inf, hi_open=True)
+            _check_range("pheomelanin", pheomelanin, 0.0, math.inf, hi_open=True)
+        beta_m, beta_n = _real("beta_m", beta_m), _real("beta_n", beta_n)
+        for name, b in (("beta_m", beta_m), ("beta_n", beta_n)):
+            _check_range(name, b, 0.0, 1.0)
+            if b < BETA_FLOOR:
+                warnings.warn(
+                    f"{name} = {b} is below {BETA_FLOOR}, the narrowest lobe the model can sample; "
+                    f"it is rendered as {BETA_FLOOR}",
+                    stacklevel=2,
+                )
+        alpha = _real("alpha", alpha)
+        _check_range("alpha", alpha, *ALPHA_RANGE_DEG)
+        eta = _real("eta", eta)
+        _check_range("eta", eta, 1.0, math.inf, lo_open=True, hi_open=True)
+        r_roughness_scale = _real("r_roughness_scale", r_roughness_scale)
+        _check_range("r_roughness_scale", r_roughness_scale, 0.0, math.inf, lo_open=True, hi_open=True)
+
+        set_(self, "albedo", albedo)
+        set_(self, "sigma_a_input", sigma_a)
+        set_(self, "eumelanin", eumelanin)
+        set_(self, "pheomelanin", pheomelanin)
+        set_(self, "beta_m", beta_m)
+        set_(self, "beta_n", beta_n)
+        set_(self, "alpha", alpha)
+        set_(self, "eta", eta)
+        set_(self, "r_roughness_scale", r_roughness_scale)
+
+    @property
+    def colour_input(self) -> str:
+        """Which colour control the user gave: "albedo", "sigma_a" or "melanin"."""
+        if self.albedo is not None:
+            return "albedo"
+        if self.sigma_a_input is not None:
+            return "sigma_a"
+        return "melanin"
+
+    @property
+    def sigma_a(self) -> np.ndarray:
+        """The absorption coefficient (RGB, per unit fiber radius) the model uses, whatever the colour input."""
+        if self.albedo is not None:
+            return sigma_a_from_albedo(self.albedo, self.beta_n)
+        if self.sigma_a_input is not None:
+            return np.array(self.sigma_a_input, dtype=np.float64)
+        return sigma_a_from_melanin(self.eumelanin, self.pheomelanin)
+
+    @property
+    def lobe_variances(self) -> np.ndarray:
+        """Longitudinal variances [R, TT, TRT, residual]."""
+        return lobe_variances(self.beta_m, self.r_roughness_scale)
+
+    @property
+    def logistic_scale(self) -> float:
+        return logistic_scale(self.beta_n)
+
+    def to_dict(self) -> dict:
+        """The controls as given, as a flat dict of named values (colour under its own input's name)."""
+        d = {}
+        if self.colour_input == "albedo":
+            d["albedo"] = list(self.albedo)
+        elif self.colour_input == "sigma_a":
+            d["sigma_a"] = list(self.sigma_a_input)
+        else:
+            d["eumelanin"], d["pheomelanin"] = self.eumelanin, self.pheomelanin
+        d.update(
+            beta_m=self.beta_m,
+            beta_n=self.beta_n,
+            alpha=self.alpha,
+            eta=self.eta,
+            r_roughness_scale=self.r_roughness_scale,
+        )
+        return d
+
+    @classmethod
+    def from_dict(cls, controls: dict, where: str = "hair controls") -> HairParams:
+        """Build from a flat dict (a scene file's [hair] table); unknown keys are errors naming the key."""
+        unknown = sorted(set(controls) - set(CONTROL_NAMES))
+        if unknown:
+            raise ValueError(f"unknown key(s) {unknown} in {where}; allowed: {list(CONTROL_NAMES)}")
+        return cls(**controls)
+
+    def replace(self, **changes) -> HairParams:
+        """A copy with some controls changed; changing the colour input replaces the old one."""
+        d = self.to_dict()
+        if {"albedo", "sigma_a", "eumelanin", "pheomelanin"} & set(changes):
+            for key in ("albedo", "sigma_a", "eumelanin", "pheomelanin"):
+                d.pop(key, None)
+        d.update(changes)
+        return HairParams(**d)
