@@ -2,14 +2,14 @@
 
 One `wp.launch` on the CPU runs on one core, but launches from several Python threads run at the same time
 (Warp releases the GIL). Kernels launched through here take the index of their first item as their last
-input, so each thread launches over its own contiguous range of the same arrays: no copies, and the
-result does not depend on how many threads there are.
+input, so each launch covers its own contiguous range of the same arrays: no copies, and the result does
+not depend on how many threads there are.
 """
 
 from __future__ import annotations
 
 import os
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import ThreadPoolExecutor, as_completed
 
 import warp as wp
 
@@ -18,25 +18,44 @@ def default_threads() -> int:
     return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
 
 
-def launch_ranges(kernel, n: int, inputs: list, threads: int | None = None, device: str = "cpu") -> None:
-    """Launch `kernel` over n items as `kernel(*inputs, first)` on ranges of the items, one per thread."""
+def launch_ranges(
+    kernel,
+    n: int,
+    inputs: list,
+    threads: int | None = None,
+    device: str = "cpu",
+    chunk: int | None = None,
+    progress=None,
+) -> None:
+    """Launch `kernel(*inputs, first)` over n items, in ranges run by a pool of threads.
+
+    Without `chunk`, one range per thread (for uniform work). With `chunk`, ranges of that many items
+    handed out as threads free up, which balances uneven work (pixels on fibers cost more than background).
+    `progress(done, total)` is called after each range.
+    """
     if n == 0:
         return
     if threads is not None and threads < 1:
         raise ValueError(f"threads must be at least 1, got {threads}")
     if not wp.get_device(device).is_cpu:
         wp.launch(kernel, dim=n, inputs=[*inputs, 0], device=device)
+        if progress is not None:
+            progress(n, n)
         return
     threads = min(threads or default_threads(), n)
+    step = chunk or -(-n // threads)
+    ranges = [(first, min(step, n - first)) for first in range(0, n, step)]
     # Compile (or fetch from the cache) once, before the threads race to do it each.
     wp.load_module(kernel.module, device=device)
-    bounds = [n * k // threads for k in range(threads + 1)]
 
-    def run(k: int) -> None:
-        wp.launch(kernel, dim=bounds[k + 1] - bounds[k], inputs=[*inputs, bounds[k]], device=device)
+    def run(first_count):
+        first, count = first_count
+        wp.launch(kernel, dim=count, inputs=[*inputs, first], device=device)
+        return count
 
-    if threads == 1:
-        run(0)
-        return
+    done = 0
     with ThreadPoolExecutor(threads) as pool:
-        list(pool.map(run, range(threads)))
+        for future in as_completed([pool.submit(run, r) for r in ranges]):
+            done += future.result()
+            if progress is not None:
+                progress(done, n)

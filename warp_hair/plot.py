@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 from matplotlib.figure import Figure
+from matplotlib.lines import Line2D
 
 from . import bsdf
 from .params import HairParams
@@ -24,24 +25,27 @@ LOBE_NAMES = ("R", "TT", "TRT", "residual")
 LOBE_COLOURS = ("tab:blue", "tab:orange", "tab:green", "tab:purple")
 LUMINANCE = np.array([0.2126, 0.7152, 0.0722])
 
-# The viewer sits on the normal side of the fiber; the lobes depend on φ only through Δφ = φ_i − φ_o.
+# The lobes depend on φ only through Δφ = φ_i − φ_o; any φ_o will do.
 PHI_O = 0.5 * math.pi
 
-# Per batch of evaluations: bounds the memory of one eval_lobes call (48 bytes of output per item).
+# Evaluations per eval_lobes call: bounds the memory (48 bytes of output each) whatever the grid.
 BATCH = 1 << 20
 
-# Offsets for the far field: A_p is smooth in γ = asin h, so a few dozen midpoints in γ integrate it.
-N_GAMMA = 64
-# The lobe centres move by at most 2 radians of Δφ per radian of γ; the azimuthal profile needs the grid of
-# centres finer than the logistic scale s or its curves become a comb of one peak per offset. The cap keeps
-# β_n below about 0.03 affordable, where that comb starts to show.
-N_GAMMA_AZIMUTHAL_MAX = 1024
-# Azimuths per ∫ dφ_i: the periodic midpoint rule is exact to about e^(−π s n) on a logistic of scale s,
-# so n ≥ 8/s gives e^(−25). The cap on φ × h evaluations per θ_i keeps small β_n affordable; the offsets'
-# moving centres average out most of what the coarser rule then misses.
-PHI_PER_SCALE = 8.0
-N_PHI_MIN = 64
-N_PHI_H_MAX = 1 << 15
+# Far field, azimuthal profile: S at each Δφ averages one logistic (scale s) per offset, centred at Φ_p(γ),
+# γ = asin h, which moves by at most 2 radians per radian of γ. Offsets evenly spaced in γ with centres
+# 1.5 s apart blend into a smooth curve (ripple ~ e^(−4π²/3)); sparser ones into a comb. The cap leaves a
+# faint comb only below β_n ≈ 0.02.
+CENTRES_PER_SCALE = 1.5
+N_GAMMA_AZIMUTHAL = (64, 1024)
+# Far field, longitudinal profile: at each offset ∫ S dφ_i = Σ_p M_p A_p(h), smooth in γ, so a Gauss-Legendre
+# rule in γ converges fast. Each offset's ∫ dφ_i is a periodic midpoint rule, exact to about 2πsn e^(−πsn)
+# for a logistic of scale s on n nodes: n = 5/s gives 5e-6, and the cap 6e-4 at the smallest β_n.
+N_GAMMA_GAUSS = 16
+PHI_PER_SCALE = 5.0
+N_PHI = (64, 2048)
+# Plot points: spacing s/2 in Δφ and σ/3 in θ_i (σ² the narrowest lobe variance), within these bounds.
+N_AZIMUTHAL = (721, 2049)
+N_LONGITUDINAL = (181, 1081)
 
 
 def direction(theta, phi) -> np.ndarray:
@@ -57,68 +61,164 @@ def _check_theta_o(theta_o_deg) -> float:
     return math.radians(theta_o)
 
 
-def offsets(h: float | None, n_gamma: int = N_GAMMA) -> tuple[np.ndarray, np.ndarray]:
-    """Fiber offsets and their quadrature weights (summing to 1): the one given, or the far-field average.
+def _check_h(h) -> float:
+    h = float(h)
+    if not -1.0 <= h <= 1.0:
+        raise ValueError(f"h = {h} is outside the allowed range [-1, 1]")
+    return h
 
-    The average over h ∈ [−1, 1] is taken in γ = asin h (dh = cos γ dγ), which removes the square-root
-    edges of A_p and of the lobe centres at h = ±1 and spaces the centres evenly.
+
+def _offsets(h: float | None, gamma: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The fiber offsets to average and their weights (summing to 1): the one h given, or the far field.
+
+    The far-field average over h ∈ [−1, 1] is taken in γ = asin h (dh = cos γ dγ, here on the given
+    rule's nodes and weights in γ), which removes the square-root edges of A_p and of the lobe centres.
     """
     if h is not None:
-        h = float(h)
-        if not -1.0 <= h <= 1.0:
-            raise ValueError(f"h = {h} is outside the allowed range [-1, 1]")
-        return np.array([h]), np.array([1.0])
-    gamma = (np.arange(n_gamma) + 0.5) * math.pi / n_gamma - 0.5 * math.pi
-    weights = np.cos(gamma)
+        return np.array([_check_h(h)]), np.array([1.0])
+    weights = weights * np.cos(gamma)
     return np.sin(gamma), weights / weights.sum()
 
 
-def _weighted_lobes(params: HairParams, wo: np.ndarray, wi: np.ndarray, h: np.ndarray, weights: np.ndarray):
-    """Σ_k weights[k] · luminance of the lobe terms at (wi[j, k], h[k]) for each row j: shape (rows, 4).
+def _midpoints(n: int, lo: float, hi: float) -> np.ndarray:
+    return lo + (np.arange(n) + 0.5) * (hi - lo) / n
 
-    wi is (rows, *columns, 3), usually a broadcast view; h and weights broadcast against the columns.
-    Rows go to eval_lobes in batches, so only a batch of wi is ever materialised.
+
+def _clamp(n: float, bounds: tuple[int, int]) -> int:
+    return min(bounds[1], max(bounds[0], math.ceil(n)))
+
+
+def _weighted_lobes(params: HairParams, wo: np.ndarray, theta, phi, h, weights: np.ndarray) -> np.ndarray:
+    """Σ_k weights[k] · luminance of the lobe terms at wi = direction(θ[j, k], φ[j, k]), h[j, k], per row j.
+
+    θ, φ and h broadcast to (rows, columns); weights are (columns,). Returns (rows, 4).
     """
-    rows, columns = wi.shape[0], wi.shape[1:-1]
-    h = np.broadcast_to(h, columns)
-    weights = np.broadcast_to(weights, columns).ravel()
-    step = max(1, BATCH // weights.size)
+    theta, phi, h = np.broadcast_arrays(np.asarray(theta, dtype=np.float64), np.asarray(phi, dtype=np.float64), h)
+    rows, columns = theta.shape
+    step = max(1, BATCH // columns)
     out = np.empty((rows, 4))
     for start in range(0, rows, step):
-        block = wi[start : start + step]
-        block_h = np.broadcast_to(h, block.shape[:-1])
-        lobes = bsdf.eval_lobes(params, wo, block.reshape(-1, 3), block_h.ravel())
-        luminance = (lobes @ LUMINANCE).reshape(len(block), weights.size, 4)
-        out[start : start + step] = np.einsum("jkp,k->jp", luminance, weights)
+        block = slice(start, start + step)
+        wi = direction(theta[block], phi[block]).reshape(-1, 3)
+        luminance = bsdf.eval_lobes(params, wo, wi, h[block].ravel()) @ LUMINANCE
+        out[block] = np.einsum("jkp,k->jp", luminance.reshape(-1, columns, 4), weights)
     return out
 
 
-def azimuthal_profile(params: HairParams, theta_o_deg: float, h: float | None = None, n: int = 721):
+def azimuthal_profile(params: HairParams, theta_o_deg: float, h: float | None = None, n: int | None = None):
     """S in the specular cone θ_i = −θ_o as a function of Δφ = φ_i − φ_o.
 
     Returns Δφ (n,) from −π to π (radians; 0 is back toward the viewer, ±π forward through the fiber)
-    and the luminance of each lobe (n, 4) in 1/sr.
+    and the luminance of each lobe (n, 4) in 1/sr. n = None picks enough points to resolve the lobes.
     """
     theta_o = _check_theta_o(theta_o_deg)
-    n_gamma = min(N_GAMMA_AZIMUTHAL_MAX, max(N_GAMMA, math.ceil(4.0 * math.pi / params.logistic_scale)))
-    hs, weights = offsets(h, n_gamma)
+    s = params.logistic_scale
+    n = n or _clamp(4.0 * math.pi / s, N_AZIMUTHAL)
+    gamma = _midpoints(_clamp(2.0 * math.pi / (CENTRES_PER_SCALE * s), N_GAMMA_AZIMUTHAL), -0.5 * math.pi, 0.5 * math.pi)
+    hs, weights = _offsets(h, gamma, np.ones_like(gamma))
     dphi = np.linspace(-math.pi, math.pi, n)
-    wi = np.broadcast_to(direction(-theta_o, PHI_O + dphi)[:, None, :], (n, len(hs), 3))
-    return dphi, _weighted_lobes(params, direction(theta_o, PHI_O), wi, hs, weights)
+    lobes = _weighted_lobes(params, direction(theta_o, PHI_O), -theta_o, (PHI_O + dphi)[:, None], hs, weights)
+    return dphi, lobes
 
 
-def longitudinal_profile(params: HairParams, theta_o_deg: float, h: float | None = None, n: int = 181):
+def longitudinal_profile(params: HairParams, theta_o_deg: float, h: float | None = None, n: int | None = None):
     """∫ S dφ_i over the full circle of azimuths as a function of θ_i.
 
-    Returns θ_i (n,), midpoints of [−π/2, π/2] in radians, and the luminance of each lobe (n, 4) in 1/rad;
-    ∫ (its sum) cos θ_i dθ_i is the directional albedo (1 with σ_a = 0).
+    Returns θ_i (n,), midpoints of [−π/2, π/2] in radians, and the luminance of each lobe (n, 4) in 1/rad:
+    ∫ (their sum) cos θ_i dθ_i is the directional albedo (1 with σ_a = 0). n = None picks enough points
+    to resolve the narrowest lobe.
     """
     theta_o = _check_theta_o(theta_o_deg)
-    hs, h_weights = offsets(h)
-    n_phi = max(N_PHI_MIN, math.ceil(PHI_PER_SCALE / params.logistic_scale))
-    n_phi = min(n_phi, max(N_PHI_MIN, N_PHI_H_MAX // len(hs)))
-    phi = PHI_O - math.pi + (np.arange(n_phi) + 0.5) * 2.0 * math.pi / n_phi
-    theta_i = (np.arange(n) + 0.5) * math.pi / n - 0.5 * math.pi
-    wi = np.broadcast_to(direction(theta_i[:, None, None], phi[None, :, None]), (n, n_phi, len(hs), 3))
-    weights = np.outer(np.full(n_phi, 2.0 * math.pi / n_phi), h_weights)
-    return theta_i, _weighted_lobes(params, direction(theta_o, PHI_O), wi, hs, weights)
+    n = n or _clamp(3.0 * math.pi / math.sqrt(params.lobe_variances.min()), N_LONGITUDINAL)
+    nodes, gauss_weights = np.polynomial.legendre.leggauss(N_GAMMA_GAUSS)
+    hs, h_weights = _offsets(h, 0.5 * math.pi * nodes, gauss_weights)
+    n_phi = _clamp(PHI_PER_SCALE / params.logistic_scale, N_PHI)
+    phi = _midpoints(n_phi, PHI_O - math.pi, PHI_O + math.pi)
+    # Columns are (azimuth j, offset k) pairs, k fastest.
+    weights = np.outer(np.full(n_phi, 2.0 * math.pi / n_phi), h_weights).ravel()
+    theta_i = _midpoints(n, -0.5 * math.pi, 0.5 * math.pi)
+    wo = direction(theta_o, PHI_O)
+    lobes = _weighted_lobes(params, wo, theta_i[:, None], np.repeat(phi, len(hs)), np.tile(hs, n_phi), weights)
+    return theta_i, lobes
+
+
+def _output_path(path) -> Path:
+    path = Path(path)
+    if path.suffix.lower() != ".png":
+        raise ValueError(f"the output must be a .png file, got '{path}'")
+    if not path.parent.is_dir():
+        raise ValueError(f"cannot write '{path}': directory '{path.parent}' does not exist")
+    return path
+
+
+def _triple(values) -> str:
+    return "(" + ", ".join(f"{v:.3g}" for v in values) + ")"
+
+
+def _title(params: HairParams, h: float | None) -> str:
+    sigma_a = f"σ_a = {_triple(params.sigma_a)} per fiber radius"
+    colour = {
+        "albedo": f"albedo {_triple(params.albedo)}  →  {sigma_a}",
+        "sigma_a": sigma_a,
+        "melanin": f"eumelanin {params.eumelanin:g}, pheomelanin {params.pheomelanin:g}  →  {sigma_a}",
+    }[params.colour_input]
+    look = "far field: S averaged over h ∈ [−1, 1]" if h is None else f"fiber offset h = {h:g}"
+    controls = (
+        f"β_m = {params.beta_m:g}, β_n = {params.beta_n:g}, α = {params.alpha:g}°, η = {params.eta:g}, "
+        f"R roughness scale {params.r_roughness_scale:g}"
+    )
+    return f"Hair BSDF lobes (luminance)   {colour}\n{controls}   |   {look}"
+
+
+def _draw_lobes(ax, x, lobes: np.ndarray) -> None:
+    for p, (name, colour) in enumerate(zip(LOBE_NAMES, LOBE_COLOURS)):
+        ax.plot(x, lobes[:, p], color=colour, lw=1.3, label=name)
+    ax.plot(x, lobes.sum(axis=1), color="black", lw=1.8, label="total")
+
+
+def _draw_azimuthal(ax, dphi: np.ndarray, lobes: np.ndarray, theta_o: float) -> None:
+    _draw_lobes(ax, dphi, lobes)
+    ax.set_theta_zero_location("N")
+    ticks = np.arange(-180, 180, 45)
+    labels = [f"{t}°" for t in ticks]
+    labels[0], labels[4] = "±180°\nforward", "0°\nback"
+    ax.set_thetagrids(ticks % 360, labels, fontsize=8)
+    ax.set_ylim(0.0, None)
+    ax.set_rlabel_position(112.5)
+    ax.tick_params(axis="y", labelsize=7)
+    ax.set_title(f"azimuthal, θ_o = {theta_o:g}°, θ_i = {-theta_o:g}°\nS (1/sr) against Δφ = φ_i − φ_o", fontsize=10)
+
+
+def _draw_longitudinal(ax, theta_i: np.ndarray, lobes: np.ndarray, theta_o: float) -> None:
+    _draw_lobes(ax, np.degrees(theta_i), lobes)
+    ax.axvline(-theta_o, color="0.35", ls=":", lw=1.2, label="mirror θ_i = −θ_o")
+    ax.set_xlim(-90.0, 90.0)
+    ax.set_xticks(np.arange(-90, 91, 30))
+    ax.set_ylim(0.0, None)
+    ax.grid(alpha=0.3)
+    ax.set_xlabel("θ_i (degrees)")
+    ax.set_ylabel("∫ S dφ_i (1/rad)")
+    ax.set_title(f"longitudinal, θ_o = {theta_o:g}°", fontsize=10)
+
+
+def plot_lobes(params: HairParams, path, theta_o_deg=(0.0, 30.0, 60.0), h: float | None = None) -> Path:
+    """Write a PNG of the azimuthal (top row) and longitudinal (bottom row) profiles, one column per θ_o."""
+    path = _output_path(path)
+    angles = [float(t) for t in np.atleast_1d(theta_o_deg)]
+    if not angles:
+        raise ValueError("theta_o_deg needs at least one angle")
+    for theta_o in angles:
+        _check_theta_o(theta_o)
+    if h is not None:
+        _check_h(h)
+
+    fig = Figure(figsize=(12, 7), dpi=120, layout="constrained")
+    columns = len(angles)
+    for k, theta_o in enumerate(angles):
+        _draw_azimuthal(fig.add_subplot(2, columns, k + 1, projection="polar"), *azimuthal_profile(params, theta_o, h), theta_o)
+        ax = fig.add_subplot(2, columns, columns + k + 1)
+        _draw_longitudinal(ax, *longitudinal_profile(params, theta_o, h), theta_o)
+    fig.suptitle(_title(params, h), fontsize=11)
+    fig.legend(*ax.get_legend_handles_labels(), loc="outside lower center", ncol=6, frameon=False)
+    fig.savefig(path, format="png")
+    return path

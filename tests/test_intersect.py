@@ -1,0 +1,541 @@
+"""Tests of warp_hair.intersect: exact entering hits on mitred, open-ended fiber tubes.
+
+The reference is a float64 NumPy brute force of the same definition, written independently of the module:
+for every tube the ray–cylinder quadratic, its entering root, and the two clip planes (mitre planes at
+interior joints, perpendicular planes at strand ends).
+"""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from warp_hair.fibers import FiberAssembly, load_fibers, wavy
+from warp_hair.intersect import FiberBVH, intersect, occluded
+
+BENCH_FIBERS = Path(__file__).parents[1] / "benchmarks" / "standard_swatch_fibers.txt"
+T_MIN_RADII = 1e-3
+
+
+def unit(v):
+    v = np.asarray(v, dtype=np.float64)
+    return v / np.linalg.norm(v, axis=-1, keepdims=True)
+
+
+def random_directions(rng, n):
+    return unit(rng.normal(size=(n, 3)))
+
+
+def perpendicular_basis(a):
+    """Two unit vectors completing the unit vector a to a right-handed frame."""
+    u = unit(np.cross(a, [0.3, 0.5, 0.8]))
+    return u, np.cross(a, u)
+
+
+# --- the float64 reference ---------------------------------------------------------------------------------------
+
+
+def reference_tubes(assembly):
+    """Per-segment p0, p1, unit axis a, radius and clip normals m0, m1 (pointing into the tube), in float64."""
+    rows = {key: [] for key in ("p0", "p1", "a", "r", "m0", "m1")}
+    for k in range(assembly.num_strands):
+        points, radii = assembly.strand(k)
+        points = points.astype(np.float64)
+        axes = unit(np.diff(points, axis=0))
+        last = len(axes) - 1
+        for i, a in enumerate(axes):
+            rows["p0"].append(points[i])
+            rows["p1"].append(points[i + 1])
+            rows["a"].append(a)
+            rows["r"].append((float(radii[i]) + float(radii[i + 1])) / 2)
+            rows["m0"].append(a if i == 0 else unit(axes[i - 1] + a))
+            rows["m1"].append(-a if i == last else -unit(a + axes[i + 1]))
+    return {key: np.array(value) for key, value in rows.items()}
+
+
+def reference_crossings(tubes, origins, directions):
+    """(N, M) arrays for each ray and tube: the entering and exiting roots of the cylinder (nan when the ray
+    line misses it), the interval [lo, hi] of t inside the clipped solid tube (empty when lo > hi), whether
+    the entering root lies between the clip planes, its distance to the nearer plane over r, and h there."""
+    o = origins[:, None, :]
+    d = directions[:, None, :]
+    a = tubes["a"][None]
+    r = tubes["r"][None]
+    w = o - tubes["p0"][None]
+    w_perp = w - np.sum(w * a, axis=-1, keepdims=True) * a
+    d_perp = d - np.sum(d * a, axis=-1, keepdims=True) * a
+    qa = np.sum(d_perp * d_perp, axis=-1)
+    qb = np.sum(w_perp * d_perp, axis=-1)
+    qc = np.sum(w_perp * w_perp, axis=-1) - r**2
+    disc = qb**2 - qa * qc
+    with np.errstate(invalid="ignore", divide="ignore"):
+        root = np.sqrt(np.where(disc > 0, disc, np.nan))
+        t_in = (-qb - root) / qa
+        t_out = (-qb + root) / qa
+    lo, hi = t_in.copy(), t_out.copy()
+    margins = []
+    for end, normal in (("p0", "m0"), ("p1", "m1")):
+        m = tubes[normal][None]
+        s0 = np.sum((o - tubes[end][None]) * m, axis=-1)
+        rate = np.sum(d * m, axis=-1)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            bound = -s0 / rate
+        lo = np.where(rate > 0, np.maximum(lo, bound), lo)
+        hi = np.where(rate < 0, np.minimum(hi, bound), hi)
+        hi = np.where((rate == 0) & (s0 < 0), -np.inf, hi)
+        margins.append((s0 + t_in * rate) / r)
+    margin = np.fmin(*margins)
+    entering = (margin >= 0) & (t_in > T_MIN_RADII * r)
+
+    position = o + t_in[..., None] * d
+    normal = (w_perp + t_in[..., None] * d_perp) / r[..., None]
+    y = np.cross(normal, np.broadcast_to(a, normal.shape))
+    wo_y, wo_z = np.sum(-d * y, axis=-1), np.sum(-d * normal, axis=-1)
+    with np.errstate(invalid="ignore"):
+        h = -wo_y / np.hypot(wo_y, wo_z)
+    return {
+        "t_in": t_in,
+        "lo": lo,
+        "hi": hi,
+        "entering": entering,
+        "margin": margin,
+        "h": h,
+        "position": position,
+        "normal": normal,
+    }
+
+
+def reference_closest(tubes, origins, directions, t_max=np.inf):
+    """Closest entering hit per ray: t (inf on a miss), segment (−1), and whether the answer is robust,
+    i.e. no tube of the ray is within rounding of a silhouette, a clip plane or t_max. The clip-plane margin
+    (5e-3·r) is wider than the 1e-3·r by which the module lets mitred tubes overlap, where either may win."""
+    c = reference_crossings(tubes, origins, directions)
+    t_hits = np.where(c["entering"] & (c["t_in"] < t_max), c["t_in"], np.inf)
+    segment = np.where(np.isfinite(t_hits.min(axis=1)), t_hits.argmin(axis=1), -1)
+    with np.errstate(invalid="ignore"):
+        near_edge = (
+            (np.abs(np.abs(c["h"]) - 1) < 1e-4)
+            | (np.abs(c["margin"]) < 5e-3)
+            | (np.abs(c["t_in"] - t_max) < 1e-4)
+        )
+    return t_hits.min(axis=1), segment, ~near_edge.any(axis=1)
+
+
+def union_entries(tubes, origins, directions, gap=1e-9):
+    """Where each ray enters the union of the clipped solid tubes through a tube's side, in float64: the
+    starts (t > 0) of the merged inside-intervals that are entering roots of a cylinder (not an open end)."""
+    c = reference_crossings(tubes, origins, directions)
+    result = []
+    for lo, hi, t_in in zip(c["lo"], c["hi"], c["t_in"]):
+        inside = np.flatnonzero(lo < hi)
+        entries = []
+        end = -np.inf
+        for k in inside[np.argsort(lo[inside])]:
+            if lo[k] > end + gap:
+                entries.append((lo[k], lo[k] == t_in[k]))
+            end = max(end, hi[k])
+        result.append([t for t, lateral in entries if lateral and t > 0])
+    return result
+
+
+# --- scenes ------------------------------------------------------------------------------------------------------
+
+
+def straight_fiber(p0=(0.1, -0.3, 0.2), axis=(0.36, 0.48, 0.8), length=1.2, radius=0.05):
+    axis = unit(axis)
+    p0 = np.asarray(p0, dtype=np.float64)
+    return FiberAssembly.from_strands([(np.stack([p0, p0 + length * axis]), radius)]), axis
+
+
+def bent_fiber(radius=0.04):
+    """One strand bent by 25°, 45°, 70° and 30° at its joints, partly out of plane."""
+    turns = np.radians([0.0, 25.0, 70.0, 140.0, 170.0])
+    lift = np.array([0.0, 0.1, -0.2, 0.15, 0.0])
+    steps = unit(np.column_stack([np.cos(turns), np.sin(turns), lift])) * 0.4
+    points = np.concatenate([[[0.0, 0.0, 0.0]], np.cumsum(steps, axis=0)])
+    return FiberAssembly.from_strands([(points, radius)])
+
+
+def tangle():
+    """Wavy strands crossing each other, plus a tapered one (stepped radii) through the middle."""
+    strands = wavy(count=6, layers=2, length=0.8, radius=0.02, amplitude=0.05, wavelength=0.4, phase_jitter=1.0, seed=3)
+    points = np.column_stack([np.linspace(-0.4, 0.4, 6), np.zeros(6), 0.3 * np.sin(np.linspace(0, 3, 6)) - 0.1])
+    tapered = FiberAssembly.from_strands([(points, np.linspace(0.03, 0.01, 6))])
+    return FiberAssembly.concatenate([strands, tapered])
+
+
+def rays_toward(rng, targets, distance=2.0):
+    """Rays from `distance` away toward each target, rounded to float32 as the kernels receive them."""
+    directions = random_directions(rng, len(targets)).astype(np.float32).astype(np.float64)
+    directions = unit(directions)
+    return (targets - distance * directions).astype(np.float32).astype(np.float64), directions
+
+
+# --- a straight segment ------------------------------------------------------------------------------------------
+
+
+def test_perpendicular_rays_hit_the_surface_with_the_signed_offset_as_h():
+    fibers, axis = straight_fiber()
+    r = 0.05
+    bvh = FiberBVH(fibers)
+    u, v = perpendicular_basis(axis)
+    offsets = np.linspace(-0.99, 0.99, 41) * r
+    foot = np.asarray([0.1, -0.3, 0.2]) + 0.5 * axis  # on the axis, mid-segment
+    origins = foot + 1.5 * v + offsets[:, None] * u
+    directions = np.broadcast_to(-v, origins.shape)
+    hit = intersect(bvh, origins, directions)
+
+    np.testing.assert_allclose(hit["t"], 1.5 - np.sqrt(r**2 - offsets**2), atol=1e-6)
+    radial = hit["position"] - foot
+    radial -= np.sum(radial * axis, axis=1, keepdims=True) * axis
+    np.testing.assert_allclose(np.linalg.norm(radial, axis=1), r, atol=1e-5 * r)
+    np.testing.assert_allclose(hit["tangent"], np.broadcast_to(axis, origins.shape), atol=1e-6)
+    np.testing.assert_allclose(np.linalg.norm(hit["normal"], axis=1), 1, atol=1e-6)
+    np.testing.assert_allclose(np.sum(hit["normal"] * axis, axis=1), 0, atol=1e-6)
+    np.testing.assert_allclose(hit["normal"], radial / r, atol=1e-5)
+    # The signed offset is measured along a × d.
+    side = np.cross(axis, -v)
+    np.testing.assert_allclose(hit["h"], offsets * np.dot(u, side) / r, atol=1e-5)
+    # ... which is the h of MODEL.md in the frame the hit returns.
+    wo = -np.asarray(directions)
+    y = np.cross(hit["normal"], hit["tangent"])
+    wo_y, wo_z = np.sum(wo * y, axis=1), np.sum(wo * hit["normal"], axis=1)
+    np.testing.assert_allclose(hit["h"], -wo_y / np.hypot(wo_y, wo_z), atol=1e-6)
+    assert np.all(wo_z > 0)
+    assert np.all(hit["segment"] == 0) and np.all(hit["strand"] == 0)
+
+
+@pytest.mark.parametrize("scene", ["straight", "bent", "tangle"])
+def test_random_rays_agree_with_the_float64_brute_force(scene):
+    fibers = {"straight": lambda: straight_fiber()[0], "bent": bent_fiber, "tangle": tangle}[scene]()
+    tubes = reference_tubes(fibers)
+    bvh = FiberBVH(fibers)
+    rng = np.random.default_rng(11)
+    n = 3000
+    lo, hi = bvh.bounds
+    origins, directions = rays_toward(rng, rng.uniform(lo, hi, (n, 3)))
+    hit = intersect(bvh, origins, directions)
+    t_ref, segment_ref, robust = reference_closest(tubes, origins, directions)
+
+    assert robust.mean() > 0.95
+    assert 0.1 < np.isfinite(t_ref).mean() < 0.9
+    np.testing.assert_array_equal(np.isfinite(hit["t"])[robust], np.isfinite(t_ref)[robust])
+    both = robust & np.isfinite(t_ref)
+    np.testing.assert_array_equal(hit["segment"][both], segment_ref[both])
+    c = reference_crossings(tubes, origins[both], directions[both])
+    rows = np.arange(both.sum())
+    seg = segment_ref[both]
+    h_ref = c["h"][rows, seg]
+    # float32 places a ray 2 units away to within about eps ≈ 1e-6; the offset from the axis inherits that
+    # error, and t, the position and the normal amplify it near the silhouette (1/sqrt(1 − h²)) and, for t and
+    # the position, on rays oblique to the fiber (1/sin of the angle to the axis).
+    eps = 1e-6
+    r = tubes["r"][seg]
+    silhouette = 1 / np.sqrt(1 - h_ref**2)
+    oblique = 1 / np.linalg.norm(np.cross(tubes["a"][seg], directions[both]), axis=1)
+    np.testing.assert_array_less(np.abs(hit["h"][both] - h_ref), eps / r)
+    np.testing.assert_array_less(np.abs(hit["t"][both] - t_ref[both]), eps * (1 + silhouette) * oblique)
+    position_error = np.linalg.norm(hit["position"][both] - c["position"][rows, seg], axis=1)
+    np.testing.assert_array_less(position_error, eps * (1 + silhouette) * oblique)
+    normal_error = np.linalg.norm(hit["normal"][both] - c["normal"][rows, seg], axis=1)
+    np.testing.assert_array_less(normal_error, eps * silhouette / r)
+    strand_of_segment = fibers.segments()[4]
+    np.testing.assert_array_equal(hit["strand"][both], strand_of_segment[segment_ref[both]])
+
+
+# --- grazing rays ------------------------------------------------------------------------------------------------
+
+
+def test_grazing_offsets():
+    fibers, axis = straight_fiber()
+    r = 0.05
+    bvh = FiberBVH(fibers)
+    u, v = perpendicular_basis(axis)
+    foot = np.asarray([0.1, -0.3, 0.2]) + 0.5 * axis
+    inside = np.array([1 - 1e-3, 1 - 1e-4, -(1 - 1e-4)]) * r
+    outside = np.array([1 + 1e-4, -(1 + 1e-4), 1 + 1e-3]) * r
+    offsets = np.concatenate([inside, outside])
+    origins = foot + 1.5 * v + offsets[:, None] * u
+    hit = intersect(bvh, origins, np.broadcast_to(-v, origins.shape))
+    assert np.all(np.isfinite(hit["t"][:3])) and np.all(np.isinf(hit["t"][3:]))
+    assert np.all(np.abs(hit["h"][:3]) > 0.99) and np.all(np.abs(hit["h"][:3]) <= 1)
+    assert np.all(np.isfinite(hit["normal"][:3]))
+
+
+def test_rays_almost_parallel_to_the_axis():
+    fibers, axis = straight_fiber()
+    tubes = reference_tubes(fibers)
+    bvh = FiberBVH(fibers)
+    u, v = perpendicular_basis(axis)
+    rng = np.random.default_rng(5)
+    n = 400
+    tilt = rng.uniform(1e-3, 3e-2, n)
+    spin = rng.uniform(0, 2 * np.pi, n)
+    side = np.cos(spin)[:, None] * u + np.sin(spin)[:, None] * v
+    directions = unit(unit(axis + tilt[:, None] * side).astype(np.float32))
+    # Start outside the tube, beside its root, heading up along it and slowly inward.
+    origins = (np.asarray([0.1, -0.3, 0.2]) + 0.3 * axis - 0.06 * side - 1.0 * directions).astype(np.float32)
+    hit = intersect(bvh, origins, directions)
+    t_ref, _, robust = reference_closest(tubes, origins, directions)
+    assert robust.mean() > 0.95 and np.isfinite(t_ref).mean() > 0.2
+    np.testing.assert_array_equal(np.isfinite(hit["t"])[robust], np.isfinite(t_ref)[robust])
+    both = robust & np.isfinite(t_ref)
+    # The axis is stored in float32: its rounding shifts sin(tilt), and with it t, by ~1e-7/sin²(tilt).
+    sin_tilt = np.linalg.norm(np.cross(axis, directions[both]), axis=1)
+    np.testing.assert_array_less(np.abs(hit["t"][both] - t_ref[both]), 1e-6 / sin_tilt**2)
+
+    # Exactly parallel and outside: never enters the side.
+    parallel = intersect(bvh, np.asarray([0.1, -0.3, 0.2]) + 0.06 * u - axis, axis[None])
+    assert np.isinf(parallel["t"][0])
+
+
+# --- rays starting on a fiber ------------------------------------------------------------------------------------
+
+
+def test_rays_from_the_surface_never_see_their_own_tube():
+    fibers, axis = straight_fiber()
+    bvh = FiberBVH(fibers)
+    rng = np.random.default_rng(2)
+    n = 2000
+    origins, directions = rays_toward(rng, np.asarray([0.1, -0.3, 0.2]) + rng.uniform(0.1, 1.1, (n, 1)) * axis)
+    first = intersect(bvh, origins, directions)
+    on = np.isfinite(first["t"])
+    assert on.mean() > 0.5
+    start, normal = first["position"][on], first["normal"][on]
+    new = random_directions(rng, len(start))
+    again = intersect(bvh, start, new)
+    assert np.all(np.isinf(again["t"])), "both outward and inward rays must leave their own tube"
+    # Rays through the fiber (the TT direction) included.
+    through = intersect(bvh, start, directions[on])
+    assert np.all(np.isinf(through["t"]))
+    assert np.any(np.sum(new * normal, axis=1) < -0.9) and np.any(np.sum(new * normal, axis=1) > 0.9)
+
+
+def test_grazing_rays_from_just_outside_the_surface_do_not_re_enter():
+    # float32 puts a hit up to ~1e-7·|position| off the surface, outside as often as inside. A ray leaving
+    # from there nearly tangentially and slightly inward would re-enter the tube at t ≈ gap / cos, well past
+    # any fixed t_min of 1e-3·r; the tube must still be invisible to it.
+    r = 0.004
+    fibers, axis = straight_fiber(p0=(0.3, -0.5, 0.2), radius=r)
+    bvh = FiberBVH(fibers)
+    u, v = perpendicular_basis(axis)
+    rng = np.random.default_rng(9)
+    n = 500
+    angle = rng.uniform(0, 2 * np.pi, n)
+    normal = np.cos(angle)[:, None] * u + np.sin(angle)[:, None] * v
+    across = np.cross(axis, normal)
+    starts = np.asarray([0.3, -0.5, 0.2]) + rng.uniform(0.2, 1.0, (n, 1)) * axis + r * (1 + 2e-4) * normal
+    directions = unit(across + rng.uniform(-0.5, 0.5, (n, 1)) * axis - rng.uniform(0.005, 0.05, (n, 1)) * normal)
+    assert np.all(np.isinf(intersect(bvh, starts, directions)["t"]))
+
+
+def test_rays_through_a_fiber_hit_the_one_behind():
+    front, _ = straight_fiber(p0=(-0.5, 0.0, 0.0), axis=(1, 0, 0), length=1.0, radius=0.05)
+    back, _ = straight_fiber(p0=(-0.5, 0.0, -0.3), axis=(1, 0, 0), length=1.0, radius=0.05)
+    bvh = FiberBVH(FiberAssembly.concatenate([front, back]))
+    y = np.linspace(-0.045, 0.045, 31)
+    origins = np.column_stack([np.zeros_like(y), y, np.full_like(y, 2.0)])
+    down = np.broadcast_to([0.0, 0.0, -1.0], origins.shape)
+    first = intersect(bvh, origins, down)
+    assert np.all(first["strand"] == 0)
+    second = intersect(bvh, first["position"], down)
+    assert np.all(second["strand"] == 1)
+    np.testing.assert_allclose(second["position"][:, 2], np.sqrt(0.05**2 - y**2) - 0.3, atol=1e-6)
+    # From inside the front fiber, the back one is the next hit too.
+    inside = intersect(bvh, first["position"] + [0.0, 0.0, -0.01], down)
+    assert np.all(inside["strand"] == 1)
+
+
+# --- joints ------------------------------------------------------------------------------------------------------
+
+
+def successive_entries(bvh, origins, directions, limit=16):
+    """t of every entering hit along each ray, found by restarting each ray at its previous hit."""
+    entries = [[] for _ in origins]
+    positions = np.array(origins, dtype=np.float64)
+    travelled = np.zeros(len(origins))
+    active = np.arange(len(origins))
+    for _ in range(limit):
+        hit = intersect(bvh, positions[active], directions[active])
+        active = active[np.isfinite(hit["t"])]
+        if not len(active):
+            return entries
+        step = np.isfinite(hit["t"])
+        travelled[active] += hit["t"][step]
+        positions[active] = hit["position"][step]
+        for k in active:
+            entries[k].append(travelled[k])
+    raise AssertionError("too many entries")
+
+
+def test_joints_are_closed_and_counted_once():
+    fibers = bent_fiber()
+    tubes = reference_tubes(fibers)
+    bvh = FiberBVH(fibers)
+    rng = np.random.default_rng(17)
+    joints = fibers.points[1:-1].astype(np.float64)
+    per_joint = 150
+    targets = np.repeat(joints, per_joint, axis=0) + rng.normal(scale=0.03, size=(len(joints) * per_joint, 3))
+    origins, directions = rays_toward(rng, targets)
+    hits = intersect(bvh, origins, directions)
+    t_ref, _, robust = reference_closest(tubes, origins, directions)
+
+    origins, directions, hits, t_ref = origins[robust], directions[robust], hits["t"][robust], t_ref[robust]
+    expected = union_entries(tubes, origins, directions)
+    found = successive_entries(bvh, origins, directions)
+    entered = 0
+    for k, entries in enumerate(expected):
+        if not entries:
+            assert np.isinf(hits[k])
+            continue
+        entered += 1
+        # Never a gap: a ray that enters the union of the mitred tubes hits it where it enters (the accuracy
+        # of t is tested against the brute force above; here, that there is a hit and which one).
+        assert t_ref[k] == pytest.approx(entries[0], abs=1e-9)
+        assert hits[k] == pytest.approx(entries[0], abs=1e-4)
+        # No double counting: each entry into the union is one hit, found again from the previous hit.
+        np.testing.assert_allclose(found[k], entries, atol=1e-4)
+    assert entered > per_joint
+
+
+def test_a_ray_across_a_joint_perpendicular_to_the_bend_enters_once():
+    points = np.array([[0.0, 0.0, 0.0], [0.4, 0.0, 0.0], [0.4 + 0.4 * np.cos(0.8), 0.4 * np.sin(0.8), 0.0]])
+    fibers = FiberAssembly.from_strands([(points, 0.04)])
+    bvh = FiberBVH(fibers)
+    rng = np.random.default_rng(4)
+    # Across the whole joint region, the outer corner of the mitre included.
+    xy = points[1, :2] + rng.uniform(-0.06, 0.06, (2000, 2))
+    origins = np.column_stack([xy, np.full(len(xy), 1.0)])
+    down = np.broadcast_to([0.0, 0.0, -1.0], origins.shape)
+    expected = union_entries(reference_tubes(fibers), origins, down)
+    found = successive_entries(bvh, origins, down)
+    assert 0.3 < np.mean([len(e) for e in expected]) < 0.9
+    for entries, hits in zip(expected, found):
+        assert len(entries) <= 1
+        np.testing.assert_allclose(hits, entries, atol=1e-4)
+
+
+# --- open ends ---------------------------------------------------------------------------------------------------
+
+
+def test_open_ends():
+    fibers, axis = straight_fiber(p0=(0.0, 0.0, 0.0), axis=(1, 0, 0), length=1.0, radius=0.05)
+    bvh = FiberBVH(fibers)
+    r = 0.05
+    # Along the axis into the open end, on the axis and off it: the ray is inside the tube, no hit.
+    origins = np.array([[-1.0, 0.0, 0.0], [-1.0, 0.02, -0.03], [2.0, 0.0, 0.01]])
+    directions = np.array([[1.0, 0.0, 0.0], [1.0, 0.0, 0.0], [-1.0, 0.0, 0.0]])
+    assert np.all(np.isinf(intersect(bvh, origins, directions)["t"]))
+    # Into the open end at an angle, out through the side: an exit, not a hit.
+    slanted = intersect(bvh, [[-1.0, 0.0, -0.1]], unit([[1.0, 0.0, 0.1]]))
+    assert np.isinf(slanted["t"][0])
+    # Across the tube just inside and just beyond each end plane.
+    x = np.array([1e-3 * r, -1e-3 * r, 1 - 1e-3 * r, 1 + 1e-3 * r])
+    origins = np.column_stack([x, np.zeros(4), np.full(4, 1.0)])
+    hit = intersect(bvh, origins, np.broadcast_to([0.0, 0.0, -1.0], origins.shape))
+    assert np.isfinite(hit["t"]).tolist() == [True, False, True, False]
+
+
+def test_a_tilted_end_is_cut_perpendicular_to_its_segment():
+    points = np.array([[0.0, 0.0, 0.0], [0.5, 0.0, 0.0], [0.5 + 0.5 * np.cos(0.5), 0.5 * np.sin(0.5), 0.0]])
+    bvh = FiberBVH(FiberAssembly.from_strands([(points, 0.04)]))
+    a = unit(points[2] - points[1])
+    side = np.array([-a[1], a[0], 0.0])
+    # Beside the tip, on both sides of the axis, just inside and just beyond the plane through it ⊥ a.
+    offsets = np.array([0.03, -0.03, 0.03, -0.03])
+    along = np.array([-1e-4, -1e-4, 1e-4, 1e-4])
+    feet = points[2] + along[:, None] * a + offsets[:, None] * side
+    hit = intersect(bvh, feet + [0.0, 0.0, 1.0], np.broadcast_to([0.0, 0.0, -1.0], feet.shape))
+    assert np.isfinite(hit["t"]).tolist() == [True, True, False, False]
+
+
+# --- t_max, occlusion, misses ------------------------------------------------------------------------------------
+
+
+def test_t_max_and_occlusion_agree_with_the_closest_hit():
+    fibers = tangle()
+    bvh = FiberBVH(fibers)
+    rng = np.random.default_rng(23)
+    n = 3000
+    lo, hi = bvh.bounds
+    origins, directions = rays_toward(rng, rng.uniform(lo, hi, (n, 3)))
+    closest = intersect(bvh, origins, directions)["t"]
+    hit = np.isfinite(closest)
+    assert 0.1 < hit.mean() < 0.9
+
+    t_max = rng.uniform(1.0, 3.5, n)
+    limited = intersect(bvh, origins, directions, t_max=t_max)["t"]
+    away = np.abs(closest - t_max) > 1e-5
+    np.testing.assert_array_equal(np.isfinite(limited)[away], (closest < t_max)[away])
+    np.testing.assert_array_equal(limited[away & (closest < t_max)], closest[away & (closest < t_max)])
+
+    np.testing.assert_array_equal(occluded(bvh, origins, directions), hit)
+    np.testing.assert_array_equal(occluded(bvh, origins, directions, t_max=t_max)[away], (closest < t_max)[away])
+
+    # Just short of and just past the closest hit.
+    t = closest[hit]
+    assert np.all(intersect(bvh, origins[hit], directions[hit], t_max=t * (1 - 1e-5))["segment"] == -1)
+    np.testing.assert_array_equal(intersect(bvh, origins[hit], directions[hit], t_max=t * (1 + 1e-5))["t"], t)
+
+
+def test_misses():
+    fibers, _ = straight_fiber()
+    hit = intersect(FiberBVH(fibers), [[5.0, 5.0, 5.0], [0.0, 0.0, 0.0]], [[1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
+    assert np.all(np.isinf(hit["t"]))
+    assert hit["segment"].tolist() == [-1, -1] and hit["strand"].tolist() == [-1, -1]
+    empty = FiberBVH(FiberAssembly.from_strands([]))
+    assert np.isinf(intersect(empty, [[0.0, 0.0, 1.0]], [[0.0, 0.0, -1.0]])["t"][0])
+    assert not occluded(empty, [[0.0, 0.0, 1.0]], [[0.0, 0.0, -1.0]])[0]
+
+
+# --- odd geometry ------------------------------------------------------------------------------------------------
+
+
+def test_tapered_strands_are_stepped_tubes_of_the_mean_radius():
+    points = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [2.0, 0.0, 0.0]])
+    bvh = FiberBVH(FiberAssembly.from_strands([(points, [0.06, 0.04, 0.02])]))
+    origins = np.array([[0.5, 0.0, 1.0], [1.5, 0.0, 1.0]])
+    hit = intersect(bvh, origins, [[0.0, 0.0, -1.0]] * 2)
+    np.testing.assert_allclose(hit["position"][:, 2], [0.05, 0.03], atol=1e-6)
+
+
+def test_zero_length_segments_and_hairpins_do_not_break_the_strand():
+    # A repeated vertex, then a joint folded back by ~179°: both are cut like strand ends.
+    points = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 0.0, 0.0], [2.0, 0.0, 0.0], [1.0, 0.02, 0.0]])
+    bvh = FiberBVH(FiberAssembly.from_strands([(points, 0.01)]))
+    x = np.linspace(0.05, 1.95, 38)
+    origins = np.column_stack([x, np.full_like(x, -0.003), np.ones_like(x)])
+    hit = intersect(bvh, origins, np.broadcast_to([0.0, 0.0, -1.0], origins.shape))
+    assert np.all(np.isfinite(hit["t"]))
+    assert 1 not in hit["segment"]
+    assert np.all(np.isfinite(bvh.bounds[0])) and np.all(np.isfinite(bvh.bounds[1]))
+
+
+# --- the benchmark swatch ----------------------------------------------------------------------------------------
+
+
+def test_benchmark_swatch_orthographic_grid():
+    fibers = load_fibers(BENCH_FIBERS)
+    bvh = FiberBVH(fibers)
+    x, y = np.meshgrid(np.linspace(-0.5, 0.5, 96), np.linspace(-0.5, 0.5, 96))
+    origins = np.column_stack([x.ravel(), y.ravel(), np.full(x.size, 3.0)])
+    down = np.broadcast_to([0.0, 0.0, -1.0], origins.shape)
+    hit = intersect(bvh, origins, down)
+    hits = np.isfinite(hit["t"])
+    # Four staggered layers leave only slivers between fibers uncovered.
+    assert 0.95 < hits.mean() < 1.0
+    assert np.all(np.abs(hit["h"][hits]) <= 1)
+    p0, p1, r0, r1, strand, _ = fibers.segments()
+    seg = hit["segment"][hits]
+    a = unit(p1[seg].astype(np.float64) - p0[seg])
+    rel = hit["position"][hits] - p0[seg]
+    along = np.sum(rel * a, axis=1)
+    radial = np.linalg.norm(rel - along[:, None] * a, axis=1)
+    r = (r0[seg] + r1[seg]) / 2.0
+    np.testing.assert_allclose(radial, r, rtol=1e-4)
+    length = np.linalg.norm(p1[seg] - p0[seg], axis=1)
+    assert np.all((along > -0.01) & (along < length + 0.01))
+    np.testing.assert_array_equal(hit["strand"][hits], strand[seg])
+    # The front layer (z ≈ 0) is what a camera on +z sees first.
+    assert np.median(hit["position"][hits, 2]) > -0.01
+    np.testing.assert_allclose(hit["position"][hits], origins[hits] + hit["t"][hits, None] * down[hits], atol=1e-5)

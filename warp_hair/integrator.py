@@ -1,0 +1,207 @@
+"""Unidirectional path tracing of fiber assemblies with next-event estimation and multiple importance sampling.
+
+At every fiber vertex the near-field BSDF is evaluated at the true offset h of the hit (the talk's point:
+the integral over h is left to the path tracer). Lights: directional lights (next-event estimation only:
+they are deltas), one environment (constant or an importance-sampled lat-long map; light sampling and BSDF
+sampling combined with the power heuristic) and an optional diffuse backing card. Russian roulette after
+`rr_depth` bounces keeps long paths in light hair unbiased without paying for all of them.
+"""
+
+import warp as wp
+
+from .camera import CameraData, generate_ray
+from .card import NO_HIT, CardData, card_distance
+from .envmap import EnvironmentData, env_pdf, env_radiance, env_sample
+from .hair_bsdf import HairCoefficients, hair_pdf, hair_sample, hair_value, lobe_setup
+from .intersect import FiberGeometry, fibers_occluded, intersect_fibers
+from .lobes import INV_TWO_PI, TWO_PI
+
+INV_PI = wp.constant(0.31830988618379067)
+
+
+@wp.struct
+class DirectionalLightData:
+    to_light: wp.vec3  # unit, opposite to the direction the light travels
+    irradiance: wp.vec3  # on a surface facing the light
+
+
+@wp.struct
+class SceneData:
+    camera: CameraData
+    fibers: FiberGeometry
+    hair: HairCoefficients
+    lights: wp.array(dtype=DirectionalLightData)
+    num_lights: int
+    env: EnvironmentData
+    has_env: int
+    card: CardData
+    max_depth: int
+    rr_depth: int
+
+
+@wp.func
+def power_heuristic(pdf_a: float, pdf_b: float):
+    a = pdf_a * pdf_a
+    return a / (a + pdf_b * pdf_b)
+
+
+@wp.func
+def occluded(scene: SceneData, origin: wp.vec3, direction: wp.vec3):
+    """Whether a shadow ray toward a light at infinity is blocked (by a fiber or by the card)."""
+    if card_distance(scene.card, origin, direction) < NO_HIT:
+        return True
+    return fibers_occluded(scene.fibers, origin, direction, NO_HIT)
+
+
+@wp.func
+def to_local(w: wp.vec3, x: wp.vec3, y: wp.vec3, z: wp.vec3):
+    return wp.vec3(wp.dot(w, x), wp.dot(w, y), wp.dot(w, z))
+
+
+@wp.func
+def to_world(w: wp.vec3, x: wp.vec3, y: wp.vec3, z: wp.vec3):
+    return w[0] * x + w[1] * y + w[2] * z
+
+
+@wp.func
+def cosine_hemisphere(u: wp.vec2):
+    """A cosine-distributed direction about +z (Malley: project a uniform disk sample up)."""
+    r = wp.sqrt(u[0])
+    phi = TWO_PI * u[1]
+    return wp.vec3(r * wp.cos(phi), r * wp.sin(phi), wp.sqrt(wp.max(0.0, 1.0 - u[0])))
+
+
+@wp.func
+def card_frame_x(n: wp.vec3):
+    """Any unit vector ⊥ n (Duff et al. 2017)."""
+    sign = wp.where(n[2] >= 0.0, 1.0, -1.0)
+    a = -1.0 / (sign + n[2])
+    b = n[0] * n[1] * a
+    return wp.vec3(1.0 + sign * n[0] * n[0] * a, sign * b, -sign * n[0])
+
+
+@wp.func
+def rand2(rng: wp.uint32):
+    a = wp.randf(rng)
+    b = wp.randf(rng)
+    return wp.vec2(a, b), rng
+
+
+@wp.func
+def trace_path(scene: SceneData, origin: wp.vec3, direction: wp.vec3, rng: wp.uint32):
+    radiance = wp.vec3(0.0)
+    throughput = wp.vec3(1.0)
+    o = origin
+    d = direction
+    prev_pdf = float(0.0)  # solid-angle pdf of the BSDF sample that produced d; 0 for the camera ray
+    depth = int(0)
+    while depth < scene.max_depth:
+        hit = intersect_fibers(scene.fibers, o, d, NO_HIT)
+        t_card = card_distance(scene.card, o, d)
+        if hit.t >= NO_HIT and t_card >= NO_HIT:
+            if scene.has_env != 0:
+                mis = float(1.0)
+                if prev_pdf > 0.0:
+                    mis = power_heuristic(prev_pdf, env_pdf(scene.env, d))
+                radiance += mis * wp.cw_mul(throughput, env_radiance(scene.env, d))
+            break
+
+        # The shading frame: at a fiber, x along it and z its normal (MODEL.md); at the card, z its normal
+        # turned toward the incoming ray.
+        on_card = t_card < hit.t
+        x = wp.vec3(0.0)
+        y = wp.vec3(0.0)
+        z = wp.vec3(0.0)
+        position = wp.vec3(0.0)
+        if on_card:
+            position = o + t_card * d
+            z = scene.card.normal
+            if wp.dot(z, d) > 0.0:
+                z = -z
+            x = card_frame_x(z)
+            y = wp.cross(z, x)
+            position = position + 1.0e-5 * z
+        else:
+            position = hit.position
+            x = hit.tangent
+            z = hit.normal
+            y = wp.cross(z, x)
+        wo = to_local(-d, x, y, z)
+        setup = lobe_setup(scene.hair, wo, hit.h)
+
+        # Next-event estimation: directional lights.
+        for k in range(scene.num_lights):
+            light = scene.lights[k]
+            wi = to_local(light.to_light, x, y, z)
+            if on_card:
+                if wi[2] > 0.0 and not occluded(scene, position, light.to_light):
+                    radiance += wi[2] * INV_PI * wp.cw_mul(throughput, wp.cw_mul(scene.card.albedo, light.irradiance))
+            elif not occluded(scene, position, light.to_light):
+                radiance += wp.cw_mul(throughput, wp.cw_mul(hair_value(setup, wi), light.irradiance))
+
+        # Next-event estimation: the environment, weighted against BSDF sampling.
+        if scene.has_env != 0:
+            u_env, rng = rand2(rng)
+            d_env, pdf_env = env_sample(scene.env, u_env)
+            if pdf_env > 0.0:
+                wi = to_local(d_env, x, y, z)
+                value = wp.vec3(0.0)
+                pdf_bsdf = float(0.0)
+                if on_card:
+                    if wi[2] > 0.0:
+                        value = wi[2] * INV_PI * scene.card.albedo
+                        pdf_bsdf = wi[2] * INV_PI
+                else:
+                    value = hair_value(setup, wi)
+                    pdf_bsdf = hair_pdf(setup, wi)
+                if pdf_bsdf > 0.0 and not occluded(scene, position, d_env):
+                    le = env_radiance(scene.env, d_env)
+                    w = power_heuristic(pdf_env, pdf_bsdf) / pdf_env
+                    radiance += w * wp.cw_mul(throughput, wp.cw_mul(value, le))
+
+        # Continue the path by sampling the BSDF.
+        wi = wp.vec3(0.0)
+        weight = wp.vec3(0.0)
+        pdf = float(0.0)
+        if on_card:
+            u2, rng = rand2(rng)
+            wi = cosine_hemisphere(u2)
+            pdf = wi[2] * INV_PI
+            weight = scene.card.albedo
+        else:
+            u3 = wp.vec3(wp.randf(rng), wp.randf(rng), wp.randf(rng))
+            wi = hair_sample(setup, u3)
+            pdf = hair_pdf(setup, wi)
+            if pdf > 0.0:
+                weight = hair_value(setup, wi) / pdf
+        if pdf <= 0.0:
+            break
+        throughput = wp.cw_mul(throughput, weight)
+        prev_pdf = pdf
+        o = position
+        d = wp.normalize(to_world(wi, x, y, z))
+        depth += 1
+
+        if depth >= scene.rr_depth:
+            survive = wp.min(1.0, wp.max(throughput[0], wp.max(throughput[1], throughput[2])))
+            if wp.randf(rng) >= survive:
+                break
+            throughput = throughput / survive
+    return radiance, rng
+
+
+@wp.kernel
+def render_kernel(scene: SceneData, spp: int, seed: int, image: wp.array(dtype=wp.vec3), first: int):
+    pixel = wp.tid() + first
+    width = scene.camera.width_px
+    px = pixel % width
+    py = pixel / width
+    # One RNG stream per pixel: the image does not depend on how pixels are split among threads.
+    rng = wp.rand_init(seed, pixel)
+    total = wp.vec3(0.0)
+    for s in range(spp):
+        jitter, rng = rand2(rng)
+        origin, direction = generate_ray(scene.camera, px, py, jitter)
+        radiance, rng = trace_path(scene, origin, direction, rng)
+        total += radiance
+    image[pixel] = total / float(spp)

@@ -1,0 +1,404 @@
+"""Ray–fiber intersection: exact hits on the round tubes of a `FiberAssembly`, through a Warp BVH.
+
+Geometry
+--------
+Every segment (p0, p1) of a strand is a round tube: the infinite cylinder of radius r = (r0 + r1) / 2 around
+the segment axis, clipped by one plane at each end.
+
+* At an interior joint the clip plane is the mitre plane, which bisects the angle between the two segments
+  (normal a_k + a_{k+1}, a the unit axes). Reflection in that plane maps one cylinder onto the other, so two
+  consecutive tubes of equal radius share the same ellipse in it and meet exactly: no gap, no overlap. A
+  tapered strand becomes stepped (one radius per segment), with a small step at each joint.
+* At the two ends of a strand the plane is perpendicular to the end segment.
+* Joints bent by more than about 154° (a hairpin, where the mitre ellipse would grow without bound) and
+  joints next to a zero-length segment are clipped like strand ends instead; zero-length segments are never
+  hit. Segments shorter than r·tan(bend / 2) have their two clip planes cross inside the tube and become
+  wedges; hair and fur polylines are far from that.
+
+The ends are open and only entering hits count: a hit is the root of the ray–cylinder quadratic where the
+ray enters the cylinder from outside, provided that point lies between the two clip planes. Exit roots are
+ignored. This is what the near-field hair model needs: the fiber is a scattering surface, and a path that
+scatters into the fiber (TT, TRT) continues straight through it, so a ray that starts on or inside a tube
+must not see that tube again. Entering roots at t <= 1e-3·r are skipped, and so is every tube whose cylinder
+holds the ray origin within r·(1 + 1e-3) of its axis (rounding can put a surface point slightly outside,
+and a grazing ray from there would otherwise re-enter the same tube at a t larger than any fixed t_min).
+At mitre joints each tube reaches 1e-3·r past the plane, so that float32 rounding can never open a gap in
+the seam; a ray entering in that sliver hits both tubes at the same point and the closer wins.
+
+The quadratic is solved relative to the segment centre in a cancellation-free form: with w = origin −
+centre, b = a × d and A = |b|², the signed distance between the ray and the axis is (w·b)/√A = h·r, and the
+entering root is t = −(w⊥·d + sqrt(A·r² − (w·b)²)) / A, w⊥ the part of w perpendicular to the axis.
+
+Hit frame (MODEL.md, "Frame and angles")
+---------------------------------------
+x = `tangent` (unit axis, root → tip), z = `normal` (outward cylinder normal, ⊥ x), y = z × x, and
+h = −(wo·y) / sqrt((wo·y)² + (wo·z)²) = −cos φ_o with wo = −direction. For a ray perpendicular to the fiber,
+h is the signed offset of the ray from the axis along a × d, over r.
+
+Warp BVH notes (1.19): `bvh_query_ray` visits boxes in no particular order, so the closest hit prunes by
+passing the shrinking t to `bvh_query_next(query, index, max_dist)` (safe: max_dist may only decrease).
+The ray–box slab test divides by the direction, and 0 · inf gives NaN for a ray exactly in a box face, so
+zero direction components are replaced by a tiny number for the traversal only.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import warp as wp
+
+wp.set_module_options({"enable_backward": False})
+
+NO_HIT = wp.constant(1.0e30)
+# Entering roots closer than this many radii are the surface the ray starts on.
+T_MIN_RADII = wp.constant(1.0e-3)
+# (1 + 1e-3)²: an origin within r·(1 + 1e-3) of a tube's axis is on or inside that tube.
+SURFACE_BAND2 = wp.constant(1.002001)
+# Rays within 1e-6 rad of a tube's axis cannot enter its side (they would do so ~1e6·gap further on).
+MIN_SIN2 = wp.constant(1.0e-12)
+# Stand-in for zero direction components in the BVH slab test.
+TINY = wp.constant(1.0e-30)
+
+# Mitre joints overlap by this many radii past the mitre plane (see the module docstring).
+JOINT_OVERLAP = 1.0e-3
+# Joints bent further than this (cos of the angle between the segments) are clipped like strand ends.
+MIN_JOINT_COS = -0.9
+# Segments shorter than this many radii are treated as zero-length.
+MIN_LENGTH_RADII = 1.0e-6
+
+
+@wp.struct
+class FiberGeometry:
+    """What kernels need to intersect fibers; arrays live on the device of the `FiberBVH` that built it."""
+
+    bvh: wp.uint64  # wp.Bvh over per-segment boxes (the whole clipped tube, mitre overhang included)
+    p0: wp.array(dtype=wp.vec3)
+    p1: wp.array(dtype=wp.vec3)
+    radius: wp.array(dtype=float)
+    mitre0: wp.array(dtype=wp.vec3)  # clip-plane normal at p0, pointing into the segment
+    mitre1: wp.array(dtype=wp.vec3)  # clip-plane normal at p1, pointing into the segment
+    strand: wp.array(dtype=wp.int32)
+    center: wp.array(dtype=wp.vec3)  # (p0 + p1) / 2: the origin the hit test works relative to
+    axis: wp.array(dtype=wp.vec3)  # unit (p1 − p0) / |p1 − p0|; zero for a zero-length segment
+    clip: wp.array(dtype=wp.vec2)  # inside iff (x − center)·mitre0 >= clip[0] and (x − center)·mitre1 >= clip[1]
+    num_segments: int
+
+
+@wp.struct
+class FiberHit:
+    t: float  # distance along the unit ray; NO_HIT (1e30) when nothing was hit
+    segment: int  # index into FiberAssembly.segments(); −1 on a miss
+    strand: int  # −1 on a miss
+    position: wp.vec3  # on the cylinder surface
+    tangent: wp.vec3  # unit segment axis, root → tip: the BSDF's x
+    normal: wp.vec3  # unit outward normal at the hit, ⊥ tangent: the BSDF's z
+    h: float  # −(wo·y) / sqrt((wo·y)² + (wo·z)²) in [−1, 1], wo = −direction, y = normal × tangent
+
+
+@wp.func
+def _entry_distance(g: FiberGeometry, i: int, origin: wp.vec3, direction: wp.vec3, t_hi: float):
+    """t of the ray's entering hit on tube i if it lies in (t_min, t_hi), else NO_HIT."""
+    a = g.axis[i]
+    b = wp.cross(a, direction)
+    aa = wp.dot(b, b)
+    r = g.radius[i]
+    w = origin - g.center[i]
+    hr = wp.abs(wp.dot(w, b))
+    gr = r * wp.sqrt(aa)
+    # The ray line passes the axis farther than r (this also rejects rays parallel to the axis).
+    if hr >= gr or aa <= MIN_SIN2:
+        return NO_HIT
+    w_perp = w - wp.dot(w, a) * a
+    if wp.dot(w_perp, w_perp) <= r * r * SURFACE_BAND2:
+        return NO_HIT
+    t = -(wp.dot(w_perp, direction) + wp.sqrt((gr - hr) * (gr + hr))) / aa
+    if t <= T_MIN_RADII * r or t >= t_hi:
+        return NO_HIT
+    p = w + t * direction
+    clip = g.clip[i]
+    if wp.dot(p, g.mitre0[i]) < clip[0] or wp.dot(p, g.mitre1[i]) < clip[1]:
+        return NO_HIT
+    return t
+
+
+@wp.func
+def _traversal_direction(d: wp.vec3):
+    return wp.vec3(
+        wp.where(d[0] == 0.0, TINY, d[0]),
+        wp.where(d[1] == 0.0, TINY, d[1]),
+        wp.where(d[2] == 0.0, TINY, d[2]),
+    )
+
+
+@wp.func
+def _make_hit(g: FiberGeometry, i: int, t: float, origin: wp.vec3, direction: wp.vec3):
+    a = g.axis[i]
+    r = g.radius[i]
+    w = origin - g.center[i]
+    along = wp.dot(w, a) + t * wp.dot(direction, a)
+    # The radial part of the hit, rebuilt from the exact 2D geometry so that the position lies on the surface
+    # (|distance to the axis| = r) even when t carries the rounding of a distant origin.
+    b = wp.cross(a, direction)
+    inv_len = 1.0 / wp.length(b)
+    offset = wp.clamp(wp.dot(w, b) * inv_len / r, -1.0, 1.0)
+    across = (direction - wp.dot(direction, a) * a) * inv_len
+    z = wp.normalize(offset * b * inv_len - wp.sqrt((1.0 - offset) * (1.0 + offset)) * across)
+    y = wp.cross(z, a)
+    wo_y = -wp.dot(direction, y)
+    wo_z = -wp.dot(direction, z)
+
+    hit = FiberHit()
+    hit.t = t
+    hit.segment = i
+    hit.strand = int(g.strand[i])
+    hit.position = g.center[i] + along * a + r * z
+    hit.tangent = a
+    hit.normal = z
+    hit.h = wp.clamp(-wo_y / wp.sqrt(wo_y * wo_y + wo_z * wo_z), -1.0, 1.0)
+    return hit
+
+
+@wp.func
+def _no_hit():
+    hit = FiberHit()
+    hit.t = NO_HIT
+    hit.segment = -1
+    hit.strand = -1
+    return hit
+
+
+@wp.func
+def intersect_fibers(g: FiberGeometry, origin: wp.vec3, direction: wp.vec3, t_max: float):
+    """The closest entering hit with t_min < t < t_max along the unit `direction`; t = NO_HIT on a miss."""
+    if g.num_segments == 0:
+        return _no_hit()
+    t_best = wp.min(t_max, NO_HIT)
+    best = int(-1)
+    query = wp.bvh_query_ray(g.bvh, origin, _traversal_direction(direction))
+    i = int(0)
+    while wp.bvh_query_next(query, i, t_best):
+        t = _entry_distance(g, i, origin, direction, t_best)
+        if t < t_best:
+            t_best = t
+            best = i
+    if best < 0:
+        return _no_hit()
+    return _make_hit(g, best, t_best, origin, direction)
+
+
+@wp.func
+def fibers_occluded(g: FiberGeometry, origin: wp.vec3, direction: wp.vec3, t_max: float):
+    """Whether any entering hit lies in (t_min, t_max) along the unit `direction`: for shadow rays."""
+    if g.num_segments == 0:
+        return False
+    t_hi = wp.min(t_max, NO_HIT)
+    query = wp.bvh_query_ray(g.bvh, origin, _traversal_direction(direction))
+    i = int(0)
+    while wp.bvh_query_next(query, i, t_hi):
+        if _entry_distance(g, i, origin, direction, t_hi) < t_hi:
+            return True
+    return False
+
+
+class FiberBVH:
+    """The segment arrays and the `wp.Bvh` of a `FiberAssembly` on a device; keeps them alive.
+
+    `geometry` is the `FiberGeometry` that kernels take; `bounds` is (lo (3,), hi (3,)) float64, the box
+    around every tube. Segment indices are those of `assembly.segments()`.
+    """
+
+    def __init__(self, assembly, device="cpu"):
+        self.device = device
+        p0, p1, r0, r1, strand, _ = assembly.segments()
+        seg = _segment_frames(p0, p1, r0, r1, strand)
+        lowers, uppers = _segment_boxes(seg)
+        if len(lowers):
+            self.bounds = (lowers.min(axis=0), uppers.max(axis=0))
+        else:
+            self.bounds = (np.zeros(3), np.zeros(3))
+
+        def vec3s(x):
+            return wp.array(np.asarray(x, dtype=np.float32).reshape(-1, 3), dtype=wp.vec3, device=device)
+
+        def scalars(x, dtype):
+            return wp.array(np.asarray(x), dtype=dtype, device=device)
+
+        self._lowers = vec3s(lowers)
+        self._uppers = vec3s(uppers)
+        self.bvh = wp.Bvh(self._lowers, self._uppers, constructor="sah")
+        g = FiberGeometry()
+        g.bvh = self.bvh.id
+        g.p0 = vec3s(p0)
+        g.p1 = vec3s(p1)
+        g.radius = scalars(seg["radius"].astype(np.float32), float)
+        g.mitre0 = vec3s(seg["mitre0"])
+        g.mitre1 = vec3s(seg["mitre1"])
+        g.strand = scalars(strand.astype(np.int32), wp.int32)
+        g.center = vec3s(seg["center"])
+        g.axis = vec3s(seg["axis"])
+        g.clip = wp.array(np.asarray(seg["clip"], dtype=np.float32).reshape(-1, 2), dtype=wp.vec2, device=device)
+        g.num_segments = len(p0)
+        self._geometry = g
+
+    @property
+    def geometry(self) -> FiberGeometry:
+        return self._geometry
+
+    @property
+    def num_segments(self) -> int:
+        return self._geometry.num_segments
+
+
+def _segment_frames(p0, p1, r0, r1, strand):
+    """Per-segment centre, unit axis, radius, clip-plane normals and offsets, in float64."""
+    p0 = np.asarray(p0, dtype=np.float64)
+    p1 = np.asarray(p1, dtype=np.float64)
+    radius = (np.asarray(r0, dtype=np.float64) + np.asarray(r1, dtype=np.float64)) / 2
+    center = (p0 + p1) / 2
+    length = np.linalg.norm(p1 - p0, axis=1)
+    solid = length > MIN_LENGTH_RADII * radius
+    axis = np.zeros_like(p0)
+    axis[solid] = (p1 - p0)[solid] / length[solid, None]
+
+    mitre0, mitre1 = axis.copy(), -axis
+    overlap0, overlap1 = np.zeros_like(radius), np.zeros_like(radius)
+    # Joint k sits between segments k and k + 1 of the same strand.
+    joint = np.flatnonzero(
+        (strand[1:] == strand[:-1])
+        & solid[1:]
+        & solid[:-1]
+        & (np.einsum("ij,ij->i", axis[1:], axis[:-1]) > MIN_JOINT_COS)
+    )
+    bisector = axis[joint] + axis[joint + 1]
+    bisector /= np.linalg.norm(bisector, axis=1, keepdims=True)
+    mitre1[joint] = -bisector
+    mitre0[joint + 1] = bisector
+    overlap1[joint] = JOINT_OVERLAP * radius[joint]
+    overlap0[joint + 1] = JOINT_OVERLAP * radius[joint + 1]
+
+    clip = np.stack(
+        [
+            np.einsum("ij,ij->i", p0 - center, mitre0) - overlap0,
+            np.einsum("ij,ij->i", p1 - center, mitre1) - overlap1,
+        ],
+        axis=1,
+    )
+    return {
+        "p0": p0,
+        "p1": p1,
+        "center": center,
+        "axis": axis,
+        "radius": radius,
+        "mitre0": mitre0,
+        "mitre1": mitre1,
+        "clip": clip,
+    }
+
+
+def _segment_boxes(seg):
+    """Boxes around each clipped tube: the union of the boxes of its two end ellipses, padded for rounding."""
+    axis, radius = seg["axis"], seg["radius"]
+    # Rows k of the projector I − a aᵀ: the unit axis e_k with its component along the tube axis removed.
+    projector = np.eye(3)[None] - axis[:, :, None] * axis[:, None, :]
+    lowers, uppers = [], []
+    for end, mitre in ((seg["p0"], seg["mitre0"]), (seg["p1"], seg["mitre1"])):
+        cos = np.einsum("ij,ij->i", axis, mitre)
+        cos = np.where(cos != 0, cos, 1.0)  # zero-length segments (zero axis and normals): a point
+        mitre_perp = mitre - cos[:, None] * axis
+        # The ellipse is end + r·(u − (u·m)/(a·m)·a) over unit u ⊥ a: its extent along e_k is
+        # r·|e_k⊥ − (a_k / (a·m))·m⊥|.
+        spread = projector - (axis / cos[:, None])[:, :, None] * mitre_perp[:, None, :]
+        half = radius[:, None] * np.linalg.norm(spread, axis=2)
+        lowers.append(end - half)
+        uppers.append(end + half)
+    lo = np.minimum(*lowers)
+    hi = np.maximum(*uppers)
+    # The joint overlap reaches a few 1e-3·r past the plane; float32 rounding of the corners is relative.
+    pad = 0.01 * radius[:, None] + 1e-6 * np.maximum(np.abs(lo), np.abs(hi))
+    return lo - pad, hi + pad
+
+
+@wp.kernel
+def _intersect_kernel(
+    g: FiberGeometry,
+    origins: wp.array(dtype=wp.vec3),
+    directions: wp.array(dtype=wp.vec3),
+    t_max: wp.array(dtype=float),
+    t: wp.array(dtype=float),
+    segment: wp.array(dtype=wp.int32),
+    strand: wp.array(dtype=wp.int32),
+    position: wp.array(dtype=wp.vec3),
+    tangent: wp.array(dtype=wp.vec3),
+    normal: wp.array(dtype=wp.vec3),
+    h: wp.array(dtype=float),
+):
+    k = wp.tid()
+    hit = intersect_fibers(g, origins[k], directions[k], t_max[k])
+    t[k] = hit.t
+    segment[k] = wp.int32(hit.segment)
+    strand[k] = wp.int32(hit.strand)
+    position[k] = hit.position
+    tangent[k] = hit.tangent
+    normal[k] = hit.normal
+    h[k] = hit.h
+
+
+@wp.kernel
+def _occluded_kernel(
+    g: FiberGeometry,
+    origins: wp.array(dtype=wp.vec3),
+    directions: wp.array(dtype=wp.vec3),
+    t_max: wp.array(dtype=float),
+    blocked: wp.array(dtype=wp.int32),
+):
+    k = wp.tid()
+    blocked[k] = wp.where(fibers_occluded(g, origins[k], directions[k], t_max[k]), 1, 0)
+
+
+def _rays(bvh, origins, directions, t_max):
+    """Device arrays of origins, unit directions and t_max (a scalar or one per ray, capped at NO_HIT)."""
+    origins = np.asarray(origins, dtype=np.float64).reshape(-1, 3)
+    directions = np.asarray(directions, dtype=np.float64).reshape(-1, 3)
+    if origins.shape != directions.shape:
+        raise ValueError(f"origins {origins.shape} and directions {directions.shape} differ in shape")
+    directions = directions / np.linalg.norm(directions, axis=1, keepdims=True)
+    t_max = np.minimum(np.broadcast_to(np.asarray(t_max, dtype=np.float64), len(origins)), 1.0e30)
+    return (
+        wp.array(origins.astype(np.float32), dtype=wp.vec3, device=bvh.device),
+        wp.array(directions.astype(np.float32), dtype=wp.vec3, device=bvh.device),
+        wp.array(t_max.astype(np.float32), dtype=float, device=bvh.device),
+    )
+
+
+def intersect(bvh: FiberBVH, origins, directions, t_max=np.inf) -> dict:
+    """Closest entering hits of N rays (origins, directions (N, 3); directions are normalized here; t_max a
+    scalar or (N,)).
+
+    Returns numpy arrays: t (N,) (np.inf on a miss), segment and strand (N,) (−1 on a miss), position,
+    tangent, normal (N, 3) and h (N,) (zeros on a miss).
+    """
+    o, d, limit = _rays(bvh, origins, directions, t_max)
+    n = len(o)
+    device = bvh.device
+    out = {
+        "t": wp.empty(n, dtype=float, device=device),
+        "segment": wp.empty(n, dtype=wp.int32, device=device),
+        "strand": wp.empty(n, dtype=wp.int32, device=device),
+        "position": wp.empty(n, dtype=wp.vec3, device=device),
+        "tangent": wp.empty(n, dtype=wp.vec3, device=device),
+        "normal": wp.empty(n, dtype=wp.vec3, device=device),
+        "h": wp.empty(n, dtype=float, device=device),
+    }
+    if n:
+        wp.launch(_intersect_kernel, dim=n, inputs=[bvh.geometry, o, d, limit, *out.values()], device=device)
+    result = {key: value.numpy() for key, value in out.items()}
+    result["t"] = np.where(result["segment"] >= 0, result["t"].astype(np.float64), np.inf)
+    return result
+
+
+def occluded(bvh: FiberBVH, origins, directions, t_max=np.inf) -> np.ndarray:
+    """(N,) bool: whether each ray has an entering hit before t_max (`fibers_occluded`, batched)."""
+    o, d, limit = _rays(bvh, origins, directions, t_max)
+    blocked = wp.zeros(len(o), dtype=wp.int32, device=bvh.device)
+    if len(o):
+        wp.launch(_occluded_kernel, dim=len(o), inputs=[bvh.geometry, o, d, limit, blocked], device=bvh.device)
+    return blocked.numpy().astype(bool)

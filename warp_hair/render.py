@@ -1,0 +1,102 @@
+"""Render a scene: the Python front of the path tracer.
+
+The image is split into tiles of rows, each launched from a thread pool (a Warp CPU launch runs on one
+core); every pixel owns its random stream, so the image depends on the seed only, not on the threads.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import warp as wp
+
+from .camera import camera_data
+from .card import card_data
+from .envmap import environment_data
+from .hair_bsdf import hair_coefficients
+from .integrator import DirectionalLightData, SceneData, render_kernel
+from .intersect import FiberBVH
+from .parallel import launch_ranges
+from .scene import DirectionalLight, EnvironmentLight, Scene
+
+wp.set_module_options({"enable_backward": False})
+
+TILE_PIXELS = 4096
+
+
+class PreparedScene:
+    """Everything a render kernel reads, built once per scene and device (the BVH, light tables, ...)."""
+
+    def __init__(self, scene: Scene, device: str = "cpu"):
+        self.device = device
+        self.bvh = FiberBVH(scene.fibers, device=device)
+        directional = [light for light in scene.lights if isinstance(light, DirectionalLight)]
+        environments = [light for light in scene.lights if isinstance(light, EnvironmentLight)]
+        if len(environments) > 1:
+            raise ValueError("a scene can have at most one environment light")
+        self.lights = wp.array(
+            [_directional_data(light) for light in directional] or [_directional_data(None)],
+            dtype=DirectionalLightData,
+            device=device,
+        )
+        env = environments[0] if environments else None
+        self.env, self._env_keepalive = environment_data(
+            radiance=None if env is None or env.image is not None else env.radiance,
+            image=None if env is None else env.image,
+            device=device,
+        )
+        data = SceneData()
+        data.camera = camera_data(scene.camera)
+        data.fibers = self.bvh.geometry
+        data.hair = hair_coefficients(scene.hair)
+        data.lights = self.lights
+        data.num_lights = len(directional)
+        data.env = self.env
+        data.has_env = int(env is not None)
+        data.card = card_data(scene.card, scene.camera, self.bvh.bounds)
+        data.max_depth = scene.render.max_depth
+        data.rr_depth = scene.render.rr_depth
+        self.data = data
+        self.resolution = scene.camera.resolution
+
+
+def _directional_data(light: DirectionalLight | None) -> DirectionalLightData:
+    data = DirectionalLightData()
+    if light is None:
+        data.to_light = wp.vec3(0.0, 0.0, 1.0)
+        data.irradiance = wp.vec3(0.0, 0.0, 0.0)
+        return data
+    travel = np.asarray(light.direction, dtype=np.float64)
+    data.to_light = wp.vec3(*(-travel / np.linalg.norm(travel)))
+    data.irradiance = wp.vec3(*light.irradiance)
+    return data
+
+
+def render(
+    scene: Scene,
+    spp: int | None = None,
+    seed: int | None = None,
+    threads: int | None = None,
+    device: str = "cpu",
+    progress=None,
+) -> np.ndarray:
+    """Linear radiance, float32 (H, W, 3), row 0 at the top.
+
+    spp and seed default to the scene's [render] table. `progress(done, total)` is called as tiles finish.
+    """
+    spp = scene.render.spp if spp is None else int(spp)
+    seed = scene.render.seed if seed is None else int(seed)
+    if spp < 1:
+        raise ValueError(f"spp must be at least 1, got {spp}")
+    prepared = PreparedScene(scene, device=device)
+    width, height = prepared.resolution
+    image = wp.zeros(width * height, dtype=wp.vec3, device=device)
+    launch_ranges(
+        render_kernel,
+        width * height,
+        [prepared.data, spp, seed, image],
+        threads=threads,
+        device=device,
+        chunk=TILE_PIXELS,
+        progress=progress,
+    )
+    return image.numpy().reshape(height, width, 3)
