@@ -16,6 +16,9 @@ from .hair_bsdf import HairCoefficients, hair_pdf, hair_sample, hair_value, lobe
 from .intersect import FiberGeometry, fibers_occluded, intersect_fibers
 from .lobes import INV_TWO_PI, TWO_PI
 
+# Forward only (gradients replay paths in their own kernels); -O3 for the renderer's hot loop.
+wp.set_module_options({"enable_backward": False, "optimization_level": 3})
+
 INV_PI = wp.constant(0.31830988618379067)
 
 
@@ -191,7 +194,14 @@ def trace_path(scene: SceneData, origin: wp.vec3, direction: wp.vec3, rng: wp.ui
 
 
 @wp.kernel
-def render_kernel(scene: SceneData, spp: int, seed: int, image: wp.array(dtype=wp.vec3), first: int):
+def render_kernel(
+    scene: SceneData,
+    spp: int,
+    seed: int,
+    image: wp.array(dtype=wp.vec3),
+    stderr: wp.array(dtype=wp.vec3),
+    first: int,
+):
     pixel = wp.tid() + first
     width = scene.camera.width_px
     px = pixel % width
@@ -199,9 +209,18 @@ def render_kernel(scene: SceneData, spp: int, seed: int, image: wp.array(dtype=w
     # One RNG stream per pixel: the image does not depend on how pixels are split among threads.
     rng = wp.rand_init(seed, pixel)
     total = wp.vec3(0.0)
+    total_sq = wp.vec3(0.0)
     for s in range(spp):
         jitter, rng = rand2(rng)
         origin, direction = generate_ray(scene.camera, px, py, jitter)
         radiance, rng = trace_path(scene, origin, direction, rng)
         total += radiance
-    image[pixel] = total / float(spp)
+        total_sq += wp.cw_mul(radiance, radiance)
+    n = float(spp)
+    mean = total / n
+    image[pixel] = mean
+    # Standard error of the pixel mean, from the spread of its own samples.
+    variance = (total_sq / n - wp.cw_mul(mean, mean)) * (n / wp.max(n - 1.0, 1.0))
+    stderr[pixel] = wp.vec3(
+        wp.sqrt(wp.max(variance[0], 0.0) / n), wp.sqrt(wp.max(variance[1], 0.0) / n), wp.sqrt(wp.max(variance[2], 0.0) / n)
+    )

@@ -37,12 +37,16 @@ BATCH = 1 << 20
 # faint comb only below β_n ≈ 0.02.
 CENTRES_PER_SCALE = 1.5
 N_GAMMA_AZIMUTHAL = (64, 1024)
-# Far field, longitudinal profile: at each offset ∫ S dφ_i = Σ_p M_p A_p(h), smooth in γ, so a Gauss-Legendre
-# rule in γ converges fast. Each offset's ∫ dφ_i is a periodic midpoint rule, exact to about 2πsn e^(−πsn)
-# for a logistic of scale s on n nodes: n = 5/s gives 5e-6, and the cap 6e-4 at the smallest β_n.
-N_GAMMA_GAUSS = 16
+# Far field, longitudinal profile: at each offset ∫ S dφ_i = Σ_p M_p A_p(h), smooth in γ, so a
+# Gauss-Legendre rule in γ converges fast (8 nodes: 3e-5). Each offset's ∫ dφ_i is a periodic midpoint
+# rule, exact to about 2πsn e^(−πsn) for a logistic of scale s on n nodes: n = 5/s gives 5e-6, and the
+# cap 6e-4 at the smallest β_n.
+N_GAMMA_GAUSS = 8
 PHI_PER_SCALE = 5.0
 N_PHI = (64, 2048)
+# The plots' log scales span this many decades below the peak: for light hair R and TRT are 10-100×
+# weaker than TT, barely visible on a linear scale.
+DECADES = 3
 # Plot points: spacing s/2 in Δφ and σ/3 in θ_i (σ² the narrowest lobe variance), within these bounds.
 N_AZIMUTHAL = (721, 2049)
 N_LONGITUDINAL = (181, 1081)
@@ -157,11 +161,12 @@ def _triple(values) -> str:
 
 def _title(params: HairParams, h: float | None) -> str:
     sigma_a = f"σ_a = {_triple(params.sigma_a)} per fiber radius"
-    colour = {
-        "albedo": f"albedo {_triple(params.albedo)}  →  {sigma_a}",
-        "sigma_a": sigma_a,
-        "melanin": f"eumelanin {params.eumelanin:g}, pheomelanin {params.pheomelanin:g}  →  {sigma_a}",
-    }[params.colour_input]
+    if params.colour_input == "albedo":
+        colour = f"albedo {_triple(params.albedo)}  →  {sigma_a}"
+    elif params.colour_input == "melanin":
+        colour = f"eumelanin {params.eumelanin:g}, pheomelanin {params.pheomelanin:g}  →  {sigma_a}"
+    else:
+        colour = sigma_a
     look = "far field: S averaged over h ∈ [−1, 1]" if h is None else f"fiber offset h = {h:g}"
     controls = (
         f"β_m = {params.beta_m:g}, β_n = {params.beta_n:g}, α = {params.alpha:g}°, η = {params.eta:g}, "
@@ -170,31 +175,39 @@ def _title(params: HairParams, h: float | None) -> str:
     return f"Hair BSDF lobes (luminance)   {colour}\n{controls}   |   {look}"
 
 
-def _draw_lobes(ax, x, lobes: np.ndarray) -> None:
+def _draw_lobes(ax, x, lobes: np.ndarray) -> float:
+    """Plot each lobe and the total on a log scale cut DECADES below the peak; returns the cut."""
+    total = lobes.sum(axis=1)
+    floor = total.max() * 10.0**-DECADES
     for p, (name, colour) in enumerate(zip(LOBE_NAMES, LOBE_COLOURS)):
-        ax.plot(x, lobes[:, p], color=colour, lw=1.3, label=name)
-    ax.plot(x, lobes.sum(axis=1), color="black", lw=1.8, label="total")
+        ax.plot(x, np.maximum(lobes[:, p], floor), color=colour, lw=1.3, label=name)
+    ax.plot(x, np.maximum(total, floor), color="black", lw=1.8, label="total")
+    return floor
 
 
 def _draw_azimuthal(ax, dphi: np.ndarray, lobes: np.ndarray, theta_o: float) -> None:
-    _draw_lobes(ax, dphi, lobes)
+    floor = _draw_lobes(ax, dphi, lobes)
+    ax.set_rscale("log")
+    ax.set_rlim(floor, None)
     ax.set_theta_zero_location("N")
     ticks = np.arange(-180, 180, 45)
     labels = [f"{t}°" for t in ticks]
     labels[0], labels[4] = "±180°\nforward", "0°\nback"
     ax.set_thetagrids(ticks % 360, labels, fontsize=8)
-    ax.set_ylim(0.0, None)
-    ax.set_rlabel_position(112.5)
+    ax.set_rlabel_position(67.5)
     ax.tick_params(axis="y", labelsize=7)
-    ax.set_title(f"azimuthal, θ_o = {theta_o:g}°, θ_i = {-theta_o:g}°\nS (1/sr) against Δφ = φ_i − φ_o", fontsize=10)
+    for label in ax.get_yticklabels():
+        label.set_bbox(dict(facecolor="white", alpha=0.8, edgecolor="none", pad=0.3))
+    ax.set_title(f"azimuthal, θ_o = {theta_o:g}°, θ_i = {-theta_o + 0.0:g}°\nS (1/sr, log radius) against Δφ = φ_i − φ_o", fontsize=10)
 
 
 def _draw_longitudinal(ax, theta_i: np.ndarray, lobes: np.ndarray, theta_o: float) -> None:
-    _draw_lobes(ax, np.degrees(theta_i), lobes)
+    floor = _draw_lobes(ax, np.degrees(theta_i), lobes)
+    ax.set_yscale("log")
     ax.axvline(-theta_o, color="0.35", ls=":", lw=1.2, label="mirror θ_i = −θ_o")
     ax.set_xlim(-90.0, 90.0)
     ax.set_xticks(np.arange(-90, 91, 30))
-    ax.set_ylim(0.0, None)
+    ax.set_ylim(floor, None)
     ax.grid(alpha=0.3)
     ax.set_xlabel("θ_i (degrees)")
     ax.set_ylabel("∫ S dφ_i (1/rad)")

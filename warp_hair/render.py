@@ -18,7 +18,6 @@ from .intersect import FiberBVH
 from .parallel import launch_ranges
 from .scene import DirectionalLight, EnvironmentLight, Scene
 
-wp.set_module_options({"enable_backward": False})
 
 TILE_PIXELS = 4096
 
@@ -78,10 +77,13 @@ def render(
     threads: int | None = None,
     device: str = "cpu",
     progress=None,
-) -> np.ndarray:
+    return_stderr: bool = False,
+):
     """Linear radiance, float32 (H, W, 3), row 0 at the top.
 
     spp and seed default to the scene's [render] table. `progress(done, total)` is called as tiles finish.
+    With `return_stderr`, returns (image, stderr): the standard error of each pixel's mean, estimated from
+    the spread of its own samples.
     """
     spp = scene.render.spp if spp is None else int(spp)
     seed = scene.render.seed if seed is None else int(seed)
@@ -90,13 +92,17 @@ def render(
     prepared = PreparedScene(scene, device=device)
     width, height = prepared.resolution
     image = wp.zeros(width * height, dtype=wp.vec3, device=device)
+    stderr = wp.zeros(width * height, dtype=wp.vec3, device=device)
     launch_ranges(
         render_kernel,
         width * height,
-        [prepared.data, spp, seed, image],
+        [prepared.data, spp, seed, image, stderr],
         threads=threads,
         device=device,
         chunk=TILE_PIXELS,
         progress=progress,
     )
-    return image.numpy().reshape(height, width, 3)
+    image = image.numpy().reshape(height, width, 3)
+    if return_stderr:
+        return image, stderr.numpy().reshape(height, width, 3)
+    return image
