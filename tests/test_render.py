@@ -111,13 +111,13 @@ def test_noise_falls_as_one_over_sqrt_spp():
             {"type": "directional", "direction": [0.3, -0.4, -1.0], "irradiance": [3.0, 3.0, 3.0]},
             {"type": "environment", "radiance": [0.3, 0.3, 0.3]},
         ],
-        resolution=(16, 16),
+        resolution=(24, 24),
     )
 
     def rms_difference(spp):
         return np.sqrt(np.mean((render(scene, spp=spp, seed=10) - render(scene, spp=spp, seed=20)) ** 2))
 
-    ratio = rms_difference(4) / rms_difference(64)
+    ratio = rms_difference(16) / rms_difference(256)
     assert 3.3 < ratio < 4.7, ratio
 
 

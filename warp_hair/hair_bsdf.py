@@ -8,6 +8,7 @@ Usage inside a kernel:
     setup = lobe_setup(coeffs, wo, h)          # everything that depends on wo and h only
     s_value = hair_value(setup, wi)            # S, the cosine-weighted BSDF (RGB)
     density = hair_pdf(setup, wi)              # solid-angle pdf of hair_sample
+    s_value, density = hair_value_pdf(setup, wi)   # both from one evaluation of the lobes
     wi = hair_sample(coeffs, setup, u)         # u: three uniforms in [0, 1)
 Nothing allocates; everything is float32.
 """
@@ -155,6 +156,13 @@ def hair_value(L: LobeSetup, wi: wp.vec3):
 @wp.func
 def hair_pdf(L: LobeSetup, wi: wp.vec3):
     return wp.dot(L.prob, lobe_densities(L, wi))
+
+
+@wp.func
+def hair_value_pdf(L: LobeSetup, wi: wp.vec3):
+    """(S, pdf) at wi from one evaluation of the lobes: what a path tracer needs at every vertex."""
+    d = lobe_densities(L, wi)
+    return d[0] * L.A[0] + d[1] * L.A[1] + d[2] * L.A[2] + d[3] * L.A[3], wp.dot(L.prob, d)
 
 
 @wp.func

@@ -12,9 +12,9 @@ import warp as wp
 from .camera import CameraData, generate_ray
 from .card import NO_HIT, CardData, card_distance
 from .envmap import EnvironmentData, env_pdf, env_radiance, env_sample
-from .hair_bsdf import HairCoefficients, hair_pdf, hair_sample, hair_value, lobe_setup
+from .hair_bsdf import HairCoefficients, LobeSetup, hair_sample, hair_value_pdf, lobe_setup
 from .intersect import FiberGeometry, fibers_occluded, intersect_fibers
-from .lobes import INV_TWO_PI, TWO_PI
+from .lobes import TWO_PI
 
 # Forward only (gradients replay paths in their own kernels); -O3 for the renderer's hot loop.
 wp.set_module_options({"enable_backward": False, "optimization_level": 3})
@@ -91,11 +91,25 @@ def rand2(rng: wp.uint32):
 
 
 @wp.func
+def scatter_value_pdf(scene: SceneData, on_card: bool, setup: LobeSetup, wi: wp.vec3):
+    """(cosine-weighted value, solid-angle pdf) of the vertex's BSDF toward local direction wi."""
+    if on_card:
+        if wi[2] <= 0.0:
+            return wp.vec3(0.0), 0.0
+        return wi[2] * INV_PI * scene.card.albedo, wi[2] * INV_PI
+    return hair_value_pdf(setup, wi)
+
+
+@wp.func
 def trace_path(scene: SceneData, origin: wp.vec3, direction: wp.vec3, rng: wp.uint32):
     radiance = wp.vec3(0.0)
     throughput = wp.vec3(1.0)
     o = origin
     d = direction
+    # One light sample per vertex, the light chosen uniformly (as Mitsuba does): one shadow ray per vertex
+    # whatever the number of lights.
+    num_emitters = scene.num_lights + scene.has_env
+    select_pdf = 1.0 / float(wp.max(num_emitters, 1))
     prev_pdf = float(0.0)  # solid-angle pdf of the BSDF sample that produced d; 0 for the camera ray
     depth = int(0)
     while depth < scene.max_depth:
@@ -105,81 +119,56 @@ def trace_path(scene: SceneData, origin: wp.vec3, direction: wp.vec3, rng: wp.ui
             if scene.has_env != 0:
                 mis = float(1.0)
                 if prev_pdf > 0.0:
-                    mis = power_heuristic(prev_pdf, env_pdf(scene.env, d))
+                    mis = power_heuristic(prev_pdf, select_pdf * env_pdf(scene.env, d))
                 radiance += mis * wp.cw_mul(throughput, env_radiance(scene.env, d))
             break
 
         # The shading frame: at a fiber, x along it and z its normal (MODEL.md); at the card, z its normal
         # turned toward the incoming ray.
         on_card = t_card < hit.t
-        x = wp.vec3(0.0)
-        y = wp.vec3(0.0)
-        z = wp.vec3(0.0)
-        position = wp.vec3(0.0)
+        x = hit.tangent
+        z = hit.normal
+        position = hit.position
+        setup = LobeSetup()
         if on_card:
-            position = o + t_card * d
             z = scene.card.normal
             if wp.dot(z, d) > 0.0:
                 z = -z
             x = card_frame_x(z)
-            y = wp.cross(z, x)
-            position = position + 1.0e-5 * z
-        else:
-            position = hit.position
-            x = hit.tangent
-            z = hit.normal
-            y = wp.cross(z, x)
-        wo = to_local(-d, x, y, z)
-        setup = lobe_setup(scene.hair, wo, hit.h)
+            position = o + t_card * d + 1.0e-5 * z
+        y = wp.cross(z, x)
+        if not on_card:
+            setup = lobe_setup(scene.hair, to_local(-d, x, y, z), hit.h)
 
-        # Next-event estimation: directional lights.
-        for k in range(scene.num_lights):
-            light = scene.lights[k]
-            wi = to_local(light.to_light, x, y, z)
-            if on_card:
-                if wi[2] > 0.0 and not occluded(scene, position, light.to_light):
-                    radiance += wi[2] * INV_PI * wp.cw_mul(throughput, wp.cw_mul(scene.card.albedo, light.irradiance))
-            elif not occluded(scene, position, light.to_light):
-                radiance += wp.cw_mul(throughput, wp.cw_mul(hair_value(setup, wi), light.irradiance))
-
-        # Next-event estimation: the environment, weighted against BSDF sampling.
-        if scene.has_env != 0:
-            u_env, rng = rand2(rng)
-            d_env, pdf_env = env_sample(scene.env, u_env)
-            if pdf_env > 0.0:
-                wi = to_local(d_env, x, y, z)
-                value = wp.vec3(0.0)
-                pdf_bsdf = float(0.0)
-                if on_card:
-                    if wi[2] > 0.0:
-                        value = wi[2] * INV_PI * scene.card.albedo
-                        pdf_bsdf = wi[2] * INV_PI
-                else:
-                    value = hair_value(setup, wi)
-                    pdf_bsdf = hair_pdf(setup, wi)
-                if pdf_bsdf > 0.0 and not occluded(scene, position, d_env):
-                    le = env_radiance(scene.env, d_env)
-                    w = power_heuristic(pdf_env, pdf_bsdf) / pdf_env
-                    radiance += w * wp.cw_mul(throughput, wp.cw_mul(value, le))
+        # Next-event estimation with one light.
+        if num_emitters > 0:
+            k = wp.min(int(wp.randf(rng) * float(num_emitters)), num_emitters - 1)
+            if k < scene.num_lights:
+                light = scene.lights[k]
+                value, pdf_bsdf = scatter_value_pdf(scene, on_card, setup, to_local(light.to_light, x, y, z))
+                if pdf_bsdf > 0.0 and not occluded(scene, position, light.to_light):
+                    radiance += wp.cw_mul(throughput, wp.cw_mul(value, light.irradiance)) / select_pdf
+            else:
+                u_env, rng = rand2(rng)
+                d_env, pdf_env = env_sample(scene.env, u_env)
+                if pdf_env > 0.0:
+                    value, pdf_bsdf = scatter_value_pdf(scene, on_card, setup, to_local(d_env, x, y, z))
+                    if pdf_bsdf > 0.0 and not occluded(scene, position, d_env):
+                        light_pdf = select_pdf * pdf_env
+                        w = power_heuristic(light_pdf, pdf_bsdf) / light_pdf
+                        radiance += w * wp.cw_mul(throughput, wp.cw_mul(value, env_radiance(scene.env, d_env)))
 
         # Continue the path by sampling the BSDF.
         wi = wp.vec3(0.0)
-        weight = wp.vec3(0.0)
-        pdf = float(0.0)
         if on_card:
             u2, rng = rand2(rng)
             wi = cosine_hemisphere(u2)
-            pdf = wi[2] * INV_PI
-            weight = scene.card.albedo
         else:
-            u3 = wp.vec3(wp.randf(rng), wp.randf(rng), wp.randf(rng))
-            wi = hair_sample(setup, u3)
-            pdf = hair_pdf(setup, wi)
-            if pdf > 0.0:
-                weight = hair_value(setup, wi) / pdf
+            wi = hair_sample(setup, wp.vec3(wp.randf(rng), wp.randf(rng), wp.randf(rng)))
+        value, pdf = scatter_value_pdf(scene, on_card, setup, wi)
         if pdf <= 0.0:
             break
-        throughput = wp.cw_mul(throughput, weight)
+        throughput = wp.cw_mul(throughput, value / pdf)
         prev_pdf = pdf
         o = position
         d = wp.normalize(to_world(wi, x, y, z))
