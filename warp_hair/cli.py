@@ -25,17 +25,19 @@ def add_hair_controls(parser: argparse.ArgumentParser) -> None:
         "hair controls",
         "Colour: one of --albedo, --sigma-a, or --eumelanin/--pheomelanin (default --albedo 0.6 0.4 0.2).",
     )
-    group.add_argument("--albedo", nargs="+", type=float, metavar="C", help="multiple-scattering albedo in (0, 1]: one value (grey) or three (R G B)")
-    group.add_argument("--sigma-a", nargs="+", type=float, metavar="S", help="absorption per unit fiber radius, >= 0: one value or three (R G B)")
-    group.add_argument("--eumelanin", type=float, metavar="X", help="eumelanin concentration >= 0 (blonde 0.3, brown 1.3, black 8)")
-    group.add_argument("--pheomelanin", type=float, metavar="Y", help="pheomelanin concentration >= 0")
-    group.add_argument("--beta-m", type=float, default=0.3, metavar="B", help="longitudinal roughness in [0, 1] (default 0.3)")
-    group.add_argument("--beta-n", type=float, default=0.3, metavar="B", help="azimuthal roughness in [0, 1] (default 0.3)")
-    group.add_argument("--alpha", type=float, default=2.0, metavar="DEG", help="cuticle tilt in degrees, in [-30, 30] (default 2)")
-    group.add_argument("--eta", type=float, default=1.55, metavar="E", help="index of refraction > 1 (default 1.55)")
-    group.add_argument(
-        "--r-roughness-scale", type=float, default=1.0, metavar="K", help="factor on the R lobe's longitudinal roughness, > 0 (default 1)"
-    )
+    add = group.add_argument
+    add("--albedo", nargs="+", type=float, metavar="C",
+        help="multiple-scattering albedo in (0, 1]: one value (grey) or three (R G B)")
+    add("--sigma-a", nargs="+", type=float, metavar="S",
+        help="absorption per unit fiber radius, >= 0: one value (grey) or three (R G B)")
+    add("--eumelanin", type=float, metavar="X", help="eumelanin concentration >= 0 (blonde 0.3, brown 1.3, black 8)")
+    add("--pheomelanin", type=float, metavar="Y", help="pheomelanin (red-yellow pigment) concentration >= 0")
+    add("--beta-m", type=float, default=0.3, metavar="B", help="longitudinal roughness in [0, 1] (default 0.3)")
+    add("--beta-n", type=float, default=0.3, metavar="B", help="azimuthal roughness in [0, 1] (default 0.3)")
+    add("--alpha", type=float, default=2.0, metavar="DEG", help="cuticle tilt in degrees, in [-30, 30] (default 2)")
+    add("--eta", type=float, default=1.55, metavar="E", help="index of refraction, > 1 (default 1.55)")
+    add("--r-roughness-scale", type=float, default=1.0, metavar="K",
+        help="factor on the primary reflection's longitudinal roughness, > 0 (default 1)")
 
 
 def hair_params(args: argparse.Namespace) -> HairParams:
@@ -56,15 +58,15 @@ def add_plot_bsdf(subparsers) -> None:
     parser = subparsers.add_parser(
         "plot-bsdf",
         help="plot the lobes of a hair material to a PNG",
-        description="Plot the azimuthal (top) and longitudinal (bottom) lobes of a hair material, one column per viewing angle.",
+        description="Plot the azimuthal (top row) and longitudinal (bottom row) lobes of a hair material, "
+        "one column per viewing angle, for checking a material by eye.",
     )
     parser.add_argument("-o", "--output", required=True, type=Path, metavar="PNG", help="the PNG file to write")
     add_hair_controls(parser)
-    parser.add_argument(
-        "--theta-o", nargs="+", type=float, default=[0.0, 30.0, 60.0], metavar="DEG",
-        help="viewing angles from the fiber's normal plane, in (-90, 90) (default 0 30 60)",
-    )
-    parser.add_argument("--h", type=float, metavar="H", help="fiber offset in [-1, 1] (default: averaged over h, the far-field look)")
+    parser.add_argument("--theta-o", nargs="+", type=float, default=[0.0, 30.0, 60.0], metavar="DEG",
+                        help="viewing angles from the fiber's normal plane, in (-90, 90) (default 0 30 60)")
+    parser.add_argument("--h", type=float, metavar="H",
+                        help="fiber offset in [-1, 1] (default: averaged over h, the far-field look)")
     parser.set_defaults(run=plot_bsdf)
 
 
@@ -78,7 +80,7 @@ SUBCOMMANDS = (add_plot_bsdf,)
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog=PROG, description="Hair and fur appearance (Chiang et al. BSDF) in NVIDIA Warp.")
+    parser = argparse.ArgumentParser(prog=PROG, description="Hair and fur appearance (the Chiang et al. BSDF) in Warp.")
     subparsers = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for add in SUBCOMMANDS:
         add(subparsers)

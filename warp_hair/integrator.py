@@ -111,8 +111,8 @@ def trace_path(scene: SceneData, origin: wp.vec3, direction: wp.vec3, rng: wp.ui
     num_emitters = scene.num_lights + scene.has_env
     select_pdf = 1.0 / float(wp.max(num_emitters, 1))
     prev_pdf = float(0.0)  # solid-angle pdf of the BSDF sample that produced d; 0 for the camera ray
-    depth = int(0)
-    while depth < scene.max_depth:
+    depth = int(0)  # scattering vertices so far
+    while True:
         hit = intersect_fibers(scene.fibers, o, d, NO_HIT)
         t_card = card_distance(scene.card, o, d)
         if hit.t >= NO_HIT and t_card >= NO_HIT:
@@ -121,6 +121,10 @@ def trace_path(scene: SceneData, origin: wp.vec3, direction: wp.vec3, rng: wp.ui
                 if prev_pdf > 0.0:
                     mis = power_heuristic(prev_pdf, select_pdf * env_pdf(scene.env, d))
                 radiance += mis * wp.cw_mul(throughput, env_radiance(scene.env, d))
+            break
+        # The ray sampled at the last allowed vertex is still traced above: light sampling there was
+        # MIS-weighted on the understanding that this ray would bring the rest of the environment.
+        if depth >= scene.max_depth:
             break
 
         # The shading frame: at a fiber, x along it and z its normal (MODEL.md); at the card, z its normal

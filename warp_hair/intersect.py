@@ -46,6 +46,9 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
+from . import bvh
+from .bvh import build_bvh
+
 wp.set_module_options({"enable_backward": False})
 
 NO_HIT = wp.constant(1.0e30)
@@ -57,6 +60,17 @@ SURFACE_BAND2 = wp.constant(1.002001)
 MIN_SIN2 = wp.constant(1.0e-12)
 # Stand-in for zero direction components in the BVH slab test.
 TINY = wp.constant(1.0e-30)
+# Tubes per BVH leaf, at most, and the cost of a node visit relative to a tube test (surface area heuristic).
+MAX_LEAF = 4
+TRAVERSAL_COST = 1.0
+# Pending subtrees a traversal can hold: at least the depth of any tree `build_bvh` makes.
+STACK_SIZE = 64
+NodeStack = wp.types.vector(length=STACK_SIZE, dtype=wp.int32)
+EntryStack = wp.types.vector(length=STACK_SIZE, dtype=float)
+LEAF_BITS = wp.constant(bvh.LEAF_BITS)
+LEAF_MASK = wp.constant(bvh.MAX_LEAF_SIZE)
+# The traversal's "no node left".
+DONE = wp.constant(2**31 - 1)
 
 # Mitre joints overlap by this many radii past the mitre plane (see the module docstring).
 JOINT_OVERLAP = 1.0e-3
@@ -67,19 +81,36 @@ MIN_LENGTH_RADII = 1.0e-6
 
 
 @wp.struct
+class Tube:
+    """One segment's tube, as the hit test reads it (all of it in one place, in BVH leaf order)."""
+
+    center: wp.vec3  # (p0 + p1) / 2: the origin the hit test works relative to
+    axis: wp.vec3  # unit (p1 − p0) / |p1 − p0|; zero for a zero-length segment
+    mitre0: wp.vec3  # clip-plane normal at p0, pointing into the segment
+    mitre1: wp.vec3  # clip-plane normal at p1, pointing into the segment
+    clip: wp.vec2  # inside iff (x − center)·mitre0 >= clip[0] and (x − center)·mitre1 >= clip[1]
+    radius: float
+
+
+@wp.struct
+class BvhNode:
+    """An interior node of the fiber BVH (`warp_hair.bvh`): the slabs of its two child boxes along each axis,
+    (lo of child 0, lo of child 1, hi of child 0, hi of child 1), and what the children are."""
+
+    x: wp.vec4
+    y: wp.vec4
+    z: wp.vec4
+    child: wp.vec2i  # >= 0: an interior node; < 0: a leaf, −1 − child = (first tube << LEAF_BITS) | count
+
+
+@wp.struct
 class FiberGeometry:
     """What kernels need to intersect fibers; arrays live on the device of the `FiberBVH` that built it."""
 
-    bvh: wp.uint64  # wp.Bvh over per-segment boxes (the whole clipped tube, mitre overhang included)
-    p0: wp.array(dtype=wp.vec3)
-    p1: wp.array(dtype=wp.vec3)
-    radius: wp.array(dtype=float)
-    mitre0: wp.array(dtype=wp.vec3)  # clip-plane normal at p0, pointing into the segment
-    mitre1: wp.array(dtype=wp.vec3)  # clip-plane normal at p1, pointing into the segment
-    strand: wp.array(dtype=wp.int32)
-    center: wp.array(dtype=wp.vec3)  # (p0 + p1) / 2: the origin the hit test works relative to
-    axis: wp.array(dtype=wp.vec3)  # unit (p1 − p0) / |p1 − p0|; zero for a zero-length segment
-    clip: wp.array(dtype=wp.vec2)  # inside iff (x − center)·mitre0 >= clip[0] and (x − center)·mitre1 >= clip[1]
+    nodes: wp.array(dtype=BvhNode)  # the BVH over the tubes' boxes (the whole clipped tube, mitre overhang included)
+    tubes: wp.array(dtype=Tube)  # in BVH leaf order
+    segment: wp.array(dtype=wp.int32)  # index into FiberAssembly.segments() of each tube
+    strand: wp.array(dtype=wp.int32)  # strand of each tube
     num_segments: int
 
 
@@ -95,13 +126,13 @@ class FiberHit:
 
 
 @wp.func
-def _entry_distance(g: FiberGeometry, i: int, origin: wp.vec3, direction: wp.vec3, t_hi: float):
-    """t of the ray's entering hit on tube i if it lies in (t_min, t_hi), else NO_HIT."""
-    a = g.axis[i]
+def _entry_distance(tube: Tube, origin: wp.vec3, direction: wp.vec3, t_hi: float):
+    """t of the ray's entering hit on the tube if it lies in (t_min, t_hi), else NO_HIT."""
+    a = tube.axis
     b = wp.cross(a, direction)
     aa = wp.dot(b, b)
-    r = g.radius[i]
-    w = origin - g.center[i]
+    r = tube.radius
+    w = origin - tube.center
     hr = wp.abs(wp.dot(w, b))
     gr = r * wp.sqrt(aa)
     # The ray line passes the axis farther than r (this also rejects rays parallel to the axis).
@@ -114,26 +145,59 @@ def _entry_distance(g: FiberGeometry, i: int, origin: wp.vec3, direction: wp.vec
     if t <= T_MIN_RADII * r or t >= t_hi:
         return NO_HIT
     p = w + t * direction
-    clip = g.clip[i]
-    if wp.dot(p, g.mitre0[i]) < clip[0] or wp.dot(p, g.mitre1[i]) < clip[1]:
+    clip = tube.clip
+    if wp.dot(p, tube.mitre0) < clip[0] or wp.dot(p, tube.mitre1) < clip[1]:
         return NO_HIT
     return t
 
 
 @wp.func
-def _traversal_direction(d: wp.vec3):
+def _inverse_direction(d: wp.vec3):
+    """1 / d for the slab test, with zero components replaced by TINY (0 · inf would give NaN)."""
     return wp.vec3(
-        wp.where(d[0] == 0.0, TINY, d[0]),
-        wp.where(d[1] == 0.0, TINY, d[1]),
-        wp.where(d[2] == 0.0, TINY, d[2]),
+        1.0 / wp.where(d[0] == 0.0, TINY, d[0]),
+        1.0 / wp.where(d[1] == 0.0, TINY, d[1]),
+        1.0 / wp.where(d[2] == 0.0, TINY, d[2]),
     )
 
 
 @wp.func
+def _lesser(a: float, b: float):
+    # A plain select: wp.min also handles NaN, which costs several instructions and cannot occur here.
+    return wp.where(a < b, a, b)
+
+
+@wp.func
+def _greater(a: float, b: float):
+    return wp.where(a > b, a, b)
+
+
+@wp.func
+def _slab(bounds: wp.vec4, o: float, inv: float):
+    """Where the ray crosses the slabs of both children along one axis: (near 0, near 1, far 0, far 1)."""
+    t = (bounds - wp.vec4(o)) * inv
+    return wp.vec4(_lesser(t[0], t[2]), _lesser(t[1], t[3]), _greater(t[0], t[2]), _greater(t[1], t[3]))
+
+
+@wp.func
+def _child_entries(node: BvhNode, origin: wp.vec3, inv: wp.vec3, t_hi: float):
+    """Where the ray enters each child box of the node (0 if it starts inside), NO_HIT for a miss before t_hi."""
+    tx = _slab(node.x, origin[0], inv[0])
+    ty = _slab(node.y, origin[1], inv[1])
+    tz = _slab(node.z, origin[2], inv[2])
+    near0 = _greater(_greater(tx[0], ty[0]), _greater(tz[0], 0.0))
+    near1 = _greater(_greater(tx[1], ty[1]), _greater(tz[1], 0.0))
+    far0 = _lesser(_lesser(tx[2], ty[2]), _lesser(tz[2], t_hi))
+    far1 = _lesser(_lesser(tx[3], ty[3]), _lesser(tz[3], t_hi))
+    return wp.vec2(wp.where(near0 <= far0, near0, NO_HIT), wp.where(near1 <= far1, near1, NO_HIT))
+
+
+@wp.func
 def _make_hit(g: FiberGeometry, i: int, t: float, origin: wp.vec3, direction: wp.vec3):
-    a = g.axis[i]
-    r = g.radius[i]
-    w = origin - g.center[i]
+    tube = g.tubes[i]
+    a = tube.axis
+    r = tube.radius
+    w = origin - tube.center
     along = wp.dot(w, a) + t * wp.dot(direction, a)
     # The radial part of the hit, rebuilt from the exact 2D geometry so that the position lies on the surface
     # (|distance to the axis| = r) even when t carries the rounding of a distant origin.
@@ -148,9 +212,9 @@ def _make_hit(g: FiberGeometry, i: int, t: float, origin: wp.vec3, direction: wp
 
     hit = FiberHit()
     hit.t = t
-    hit.segment = i
+    hit.segment = int(g.segment[i])
     hit.strand = int(g.strand[i])
-    hit.position = g.center[i] + along * a + r * z
+    hit.position = tube.center + along * a + r * z
     hit.tangent = a
     hit.normal = z
     hit.h = wp.clamp(-wo_y / wp.sqrt(wo_y * wo_y + wo_z * wo_z), -1.0, 1.0)
@@ -171,15 +235,45 @@ def intersect_fibers(g: FiberGeometry, origin: wp.vec3, direction: wp.vec3, t_ma
     """The closest entering hit with t_min < t < t_max along the unit `direction`; t = NO_HIT on a miss."""
     if g.num_segments == 0:
         return _no_hit()
+    inv = _inverse_direction(direction)
     t_best = wp.min(t_max, NO_HIT)
     best = int(-1)
-    query = wp.bvh_query_ray(g.bvh, origin, _traversal_direction(direction))
-    i = int(0)
-    while wp.bvh_query_next(query, i, t_best):
-        t = _entry_distance(g, i, origin, direction, t_best)
-        if t < t_best:
-            t_best = t
-            best = i
+    stack = NodeStack()
+    stack_t = EntryStack()
+    sp = int(0)
+    ref = int(0)
+    while ref != DONE:
+        if ref >= 0:
+            node = g.nodes[ref]
+            entry = _child_entries(node, origin, inv, t_best)
+            ta = entry[0]
+            tb = entry[1]
+            if ta < t_best or tb < t_best:
+                # The nearer child next; the farther one, if the ray enters it too, on the stack.
+                swap = tb < ta
+                near = wp.where(swap, node.child[1], node.child[0])
+                far = wp.where(swap, node.child[0], node.child[1])
+                t_far = _greater(ta, tb)
+                stack[sp] = wp.int32(far)
+                stack_t[sp] = t_far
+                sp += wp.where(t_far < t_best, 1, 0)
+                ref = near
+                continue
+        else:
+            code = -1 - ref
+            first = code >> LEAF_BITS
+            for i in range(first, first + (code & LEAF_MASK)):
+                t = _entry_distance(g.tubes[i], origin, direction, t_best)
+                if t < t_best:
+                    t_best = t
+                    best = i
+        # Pop the nearest pending subtree that the ray enters before the best hit so far.
+        ref = DONE
+        while sp > 0:
+            sp -= 1
+            if stack_t[sp] < t_best:
+                ref = int(stack[sp])
+                break
     if best < 0:
         return _no_hit()
     return _make_hit(g, best, t_best, origin, direction)
@@ -190,17 +284,40 @@ def fibers_occluded(g: FiberGeometry, origin: wp.vec3, direction: wp.vec3, t_max
     """Whether any entering hit lies in (t_min, t_max) along the unit `direction`: for shadow rays."""
     if g.num_segments == 0:
         return False
+    inv = _inverse_direction(direction)
     t_hi = wp.min(t_max, NO_HIT)
-    query = wp.bvh_query_ray(g.bvh, origin, _traversal_direction(direction))
-    i = int(0)
-    while wp.bvh_query_next(query, i, t_hi):
-        if _entry_distance(g, i, origin, direction, t_hi) < t_hi:
-            return True
+    stack = NodeStack()
+    sp = int(0)
+    ref = int(0)
+    while ref != DONE:
+        if ref >= 0:
+            node = g.nodes[ref]
+            entry = _child_entries(node, origin, inv, t_hi)
+            ta = entry[0]
+            tb = entry[1]
+            if ta < t_hi or tb < t_hi:
+                swap = tb < ta
+                near = wp.where(swap, node.child[1], node.child[0])
+                far = wp.where(swap, node.child[0], node.child[1])
+                stack[sp] = wp.int32(far)
+                sp += wp.where(_greater(ta, tb) < t_hi, 1, 0)
+                ref = near
+                continue
+        else:
+            code = -1 - ref
+            first = code >> LEAF_BITS
+            for i in range(first, first + (code & LEAF_MASK)):
+                if _entry_distance(g.tubes[i], origin, direction, t_hi) < t_hi:
+                    return True
+        ref = DONE
+        if sp > 0:
+            sp -= 1
+            ref = int(stack[sp])
     return False
 
 
 class FiberBVH:
-    """The segment arrays and the `wp.Bvh` of a `FiberAssembly` on a device; keeps them alive.
+    """The tube data and BVH of a `FiberAssembly` on a device; keeps them alive.
 
     `geometry` is the `FiberGeometry` that kernels take; `bounds` is (lo (3,), hi (3,)) float64, the box
     around every tube. Segment indices are those of `assembly.segments()`.
@@ -216,26 +333,23 @@ class FiberBVH:
         else:
             self.bounds = (np.zeros(3), np.zeros(3))
 
-        def vec3s(x):
-            return wp.array(np.asarray(x, dtype=np.float32).reshape(-1, 3), dtype=wp.vec3, device=device)
+        tree = build_bvh(lowers, uppers, max_leaf=MAX_LEAF, traversal_cost=TRAVERSAL_COST)
+        if tree.depth > STACK_SIZE:
+            raise ValueError(f"BVH depth {tree.depth} exceeds the traversal stack ({STACK_SIZE})")
+        order = tree.order
+        nodes = np.zeros(len(tree.child), dtype=BvhNode.numpy_dtype())
+        for k, name in enumerate("xyz"):
+            nodes[name] = np.column_stack([tree.lo[:, 0, k], tree.lo[:, 1, k], tree.hi[:, 0, k], tree.hi[:, 1, k]])
+        nodes["child"] = tree.child
+        tubes = np.zeros(len(order), dtype=Tube.numpy_dtype())
+        for name in ("center", "axis", "mitre0", "mitre1", "clip", "radius"):
+            tubes[name] = seg[name][order]
 
-        def scalars(x, dtype):
-            return wp.array(np.asarray(x), dtype=dtype, device=device)
-
-        self._lowers = vec3s(lowers)
-        self._uppers = vec3s(uppers)
-        self.bvh = wp.Bvh(self._lowers, self._uppers, constructor="sah")
         g = FiberGeometry()
-        g.bvh = self.bvh.id
-        g.p0 = vec3s(p0)
-        g.p1 = vec3s(p1)
-        g.radius = scalars(seg["radius"].astype(np.float32), float)
-        g.mitre0 = vec3s(seg["mitre0"])
-        g.mitre1 = vec3s(seg["mitre1"])
-        g.strand = scalars(strand.astype(np.int32), wp.int32)
-        g.center = vec3s(seg["center"])
-        g.axis = vec3s(seg["axis"])
-        g.clip = wp.array(np.asarray(seg["clip"], dtype=np.float32).reshape(-1, 2), dtype=wp.vec2, device=device)
+        g.nodes = wp.array(nodes, dtype=BvhNode, device=device)
+        g.tubes = wp.array(tubes, dtype=Tube, device=device)
+        g.segment = wp.array(order.astype(np.int32), dtype=wp.int32, device=device)
+        g.strand = wp.array(np.asarray(strand, dtype=np.int32)[order], dtype=wp.int32, device=device)
         g.num_segments = len(p0)
         self._geometry = g
 
