@@ -3,7 +3,7 @@
 Two views of the same work, each on one core and on all cores:
   batch API  `bsdf.sample` then `bsdf.eval` on the sampled directions, NumPy in and out (validation,
              float64 → float32 conversion and the allocations included);
-  kernels    what the renderer sees: one Warp kernel doing lobe_setup, hair_sample, hair_value and hair_pdf
+  kernels    what the renderer sees: one Warp kernel doing lobe_setup, hair_sample and hair_value_pdf
              per item on pre-allocated Warp arrays, spread over the cores by `launch_ranges`.
 Inputs: wo uniform on the sphere, h uniform in [−1, 1], u uniform in [0, 1)³; a typical brown material.
 
@@ -22,7 +22,7 @@ import warp as wp
 
 import warp_hair
 from warp_hair import HairParams, bsdf
-from warp_hair.hair_bsdf import HairCoefficients, hair_coefficients, hair_pdf, hair_sample, hair_value, lobe_setup
+from warp_hair.hair_bsdf import HairCoefficients, hair_coefficients, hair_sample, hair_value_pdf, lobe_setup
 from warp_hair.parallel import default_threads, launch_ranges
 
 # Compiles faster; the forward code being timed is the same.
@@ -45,9 +45,10 @@ def sample_and_eval_kernel(
     i = wp.tid() + first
     L = lobe_setup(c, wo[i], h[i])
     wi = hair_sample(L, u[i])
+    value, density = hair_value_pdf(L, wi)
     wi_out[i] = wi
-    value_out[i] = hair_value(L, wi)
-    pdf_out[i] = hair_pdf(L, wi)
+    value_out[i] = value
+    pdf_out[i] = density
 
 
 def random_inputs(n: int, seed: int = 1):

@@ -7,7 +7,7 @@ import reference_model as ref
 
 from warp_hair.fibers import FiberAssembly
 from warp_hair.render import render
-from warp_hair.scene import scene_from_dict
+from warp_hair.scene import EnvironmentLight, scene_from_dict
 
 
 def swatch_scene(hair, lights, resolution=(24, 24), render_table=None, card=None):
@@ -49,6 +49,18 @@ def test_white_furnace():
     # Every pixel within 5 standard errors of its own mean, and that noise is about 1%.
     assert np.all(np.abs(image - radiance) <= 5.0 * stderr + 1e-6)
     assert np.median(stderr) / radiance < 0.012
+
+
+def test_environment_is_complete_at_the_depth_limit():
+    """A lone white fiber under a constant sky with max_depth = 1 scatters once and everything escapes, so
+    every pixel equals L. Light sampling at that vertex is MIS-weighted against BSDF sampling, so this fails
+    if the ray sampled at the last vertex is not traced to the sky (it lost 43% of the light once)."""
+    radiance = 0.7
+    scene = single_fiber_scene(0.05, (0.0, 0.0, -1.0), (16, 4), {"albedo": 1.0})
+    scene.lights = [EnvironmentLight(radiance=(radiance,) * 3)]
+    image, stderr = render(scene, spp=256, return_stderr=True)
+    assert np.all(np.abs(image - radiance) <= 5.0 * stderr + 1e-6)
+    np.testing.assert_allclose(image.mean(), radiance, rtol=3e-3)
 
 
 def single_fiber_scene(radius, light_direction, resolution, hair):

@@ -5,6 +5,7 @@ itself lives in the library. Bad input (a control out of range, an unwritable pa
 `warp-hair: error: <message>` on stderr and exit status 2, as argparse does for malformed arguments.
 
     warp-hair plot-bsdf -o lobes.png [hair controls] [--theta-o DEG ...] [--h H]
+    warp-hair render SCENE.toml -o OUT.exr [--spp N] [--seed S] [--threads T] [--png PREVIEW.png]
 """
 
 from __future__ import annotations
@@ -76,7 +77,52 @@ def plot_bsdf(args: argparse.Namespace) -> None:
     print(plot_lobes(hair_params(args), args.output, theta_o_deg=args.theta_o, h=args.h))
 
 
-SUBCOMMANDS = (add_plot_bsdf,)
+def add_render(subparsers) -> None:
+    parser = subparsers.add_parser(
+        "render",
+        help="path-trace a scene file to a linear EXR",
+        description="Path-trace a scene (TOML) to a float32 linear-radiance EXR, with the scene and hair controls "
+        "in its header; optionally also a tone-mapped sRGB PNG preview.",
+    )
+    parser.add_argument("scene", type=Path, metavar="SCENE.toml", help="the scene file")
+    parser.add_argument("-o", "--output", required=True, type=Path, metavar="OUT.exr", help="the EXR file to write")
+    parser.add_argument("--spp", type=int, metavar="N", help="samples per pixel (default: the scene's [render] spp)")
+    parser.add_argument("--seed", type=int, metavar="S", help="random seed (default: the scene's [render] seed)")
+    parser.add_argument("--threads", type=int, metavar="T", help="CPU threads (default: all cores)")
+    parser.add_argument("--png", type=Path, metavar="PREVIEW.png", help="also write a tone-mapped sRGB preview")
+    parser.add_argument("--exposure", type=float, default=1.0, metavar="E", help="scale applied before tone mapping the PNG (default 1)")
+    parser.set_defaults(run=render_scene)
+
+
+def render_scene(args: argparse.Namespace) -> None:
+    import time
+
+    from tqdm import tqdm
+
+    from .io import write_exr, write_png
+    from .render import render, render_metadata
+    from .scene import load_scene
+
+    scene = load_scene(args.scene)
+    spp = scene.render.spp if args.spp is None else args.spp
+    seed = scene.render.seed if args.seed is None else args.seed
+    width, height = scene.camera.resolution
+    start = time.perf_counter()
+    with tqdm(total=width * height, unit="px", desc=f"{args.scene.name} {width}x{height} {spp} spp") as bar:
+
+        def progress(done, total):
+            bar.update(done - bar.n)
+
+        image = render(scene, spp=spp, seed=seed, threads=args.threads, progress=progress)
+    seconds = time.perf_counter() - start
+    write_exr(args.output, image, render_metadata(scene, spp, seed))
+    print(f"wrote {args.output} ({seconds:.1f} s, {width * height * spp / seconds / 1e6:.3f} M paths/s)")
+    if args.png is not None:
+        write_png(args.png, image, exposure=args.exposure)
+        print(f"wrote {args.png}")
+
+
+SUBCOMMANDS = (add_plot_bsdf, add_render)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -9,7 +9,7 @@ Usage inside a kernel:
     s_value = hair_value(setup, wi)            # S, the cosine-weighted BSDF (RGB)
     density = hair_pdf(setup, wi)              # solid-angle pdf of hair_sample
     s_value, density = hair_value_pdf(setup, wi)   # both from one evaluation of the lobes
-    wi = hair_sample(coeffs, setup, u)         # u: three uniforms in [0, 1)
+    wi = hair_sample(setup, u)                 # u: three uniforms in [0, 1)
 Nothing allocates; everything is float32.
 """
 

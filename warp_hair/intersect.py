@@ -94,13 +94,16 @@ class Tube:
 
 @wp.struct
 class BvhNode:
-    """An interior node of the fiber BVH (`warp_hair.bvh`): the slabs of its two child boxes along each axis,
-    (lo of child 0, lo of child 1, hi of child 0, hi of child 1), and what the children are."""
+    """A node of the 4-wide fiber BVH (`warp_hair.bvh`): the boxes of its four children, one vec4 (children
+    0..3) per bound, and what the children are."""
 
-    x: wp.vec4
-    y: wp.vec4
-    z: wp.vec4
-    child: wp.vec2i  # >= 0: an interior node; < 0: a leaf, −1 − child = (first tube << LEAF_BITS) | count
+    lo_x: wp.vec4
+    lo_y: wp.vec4
+    lo_z: wp.vec4
+    hi_x: wp.vec4
+    hi_y: wp.vec4
+    hi_z: wp.vec4
+    child: wp.vec4i  # >= 0: an interior node; < 0: a leaf, −1 − child = (first tube << LEAF_BITS) | count
 
 
 @wp.struct
@@ -173,23 +176,39 @@ def _greater(a: float, b: float):
 
 
 @wp.func
-def _slab(bounds: wp.vec4, o: float, inv: float):
-    """Where the ray crosses the slabs of both children along one axis: (near 0, near 1, far 0, far 1)."""
-    t = (bounds - wp.vec4(o)) * inv
-    return wp.vec4(_lesser(t[0], t[2]), _lesser(t[1], t[3]), _greater(t[0], t[2]), _greater(t[1], t[3]))
+def _vmin(a: wp.vec4, b: wp.vec4):
+    return wp.vec4(_lesser(a[0], b[0]), _lesser(a[1], b[1]), _lesser(a[2], b[2]), _lesser(a[3], b[3]))
+
+
+@wp.func
+def _vmax(a: wp.vec4, b: wp.vec4):
+    return wp.vec4(_greater(a[0], b[0]), _greater(a[1], b[1]), _greater(a[2], b[2]), _greater(a[3], b[3]))
 
 
 @wp.func
 def _child_entries(node: BvhNode, origin: wp.vec3, inv: wp.vec3, t_hi: float):
     """Where the ray enters each child box of the node (0 if it starts inside), NO_HIT for a miss before t_hi."""
-    tx = _slab(node.x, origin[0], inv[0])
-    ty = _slab(node.y, origin[1], inv[1])
-    tz = _slab(node.z, origin[2], inv[2])
-    near0 = _greater(_greater(tx[0], ty[0]), _greater(tz[0], 0.0))
-    near1 = _greater(_greater(tx[1], ty[1]), _greater(tz[1], 0.0))
-    far0 = _lesser(_lesser(tx[2], ty[2]), _lesser(tz[2], t_hi))
-    far1 = _lesser(_lesser(tx[3], ty[3]), _lesser(tz[3], t_hi))
-    return wp.vec2(wp.where(near0 <= far0, near0, NO_HIT), wp.where(near1 <= far1, near1, NO_HIT))
+    x0 = (node.lo_x - wp.vec4(origin[0])) * inv[0]
+    x1 = (node.hi_x - wp.vec4(origin[0])) * inv[0]
+    y0 = (node.lo_y - wp.vec4(origin[1])) * inv[1]
+    y1 = (node.hi_y - wp.vec4(origin[1])) * inv[1]
+    z0 = (node.lo_z - wp.vec4(origin[2])) * inv[2]
+    z1 = (node.hi_z - wp.vec4(origin[2])) * inv[2]
+    near = _vmax(_vmax(_vmin(x0, x1), _vmin(y0, y1)), _vmax(_vmin(z0, z1), wp.vec4(0.0)))
+    far = _vmin(_vmin(_vmax(x0, x1), _vmax(y0, y1)), _vmin(_vmax(z0, z1), wp.vec4(t_hi)))
+    return wp.vec4(
+        wp.where(near[0] <= far[0], near[0], NO_HIT),
+        wp.where(near[1] <= far[1], near[1], NO_HIT),
+        wp.where(near[2] <= far[2], near[2], NO_HIT),
+        wp.where(near[3] <= far[3], near[3], NO_HIT),
+    )
+
+
+@wp.func
+def _compare_swap(ta: float, tb: float, a: int, b: int):
+    """The two (entry, child) pairs in order of entry."""
+    swap = tb < ta
+    return wp.where(swap, tb, ta), wp.where(swap, ta, tb), wp.where(swap, b, a), wp.where(swap, a, b)
 
 
 @wp.func
@@ -246,18 +265,25 @@ def intersect_fibers(g: FiberGeometry, origin: wp.vec3, direction: wp.vec3, t_ma
         if ref >= 0:
             node = g.nodes[ref]
             entry = _child_entries(node, origin, inv, t_best)
-            ta = entry[0]
-            tb = entry[1]
-            if ta < t_best or tb < t_best:
-                # The nearer child next; the farther one, if the ray enters it too, on the stack.
-                swap = tb < ta
-                near = wp.where(swap, node.child[1], node.child[0])
-                far = wp.where(swap, node.child[0], node.child[1])
-                t_far = _greater(ta, tb)
-                stack[sp] = wp.int32(far)
-                stack_t[sp] = t_far
-                sp += wp.where(t_far < t_best, 1, 0)
-                ref = near
+            # Sort the children by entry distance (misses, at NO_HIT, come last) ...
+            t0, t1, c0, c1 = _compare_swap(entry[0], entry[1], node.child[0], node.child[1])
+            t2, t3, c2, c3 = _compare_swap(entry[2], entry[3], node.child[2], node.child[3])
+            t0, t2, c0, c2 = _compare_swap(t0, t2, c0, c2)
+            t1, t3, c1, c3 = _compare_swap(t1, t3, c1, c3)
+            t1, t2, c1, c2 = _compare_swap(t1, t2, c1, c2)
+            # ... push those the ray enters after the nearest, farthest first (a miss is written and left) ...
+            stack[sp] = wp.int32(c3)
+            stack_t[sp] = t3
+            sp += wp.where(t3 < t_best, 1, 0)
+            stack[sp] = wp.int32(c2)
+            stack_t[sp] = t2
+            sp += wp.where(t2 < t_best, 1, 0)
+            stack[sp] = wp.int32(c1)
+            stack_t[sp] = t1
+            sp += wp.where(t1 < t_best, 1, 0)
+            # ... and visit the nearest next.
+            if t0 < t_best:
+                ref = c0
                 continue
         else:
             code = -1 - ref
@@ -293,15 +319,19 @@ def fibers_occluded(g: FiberGeometry, origin: wp.vec3, direction: wp.vec3, t_max
         if ref >= 0:
             node = g.nodes[ref]
             entry = _child_entries(node, origin, inv, t_hi)
-            ta = entry[0]
-            tb = entry[1]
-            if ta < t_hi or tb < t_hi:
-                swap = tb < ta
-                near = wp.where(swap, node.child[1], node.child[0])
-                far = wp.where(swap, node.child[0], node.child[1])
-                stack[sp] = wp.int32(far)
-                sp += wp.where(_greater(ta, tb) < t_hi, 1, 0)
-                ref = near
+            t0, t1, c0, c1 = _compare_swap(entry[0], entry[1], node.child[0], node.child[1])
+            t2, t3, c2, c3 = _compare_swap(entry[2], entry[3], node.child[2], node.child[3])
+            t0, t2, c0, c2 = _compare_swap(t0, t2, c0, c2)
+            t1, t3, c1, c3 = _compare_swap(t1, t3, c1, c3)
+            t1, t2, c1, c2 = _compare_swap(t1, t2, c1, c2)
+            stack[sp] = wp.int32(c3)
+            sp += wp.where(t3 < t_hi, 1, 0)
+            stack[sp] = wp.int32(c2)
+            sp += wp.where(t2 < t_hi, 1, 0)
+            stack[sp] = wp.int32(c1)
+            sp += wp.where(t1 < t_hi, 1, 0)
+            if t0 < t_hi:
+                ref = c0
                 continue
         else:
             code = -1 - ref
@@ -333,13 +363,15 @@ class FiberBVH:
         else:
             self.bounds = (np.zeros(3), np.zeros(3))
 
-        tree = build_bvh(lowers, uppers, max_leaf=MAX_LEAF, traversal_cost=TRAVERSAL_COST)
-        if tree.depth > STACK_SIZE:
-            raise ValueError(f"BVH depth {tree.depth} exceeds the traversal stack ({STACK_SIZE})")
+        tree = build_bvh(lowers, uppers, max_leaf=MAX_LEAF, width=4, traversal_cost=TRAVERSAL_COST)
+        # Each level of the traversal leaves at most 3 children pending (and writes up to 3 past them).
+        if 3 * tree.depth > STACK_SIZE:
+            raise ValueError(f"BVH depth {tree.depth} is too deep for the traversal stack ({STACK_SIZE})")
         order = tree.order
         nodes = np.zeros(len(tree.child), dtype=BvhNode.numpy_dtype())
-        for k, name in enumerate("xyz"):
-            nodes[name] = np.column_stack([tree.lo[:, 0, k], tree.lo[:, 1, k], tree.hi[:, 0, k], tree.hi[:, 1, k]])
+        for k, axis in enumerate("xyz"):
+            nodes[f"lo_{axis}"] = tree.lo[:, :, k]
+            nodes[f"hi_{axis}"] = tree.hi[:, :, k]
         nodes["child"] = tree.child
         tubes = np.zeros(len(order), dtype=Tube.numpy_dtype())
         for name in ("center", "axis", "mitre0", "mitre1", "clip", "radius"):

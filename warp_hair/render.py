@@ -70,6 +70,22 @@ def _directional_data(light: DirectionalLight | None) -> DirectionalLightData:
     return data
 
 
+def render_metadata(scene: Scene, spp: int, seed: int) -> dict:
+    """What an image's EXR header records of how it was made."""
+    from . import __version__
+
+    return {
+        "warp_hair": {
+            "version": __version__,
+            "scene": scene.source,
+            "hair": scene.hair.to_dict(),
+            "sigma_a": [float(c) for c in scene.hair.sigma_a],
+            "spp": spp,
+            "seed": seed,
+        }
+    }
+
+
 def render(
     scene: Scene,
     spp: int | None = None,
