@@ -10,8 +10,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from warp_hair import bvh as bvh_module
 from warp_hair.fibers import FiberAssembly, load_fibers, wavy
-from warp_hair.intersect import FiberBVH, intersect, occluded
+from warp_hair.intersect import STACK_SIZE, FiberBVH, intersect, occluded
 
 BENCH_FIBERS = Path(__file__).parents[1] / "benchmarks" / "standard_swatch_fibers.txt"
 T_MIN_RADII = 1e-3
@@ -539,3 +540,115 @@ def test_benchmark_swatch_orthographic_grid():
     # The front layer (z ≈ 0) is what a camera on +z sees first.
     assert np.median(hit["position"][hits, 2]) > -0.01
     np.testing.assert_allclose(hit["position"][hits], origins[hits] + hit["t"][hits, None] * down[hits], atol=1e-5)
+
+
+# --- the BVH -----------------------------------------------------------------------------------------------------
+
+
+def check_tree(tree, lowers, uppers, max_leaf):
+    """The invariants of warp_hair.bvh's layout: every primitive in exactly one leaf of at most max_leaf, every
+    child box (float32) enclosing what lies below it, children numbered after their parents, the depth."""
+    m = len(lowers)
+    assert sorted(tree.order.tolist()) == list(range(m))
+    covered = np.zeros(m, dtype=int)
+    for k, (los, his, children) in enumerate(zip(tree.lo, tree.hi, tree.child)):
+        for lo, hi, c in zip(los, his, children):
+            if c >= 0:
+                assert c > k and tree.level[c] == tree.level[k] + 1
+                real = tree.child[c] != bvh_module.leaf_code(0, 0)
+                assert np.all(lo <= tree.lo[c][real].min(axis=0)) and np.all(hi >= tree.hi[c][real].max(axis=0))
+                continue
+            start, count = bvh_module.leaf_range(c)
+            if count == 0:  # an unused slot
+                assert np.all(lo >= 1e29) and np.all(hi >= 1e29)
+                continue
+            assert count <= max_leaf
+            inside = tree.order[start : start + count]
+            covered[inside] += 1
+            assert np.all(lo <= lowers[inside]) and np.all(hi >= uppers[inside])
+    np.testing.assert_array_equal(covered, 1)
+    if m:
+        assert tree.depth == tree.level.max() + 1
+        assert tree.depth <= bvh_module.MAX_DEPTH * 2 // tree.width
+
+
+@pytest.mark.parametrize("width", [2, 4])
+@pytest.mark.parametrize("case", ["empty", "one", "two", "three", "random", "coincident", "geometric", "swatch"])
+def test_bvh_layout(case, width):
+    rng = np.random.default_rng(1)
+    if case == "swatch":
+        p0, p1, r0, r1, _, _ = load_fibers(BENCH_FIBERS).segments()
+        lowers = np.minimum(p0, p1) - np.maximum(r0, r1)[:, None]
+        uppers = np.maximum(p0, p1) + np.maximum(r0, r1)[:, None]
+    elif case == "geometric":
+        # Boxes at exponentially growing spacing and size, which the surface area heuristic splits into a
+        # lopsided tree (depth ~30 for 2000 boxes): the depth bound must still hold.
+        x = 1.03 ** np.arange(2000)
+        lowers = np.column_stack([x, np.zeros_like(x), np.zeros_like(x)])
+        uppers = lowers + np.column_stack([0.2 * x, np.ones_like(x), np.ones_like(x)])
+    else:
+        m = {"empty": 0, "one": 1, "two": 2, "three": 3, "random": 300, "coincident": 40}[case]
+        centres = rng.normal(size=(m, 3)) if case != "coincident" else np.zeros((m, 3))
+        lowers, uppers = centres - rng.uniform(0.01, 0.2, (m, 3)), centres + rng.uniform(0.01, 0.2, (m, 3))
+    for max_leaf in (1, 2, 4):
+        tree = bvh_module.build_bvh(lowers, uppers, max_leaf=max_leaf, width=width)
+        check_tree(tree, lowers, uppers, max_leaf)
+        if width == 4:
+            assert 3 * tree.depth <= STACK_SIZE
+
+
+def test_many_tubes_agree_with_the_float64_brute_force():
+    """Rays from outside and rays scattered from the hits, on enough tubes for a BVH several levels deep: the
+    closest hit and the shadow test agree with the brute force."""
+    fibers = wavy(count=40, layers=2, length=0.4, radius=0.01, amplitude=0.03, wavelength=0.4, phase_jitter=1.0, seed=5)
+    tubes = reference_tubes(fibers)
+    bvh = FiberBVH(fibers)
+    rng = np.random.default_rng(31)
+    n = 1500
+    lo, hi = bvh.bounds
+    origins, directions = rays_toward(rng, rng.uniform(lo, hi, (n, 3)))
+    first = intersect(bvh, origins, directions)
+    on = np.isfinite(first["t"])
+    scattered = unit(random_directions(rng, int(on.sum())).astype(np.float32))
+    origins = np.concatenate([origins, first["position"][on].astype(np.float32)])
+    directions = np.concatenate([directions, scattered])
+
+    hit = intersect(bvh, origins, directions)
+    blocked = occluded(bvh, origins, directions)
+    t_ref, segment_ref, robust = reference_closest(tubes, origins, directions)
+    # The module ignores a tube whose cylinder holds the origin within r·(1 + 1e-3) of its axis (the next tube
+    # at a joint, or a crossing fiber, for a ray that starts on a surface), which the brute force does not
+    # model: leave out rays whose brute-force hit is such a tube.
+    seg = np.maximum(segment_ref, 0)
+    a = tubes["a"][seg]
+    w = origins - tubes["p0"][seg]
+    radial = np.linalg.norm(w - np.sum(w * a, axis=1, keepdims=True) * a, axis=1) / tubes["r"][seg]
+    robust &= ~((segment_ref >= 0) & (radial < 1 + 2e-3))
+    assert robust.mean() > 0.95
+    assert 0.2 < np.isfinite(t_ref[:n]).mean() < 0.9 and 0.2 < np.isfinite(t_ref[n:]).mean() < 0.9
+    np.testing.assert_array_equal(blocked, np.isfinite(hit["t"]))
+    np.testing.assert_array_equal(np.isfinite(hit["t"])[robust], np.isfinite(t_ref)[robust])
+    both = robust & np.isfinite(t_ref)
+    np.testing.assert_array_equal(hit["segment"][both], segment_ref[both])
+    np.testing.assert_allclose(hit["t"][both], t_ref[both], atol=1e-4)
+
+
+def test_an_unbalanced_tree_agrees_with_the_float64_brute_force():
+    """Strands at exponentially growing spacing: a lopsided tree, deeper on one side than on the other."""
+    x = 0.05 * 1.04 ** np.arange(150)
+    strands = [(np.array([[xi, -0.5, 0.0], [xi, 0.0, 0.02], [xi, 0.5, 0.0]]), 0.01) for xi in x]
+    fibers = FiberAssembly.from_strands(strands)
+    bvh = FiberBVH(fibers)
+    tubes = reference_tubes(fibers)
+    rng = np.random.default_rng(8)
+    n = 2000
+    targets = np.column_stack([rng.choice(x, n) + rng.normal(scale=0.01, size=n), rng.uniform(-0.6, 0.6, n),
+                               rng.normal(scale=0.01, size=n)])
+    origins, directions = rays_toward(rng, targets, distance=1.0)
+    hit = intersect(bvh, origins, directions)
+    t_ref, segment_ref, robust = reference_closest(tubes, origins, directions)
+    assert robust.mean() > 0.95 and np.isfinite(t_ref).mean() > 0.3
+    np.testing.assert_array_equal(np.isfinite(hit["t"])[robust], np.isfinite(t_ref)[robust])
+    both = robust & np.isfinite(t_ref)
+    np.testing.assert_array_equal(hit["segment"][both], segment_ref[both])
+    np.testing.assert_array_equal(occluded(bvh, origins, directions), np.isfinite(hit["t"]))

@@ -12,8 +12,8 @@ Layout
   (start, count) into `order`, count <= `MAX_LEAF_SIZE`.
 
 Node 0 is the root. Unused child slots (a 4-wide node may have only 2 or 3 children, a one-primitive tree has
-one) are empty leaves (count 0) in a box at 1e30 in every coordinate, which a ray with unit direction
-enters, if at all, no nearer than t = 1e30. An empty set has no nodes at all and must not be traversed.
+one) are empty leaves (count 0) in a box at 1e30 in every coordinate: no ray of unit direction gets there
+before t ≈ 1e30, and one that does finds nothing. An empty set has no nodes at all and must not be traversed.
 
 Construction
 ------------
@@ -40,7 +40,8 @@ import numpy as np
 LEAF_BITS = 3
 MAX_LEAF_SIZE = (1 << LEAF_BITS) - 1
 BINS = 16
-# Most interior nodes on any root-to-leaf path of the binary tree (a traversal stack must hold a bound of it).
+# Most interior nodes on any root-to-leaf path of the binary tree (MAX_DEPTH / 2 in the 4-wide one), which
+# bounds what a traversal stack must hold.
 MAX_DEPTH = 40
 # Cost of testing a node's child boxes, relative to one primitive test.
 TRAVERSAL_COST = 1.0
@@ -86,6 +87,7 @@ def _half_area(box):
 
 
 def _build_binary(lowers, uppers, max_leaf, traversal_cost) -> Tree:
+    """The binary tree, built level by level (module docstring); node ids are assigned in level order."""
     if not 1 <= max_leaf <= MAX_LEAF_SIZE:
         raise ValueError(f"max_leaf must be in [1, {MAX_LEAF_SIZE}], got {max_leaf}")
     lowers = np.asarray(lowers, dtype=np.float64).reshape(-1, 3)

@@ -1,4 +1,4 @@
-"""Ray–fiber intersection: exact hits on the round tubes of a `FiberAssembly`, through a Warp BVH.
+"""Ray–fiber intersection: exact hits on the round tubes of a `FiberAssembly`, through a 4-wide BVH.
 
 Geometry
 --------
@@ -35,10 +35,26 @@ x = `tangent` (unit axis, root → tip), z = `normal` (outward cylinder normal, 
 h = −(wo·y) / sqrt((wo·y)² + (wo·z)²) = −cos φ_o with wo = −direction. For a ray perpendicular to the fiber,
 h is the signed offset of the ray from the axis along a × d, over r.
 
-Warp BVH notes (1.19): `bvh_query_ray` visits boxes in no particular order, so the closest hit prunes by
-passing the shrinking t to `bvh_query_next(query, index, max_dist)` (safe: max_dist may only decrease).
-The ray–box slab test divides by the direction, and 0 · inf gives NaN for a ray exactly in a box face, so
-zero direction components are replaced by a tiny number for the traversal only.
+BVH traversal
+-------------
+The tubes' boxes go into a 4-wide BVH built in NumPy (`warp_hair.bvh`, which documents the layout): each
+`BvhNode` holds the boxes of its four children as six vec4 (one per bound, children 0..3) and their
+references, and the per-tube data sits in one `Tube` struct array in leaf order, so that a leaf reads one
+contiguous block. A traversal keeps a fixed-size local stack (`NodeStack`, a Warp vector of STACK_SIZE ints;
+the builder bounds the depth so that it cannot overflow) and, at each node:
+
+1. tests the ray against the four child boxes at once (slab test with 1/direction computed once per ray;
+   zero direction components become TINY, since 0 · inf gives NaN for a ray exactly in a box face), giving
+   each child's entry distance, or NO_HIT where the ray misses it before the best hit so far;
+2. sorts the four (entry, child) pairs with a 5-comparator network, pushes the second to fourth nearest that
+   the ray enters (farthest first, without branches: a miss is written and the stack pointer not advanced)
+   and descends into the nearest.
+
+`intersect_fibers` keeps the entry distance beside each pushed child (`EntryStack`) and skips, when popping,
+subtrees that the ray enters only beyond the closest hit found since: front to back, with pruning.
+`fibers_occluded` visits children in the same order and returns at the first hit. Which of two hits at the
+same t wins (only possible in the 1e-3·r seam overlap of a joint, where both are valid) depends on the order
+of the visit.
 """
 
 from __future__ import annotations
@@ -46,8 +62,7 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from . import bvh
-from .bvh import build_bvh
+from .bvh import LEAF_BITS, MAX_LEAF_SIZE, build_bvh
 
 wp.set_module_options({"enable_backward": False})
 
@@ -60,15 +75,18 @@ SURFACE_BAND2 = wp.constant(1.002001)
 MIN_SIN2 = wp.constant(1.0e-12)
 # Stand-in for zero direction components in the BVH slab test.
 TINY = wp.constant(1.0e-30)
-# Tubes per BVH leaf, at most, and the cost of a node visit relative to a tube test (surface area heuristic).
-MAX_LEAF = 4
+# Tubes per BVH leaf, at most, and the cost of a node visit relative to a tube test (for the surface area
+# heuristic). Measured on the benchmark swatch: leaves of 1 or 2 tubes are a few percent faster than of 4 or 7.
+MAX_LEAF = 2
 TRAVERSAL_COST = 1.0
-# Pending subtrees a traversal can hold: at least the depth of any tree `build_bvh` makes.
+# Slots of the traversal stack. A 4-wide node leaves at most 3 children pending and a traversal writes up to
+# 3 slots past those, so a tree of depth D needs 3·D slots; `build_bvh` keeps D <= bvh.MAX_DEPTH / 2 = 20.
 STACK_SIZE = 64
 NodeStack = wp.types.vector(length=STACK_SIZE, dtype=wp.int32)
 EntryStack = wp.types.vector(length=STACK_SIZE, dtype=float)
-LEAF_BITS = wp.constant(bvh.LEAF_BITS)
-LEAF_MASK = wp.constant(bvh.MAX_LEAF_SIZE)
+# A leaf reference is −1 − ((first tube << LEAF_SHIFT) | count).
+LEAF_SHIFT = wp.constant(LEAF_BITS)
+LEAF_MASK = wp.constant(MAX_LEAF_SIZE)
 # The traversal's "no node left".
 DONE = wp.constant(2**31 - 1)
 
@@ -103,7 +121,7 @@ class BvhNode:
     hi_x: wp.vec4
     hi_y: wp.vec4
     hi_z: wp.vec4
-    child: wp.vec4i  # >= 0: an interior node; < 0: a leaf, −1 − child = (first tube << LEAF_BITS) | count
+    child: wp.vec4i  # >= 0: an interior node; < 0: a leaf, −1 − child = (first tube << LEAF_SHIFT) | count
 
 
 @wp.struct
@@ -287,7 +305,7 @@ def intersect_fibers(g: FiberGeometry, origin: wp.vec3, direction: wp.vec3, t_ma
                 continue
         else:
             code = -1 - ref
-            first = code >> LEAF_BITS
+            first = code >> LEAF_SHIFT
             for i in range(first, first + (code & LEAF_MASK)):
                 t = _entry_distance(g.tubes[i], origin, direction, t_best)
                 if t < t_best:
@@ -335,7 +353,7 @@ def fibers_occluded(g: FiberGeometry, origin: wp.vec3, direction: wp.vec3, t_max
                 continue
         else:
             code = -1 - ref
-            first = code >> LEAF_BITS
+            first = code >> LEAF_SHIFT
             for i in range(first, first + (code & LEAF_MASK)):
                 if _entry_distance(g.tubes[i], origin, direction, t_hi) < t_hi:
                     return True
@@ -347,7 +365,7 @@ def fibers_occluded(g: FiberGeometry, origin: wp.vec3, direction: wp.vec3, t_max
 
 
 class FiberBVH:
-    """The tube data and BVH of a `FiberAssembly` on a device; keeps them alive.
+    """The tube data and 4-wide BVH of a `FiberAssembly` on a device; keeps them alive.
 
     `geometry` is the `FiberGeometry` that kernels take; `bounds` is (lo (3,), hi (3,)) float64, the box
     around every tube. Segment indices are those of `assembly.segments()`.
@@ -364,7 +382,6 @@ class FiberBVH:
             self.bounds = (np.zeros(3), np.zeros(3))
 
         tree = build_bvh(lowers, uppers, max_leaf=MAX_LEAF, width=4, traversal_cost=TRAVERSAL_COST)
-        # Each level of the traversal leaves at most 3 children pending (and writes up to 3 past them).
         if 3 * tree.depth > STACK_SIZE:
             raise ValueError(f"BVH depth {tree.depth} is too deep for the traversal stack ({STACK_SIZE})")
         order = tree.order
