@@ -22,6 +22,9 @@ from .lobes import (
     TWO_PI64,
     attenuation,
     fresnel_dielectric,
+    logistic_norm,
+    logistic_tail,
+    longitudinal_norm,
     longitudinal_scattering,
     mat43,
     sample_longitudinal_sin,
@@ -39,7 +42,12 @@ class HairCoefficients:
     sigma_a: wp.vec3  # absorption per unit fiber radius, RGB
     eta: float
     v: wp.vec4  # longitudinal variance of R, TT, TRT, residual
+    inv_v: wp.vec4
+    m_norm: wp.vec4  # longitudinal_norm(v)
     s: float  # logistic scale of the azimuthal lobes
+    inv_s: float
+    n_norm: float  # logistic_norm(s)
+    n_tail: float  # logistic_tail(s)
     sin_2k_alpha: wp.vec3  # sin(α), sin(2α), sin(4α)
     cos_2k_alpha: wp.vec3
 
@@ -48,8 +56,16 @@ def hair_coefficients(params: HairParams) -> HairCoefficients:
     c = HairCoefficients()
     c.sigma_a = wp.vec3(*params.sigma_a)
     c.eta = float(params.eta)
-    c.v = wp.vec4(*params.lobe_variances)
-    c.s = float(params.logistic_scale)
+    # The per-lobe normalisations are per material: formed here once, in float64.
+    v = params.lobe_variances
+    s = params.logistic_scale
+    c.v = wp.vec4(*v)
+    c.inv_v = wp.vec4(*(1.0 / v))
+    c.m_norm = wp.vec4(*longitudinal_norm(v))
+    c.s = float(s)
+    c.inv_s = float(1.0 / s)
+    c.n_norm = float(logistic_norm(s))
+    c.n_tail = float(logistic_tail(s))
     angles = np.radians(params.alpha) * np.array([1.0, 2.0, 4.0])
     c.sin_2k_alpha = wp.vec3(*np.sin(angles))
     c.cos_2k_alpha = wp.vec3(*np.cos(angles))
@@ -66,8 +82,7 @@ class LobeSetup:
     phi_center: wp.vec3d  # Φ(p) = 2pγ_t − 2γ_o + pπ, the azimuthal centre of R, TT, TRT
     A: mat43  # attenuation per lobe (rows), RGB
     prob: wp.vec4  # lobe selection probabilities ∝ channel mean of A_p
-    v: wp.vec4
-    s: float
+    c: HairCoefficients
 
 
 @wp.func
@@ -127,8 +142,7 @@ def lobe_setup(c: HairCoefficients, wo: wp.vec3, h: float):
         wp.float64(2.0) * gamma_t - wp.float64(2.0) * gamma_o + PI64,
         wp.float64(4.0) * gamma_t - wp.float64(2.0) * gamma_o + wp.float64(2.0) * PI64,
     )
-    L.v = c.v
-    L.s = c.s
+    L.c = c
     return L
 
 
@@ -140,9 +154,9 @@ def lobe_densities(L: LobeSetup, wi: wp.vec3):
     dphi = wp.atan2(wp.float64(wi[2]), wp.float64(wi[1])) - L.phi_o
     d = wp.vec4(0.0)
     for p in range(3):
-        m = longitudinal_scattering(sin_i, cos_i, L.sin_o[p], L.cos_o[p], L.v[p])
-        d[p] = m * trimmed_logistic(float(wrap_angle(dphi - L.phi_center[p])), L.s)
-    d[3] = longitudinal_scattering(sin_i, cos_i, L.sin_o[3], L.cos_o[3], L.v[3]) * INV_TWO_PI
+        m = longitudinal_scattering(sin_i, cos_i, L.sin_o[p], L.cos_o[p], L.c.inv_v[p], L.c.m_norm[p])
+        d[p] = m * trimmed_logistic(float(wrap_angle(dphi - L.phi_center[p])), L.c.inv_s, L.c.n_norm)
+    d[3] = longitudinal_scattering(sin_i, cos_i, L.sin_o[3], L.cos_o[3], L.c.inv_v[3], L.c.m_norm[3]) * INV_TWO_PI
     return d
 
 
@@ -209,9 +223,9 @@ def hair_sample(L: LobeSetup, u: wp.vec3):
     float32 rounding in the logistic's tails.
     """
     p, u_rot = choose_lobe(L.prob, u[0])
-    sin_i, cos_i = sample_longitudinal_sin(u[1], u_rot, L.sin_o[p], L.cos_o[p], L.v[p])
+    sin_i, cos_i = sample_longitudinal_sin(u[1], u_rot, L.sin_o[p], L.cos_o[p], L.c.v[p])
     dphi = TWO_PI64 * wp.float64(u[2])
     if p < 3:
-        dphi = L.phi_center[p] + wp.float64(sample_trimmed_logistic(u[2], L.s))
+        dphi = L.phi_center[p] + wp.float64(sample_trimmed_logistic(u[2], L.c.s, L.c.n_tail))
     phi_i = L.phi_o + dphi
     return wp.vec3(sin_i, cos_i * float(wp.cos(phi_i)), cos_i * float(wp.sin(phi_i)))

@@ -8,6 +8,7 @@ grazing angles, h = ±1, σ_a = 0).
 
 import math
 
+import numpy as np
 import warp as wp
 
 PI = wp.constant(math.pi)
@@ -38,6 +39,21 @@ def bessel_i0e(x: float):
     return poly / wp.sqrt(x)
 
 
+def longitudinal_norm(v):
+    """1 / (v (1 − e^(−2/v))), M's normalisation, in float64 on the host (NumPy)."""
+    return 1.0 / (v * -np.expm1(-2.0 / v))
+
+
+def logistic_norm(s):
+    """1 / (s tanh(π / 2s)): the trimmed logistic's normalisation, CDF(π) − CDF(−π) = tanh(π / 2s)."""
+    return 1.0 / (s * np.tanh(np.pi / (2.0 * s)))
+
+
+def logistic_tail(s):
+    """CDF(−π) = 1 / (1 + e^(π/s)) of the logistic of scale s, without overflow for small s."""
+    return np.exp(-np.logaddexp(0.0, np.pi / s))
+
+
 @wp.func
 def one_minus_exp_neg(y: float):
     """1 − e^(−y) for y ≥ 0 without the cancellation of the direct form at small y (rough lobes, v ≫ 1)."""
@@ -57,16 +73,17 @@ def cos_sum_minus_one(sin_a: float, cos_a: float, sin_b: float, cos_b: float):
 
 
 @wp.func
-def longitudinal_scattering(sin_i: float, cos_i: float, sin_o: float, cos_o: float, v: float):
+def longitudinal_scattering(sin_i: float, cos_i: float, sin_o: float, cos_o: float, inv_v: float, norm: float):
     """M(θ_i, θ_o; v) = I0(cos θ_i cos θ_o / v) e^(−sin θ_i sin θ_o / v) / (2 v sinh(1/v)) (d'Eon 2011).
 
     With a = cos θ_i cos θ_o / v and 2 sinh(1/v) = e^(1/v)(1 − e^(−2/v)):
         M = I0e(a) · exp((cos(θ_i + θ_o) − 1) / v) / (v (1 − e^(−2/v))),
     because a − sin θ_i sin θ_o / v − 1/v = (cos(θ_i + θ_o) − 1)/v. Every factor is ≤ 1 or a plain
     division, so tiny v (log-space territory in pbrt) and huge v are both exact to float32 precision.
+    `inv_v` = 1/v and `norm` = 1/(v (1 − e^(−2/v))) depend on the material only: `longitudinal_norm`.
     """
     e = cos_sum_minus_one(sin_i, cos_i, sin_o, cos_o)
-    return bessel_i0e(cos_i * cos_o / v) * wp.exp(e / v) / (v * one_minus_exp_neg(2.0 / v))
+    return bessel_i0e(cos_i * cos_o * inv_v) * wp.exp(e * inv_v) * norm
 
 
 @wp.func
@@ -157,23 +174,20 @@ def wrap_angle(x: wp.float64):
 
 
 @wp.func
-def trimmed_logistic(x: float, s: float):
-    """The logistic density of scale s restricted to [−π, π] and renormalized there.
-
-    The normalizer CDF(π) − CDF(−π) equals tanh(π / 2s).
-    """
-    e = wp.exp(-wp.abs(x) / s)
-    return e / (s * (1.0 + e) * (1.0 + e) * wp.tanh(PI / (2.0 * s)))
+def trimmed_logistic(x: float, inv_s: float, norm: float):
+    """The logistic density of scale s = 1/inv_s restricted to [−π, π] and renormalized there
+    (`norm` = `logistic_norm(s)`)."""
+    e = wp.exp(-wp.abs(x) * inv_s)
+    return e * norm / ((1.0 + e) * (1.0 + e))
 
 
 @wp.func
-def sample_trimmed_logistic(u: float, s: float):
+def sample_trimmed_logistic(u: float, s: float, tail: float):
     """Inverse CDF of the trimmed logistic on [−π, π].
 
-    With c = CDF(−π) and k = CDF(π) − CDF(−π) = 1 − 2c, the sample is s·ln(y / (1 − y)) for y = c + u k;
-    1 − y is formed as c + (1 − u) k so neither tail cancels.
+    With c = CDF(−π) (`tail` = `logistic_tail(s)`) and k = CDF(π) − CDF(−π) = 1 − 2c, the sample is
+    s·ln(y / (1 − y)) for y = c + u k; 1 − y is formed as c + (1 − u) k so neither tail cancels.
     """
-    c = 1.0 / (1.0 + wp.exp(PI / s))
-    k = 1.0 - 2.0 * c
-    x = s * wp.log((c + u * k) / (c + (1.0 - u) * k))
+    k = 1.0 - 2.0 * tail
+    x = s * wp.log((tail + u * k) / (tail + (1.0 - u) * k))
     return wp.clamp(x, -PI, PI)
