@@ -230,6 +230,19 @@ def _compare_swap(ta: float, tb: float, a: int, b: int):
 
 
 @wp.func
+def _children_by_entry(node: BvhNode, origin: wp.vec3, inv: wp.vec3, t_hi: float):
+    """The node's four children and their entry distances, nearest first (misses, at NO_HIT, last):
+    a five-comparator sorting network, no branches."""
+    entry = _child_entries(node, origin, inv, t_hi)
+    t0, t1, c0, c1 = _compare_swap(entry[0], entry[1], node.child[0], node.child[1])
+    t2, t3, c2, c3 = _compare_swap(entry[2], entry[3], node.child[2], node.child[3])
+    t0, t2, c0, c2 = _compare_swap(t0, t2, c0, c2)
+    t1, t3, c1, c3 = _compare_swap(t1, t3, c1, c3)
+    t1, t2, c1, c2 = _compare_swap(t1, t2, c1, c2)
+    return t0, t1, t2, t3, c0, c1, c2, c3
+
+
+@wp.func
 def _make_hit(g: FiberGeometry, i: int, t: float, origin: wp.vec3, direction: wp.vec3):
     tube = g.tubes[i]
     a = tube.axis
@@ -281,15 +294,8 @@ def intersect_fibers(g: FiberGeometry, origin: wp.vec3, direction: wp.vec3, t_ma
     ref = int(0)
     while ref != DONE:
         if ref >= 0:
-            node = g.nodes[ref]
-            entry = _child_entries(node, origin, inv, t_best)
-            # Sort the children by entry distance (misses, at NO_HIT, come last) ...
-            t0, t1, c0, c1 = _compare_swap(entry[0], entry[1], node.child[0], node.child[1])
-            t2, t3, c2, c3 = _compare_swap(entry[2], entry[3], node.child[2], node.child[3])
-            t0, t2, c0, c2 = _compare_swap(t0, t2, c0, c2)
-            t1, t3, c1, c3 = _compare_swap(t1, t3, c1, c3)
-            t1, t2, c1, c2 = _compare_swap(t1, t2, c1, c2)
-            # ... push those the ray enters after the nearest, farthest first (a miss is written and left) ...
+            t0, t1, t2, t3, c0, c1, c2, c3 = _children_by_entry(g.nodes[ref], origin, inv, t_best)
+            # Push the children the ray enters after the nearest, farthest first (a miss is written and left) ...
             stack[sp] = wp.int32(c3)
             stack_t[sp] = t3
             sp += wp.where(t3 < t_best, 1, 0)
@@ -335,13 +341,7 @@ def fibers_occluded(g: FiberGeometry, origin: wp.vec3, direction: wp.vec3, t_max
     ref = int(0)
     while ref != DONE:
         if ref >= 0:
-            node = g.nodes[ref]
-            entry = _child_entries(node, origin, inv, t_hi)
-            t0, t1, c0, c1 = _compare_swap(entry[0], entry[1], node.child[0], node.child[1])
-            t2, t3, c2, c3 = _compare_swap(entry[2], entry[3], node.child[2], node.child[3])
-            t0, t2, c0, c2 = _compare_swap(t0, t2, c0, c2)
-            t1, t3, c1, c3 = _compare_swap(t1, t3, c1, c3)
-            t1, t2, c1, c2 = _compare_swap(t1, t2, c1, c2)
+            t0, t1, t2, t3, c0, c1, c2, c3 = _children_by_entry(g.nodes[ref], origin, inv, t_hi)
             stack[sp] = wp.int32(c3)
             sp += wp.where(t3 < t_hi, 1, 0)
             stack[sp] = wp.int32(c2)
