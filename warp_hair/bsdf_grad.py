@@ -1,0 +1,277 @@
+"""Derivatives of the hair BSDF value S (RGB) and of its pdf with respect to the artist controls.
+
+In kernels the controls travel as a `HairControls`: eight floats `theta` and the colour input's kind.
+
+    theta[0:3]  colour: albedo RGB        (colour_mode COLOUR_ALBEDO)
+                        σ_a RGB           (colour_mode COLOUR_SIGMA_A)
+                        eumelanin, pheomelanin, unused  (colour_mode COLOUR_MELANIN)
+    theta[3]    beta_m          theta[4]  beta_n          theta[5]  alpha (degrees)
+    theta[6]    eta             theta[7]  r_roughness_scale
+
+Usage inside a kernel (`controls = hair_controls(params)` on the host):
+    J = hair_value_pdf_jacobian(controls, wo, wi, h)   # 4×8: rows ∂S_r, ∂S_g, ∂S_b, ∂pdf; columns θ_k
+    g = hair_value_pdf_vjp(controls, wo, wi, h, seed)  # Σ_r seed_r · J[r]: one row's cost (a seed of
+                                                       # adjoint radiance weights needs no full Jacobian)
+A path tracer accumulates ∂ log S_c/∂θ_k as J[c, k] / S_c, with S_c from `hair_value_pdf` as before.
+
+Call these two from a kernel, or from a `wp.func` that itself calls `wp.grad`. Warp 1.19 emits every function
+that calls `wp.grad` after all others (they call adjoints, which are emitted in between), so a plain
+`wp.func` that calls one of them is compiled before its callee is declared and the module fails to build
+("use of undeclared identifier 'hair_value_pdf_vjp_0'").
+
+The derivatives are Warp's own reverse mode, run inside the forward kernel by `wp.grad`: the scalar
+seed·(S, pdf) is written as one `wp.func` of the controls (`value_pdf_dot`), which maps them to the model
+coefficients in Warp (`coefficients_from_controls`, the same mappings as `params.py`) and then calls the
+renderer's own `lobe_setup` and `hair_value_pdf`, unchanged. wp.grad differentiates all of it as written:
+the float64 azimuthal centres, clamp/max/abs/floor, the structs passed along, the two-value return of
+`hair_value_pdf`, the loops that assign vector components. One reverse pass per seed, so the full
+Jacobian costs four. Everything is float32, like the value itself.
+
+The chain through the albedo inversion is included: with albedo as colour input, σ_a depends on β_n, so
+∂/∂β_n carries both the azimuthal-roughness path and the absorption path.
+
+Where the model is not differentiable the derivative is one-sided or zero, never NaN (h = ±1 and grazing
+directions included):
+  - β_m, β_n at or below the roughness floor (`params.BETA_FLOOR`, 0.01) are rendered as the floor, so their
+    derivative there is 0 (the floor is a clamp; gradient-based fits must keep β above it);
+  - at the kinks of the model itself the derivative is that of one side: the azimuth wrap at
+    Δφ − Φ_p = ±π (moved by η), the |cos| of a tilted θ_o passing the pole (moved by α).
+
+NumPy batch API (shapes as `bsdf.eval`):
+    dS = eval_grad(params, wo, wi, h)    # {control: (N, 3) for scalars, (N, 3, 3) for RGB controls}
+    dp = pdf_grad(params, wo, wi, h)     # {control: (N,) for scalars, (N, 3) for RGB controls}
+For an RGB control, dS[name][i, c, k] = ∂S_c/∂control_k (middle axis: channel of S, last: component).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import warp as wp
+
+from .bsdf import _broadcast, _check_params, _directions, _offsets, _to_warp
+from .hair_bsdf import HairCoefficients, hair_value_pdf, lobe_setup
+from .lobes import PI
+from .parallel import launch_ranges
+from .params import BETA_FLOOR, EUMELANIN_SIGMA_A, PHEOMELANIN_SIGMA_A, HairParams
+
+# wp.grad runs forward only: the kernels here need no backward pass of their own.
+wp.set_module_options({"enable_backward": False})
+
+CONTROL_COUNT = 8
+controls_vec = wp.types.vector(length=CONTROL_COUNT, dtype=wp.float32)
+jacobian_mat = wp.types.matrix(shape=(4, CONTROL_COUNT), dtype=wp.float32)
+
+COLOUR_ALBEDO = wp.constant(0)
+COLOUR_SIGMA_A = wp.constant(1)
+COLOUR_MELANIN = wp.constant(2)
+COLOUR_MODES = {"albedo": 0, "sigma_a": 1, "melanin": 2}
+
+# Column of each scalar control in theta (the colour occupies columns 0-2).
+BETA_M, BETA_N, ALPHA, ETA, R_ROUGHNESS_SCALE = 3, 4, 5, 6, 7
+SCALAR_CONTROLS = {"beta_m": BETA_M, "beta_n": BETA_N, "alpha": ALPHA, "eta": ETA, "r_roughness_scale": R_ROUGHNESS_SCALE}
+
+# Rows of the Jacobian: S_r, S_g, S_b, pdf.
+VALUE_ROWS = (0, 1, 2)
+PDF_ROW = 3
+
+_EUMELANIN = wp.constant(wp.vec3(*EUMELANIN_SIGMA_A))
+_PHEOMELANIN = wp.constant(wp.vec3(*PHEOMELANIN_SIGMA_A))
+_BETA_FLOOR = wp.constant(BETA_FLOOR)
+_SQRT_PI_OVER_8 = wp.constant(math.sqrt(math.pi / 8.0))
+_RADIANS = wp.constant(math.pi / 180.0)
+
+
+@wp.struct
+class HairControls:
+    """The artist controls of one material as kernels differentiate them (ordering in the module docstring)."""
+
+    theta: controls_vec
+    colour_mode: int
+
+
+def hair_controls(params: HairParams) -> HairControls:
+    """The HairControls of a HairParams: its colour input as given, then the five scalar controls."""
+    k = HairControls()
+    mode = params.colour_input
+    if mode == "albedo":
+        colour = params.albedo
+    elif mode == "sigma_a":
+        colour = params.sigma_a_input
+    else:
+        colour = (params.eumelanin, params.pheomelanin, 0.0)
+    k.theta = controls_vec(*colour, params.beta_m, params.beta_n, params.alpha, params.eta, params.r_roughness_scale)
+    k.colour_mode = COLOUR_MODES[mode]
+    return k
+
+
+# The control → coefficient mappings of params.py, in Warp so that reverse mode can run through them.
+# tests/test_bsdf_grad.py checks that they build the same HairCoefficients as `hair_coefficients`.
+
+
+@wp.func
+def effective_beta(beta: float):
+    """max(β, floor): at and below the floor the derivative with respect to β is 0."""
+    return wp.max(beta, _BETA_FLOOR)
+
+
+@wp.func
+def longitudinal_variance(beta_m: float):
+    b = effective_beta(beta_m)
+    r = b * (0.726 + 0.812 * b) + 3.7 * wp.pow(b, 20.0)
+    return r * r
+
+
+@wp.func
+def logistic_scale(beta_n: float):
+    b = effective_beta(beta_n)
+    return _SQRT_PI_OVER_8 * (b * (0.265 + 1.194 * b) + 5.372 * wp.pow(b, 22.0))
+
+
+@wp.func
+def albedo_denominator(beta_n: float):
+    b = effective_beta(beta_n)
+    return 5.969 + b * (-0.215 + b * (2.532 + b * (-10.73 + b * (5.574 + b * 0.245))))
+
+
+@wp.func
+def sigma_a_from_controls(theta: controls_vec, colour_mode: int):
+    colour = wp.vec3(theta[0], theta[1], theta[2])
+    if colour_mode == COLOUR_ALBEDO:
+        d = albedo_denominator(theta[BETA_N])
+        r = wp.vec3(wp.log(colour[0]), wp.log(colour[1]), wp.log(colour[2])) / d
+        return wp.cw_mul(r, r)
+    if colour_mode == COLOUR_MELANIN:
+        return colour[0] * _EUMELANIN + colour[1] * _PHEOMELANIN
+    return colour
+
+
+@wp.func
+def longitudinal_norm(v: float):
+    """1 / (v (1 − e^(−2/v))), in float64 like `lobes.longitudinal_norm` on the host.
+
+    Not `lobes.one_minus_exp_neg`: its 4-term series is exact enough for the value, but its derivative is
+    off by up to (2/v)³/24 relative, and d log norm/dv ≈ −1/v + 1/v − 1/v² + … cancels to O(1/v²) for rough
+    lobes: that gave errors of up to 2 % in ∂S/∂β_m near β_m ≈ 0.9. In float64, 1 − e^(−y) keeps 1e-12 of
+    its digits even at y = 2/v ~ 1e-4, and no series is needed.
+    """
+    vd = wp.float64(v)
+    return float(wp.float64(1.0) / (vd * (wp.float64(1.0) - wp.exp(wp.float64(-2.0) / vd))))
+
+
+@wp.func
+def coefficients_from_controls(theta: controls_vec, colour_mode: int):
+    """The HairCoefficients of the controls, as `hair_coefficients` builds them, but differentiable.
+
+    `n_tail` (used only by sampling) is left at 0: nothing differentiated here samples.
+    """
+    c = HairCoefficients()
+    c.sigma_a = sigma_a_from_controls(theta, colour_mode)
+    c.eta = theta[ETA]
+    v = longitudinal_variance(theta[BETA_M])
+    c.v = wp.vec4(v * theta[R_ROUGHNESS_SCALE], 0.25 * v, 4.0 * v, 4.0 * v)
+    c.inv_v = wp.vec4(1.0 / c.v[0], 1.0 / c.v[1], 1.0 / c.v[2], 1.0 / c.v[3])
+    c.m_norm = wp.vec4(
+        longitudinal_norm(c.v[0]), longitudinal_norm(c.v[1]), longitudinal_norm(c.v[2]), longitudinal_norm(c.v[3])
+    )
+    s = logistic_scale(theta[BETA_N])
+    c.s = s
+    c.inv_s = 1.0 / s
+    c.n_norm = 1.0 / (s * wp.tanh(PI / (2.0 * s)))
+    a = theta[ALPHA] * _RADIANS
+    c.sin_2k_alpha = wp.vec3(wp.sin(a), wp.sin(2.0 * a), wp.sin(4.0 * a))
+    c.cos_2k_alpha = wp.vec3(wp.cos(a), wp.cos(2.0 * a), wp.cos(4.0 * a))
+    return c
+
+
+@wp.func
+def value_pdf_dot(theta: controls_vec, colour_mode: int, wo: wp.vec3, wi: wp.vec3, h: float, seed: wp.vec4):
+    """seed · (S_r, S_g, S_b, pdf): the scalar whose gradient `wp.grad` takes.
+
+    wp.grad seeds the adjoint of every output with 1, so of a function returning (S, pdf) it would give the
+    gradient of S_r + S_g + S_b + pdf; the seed picks the combination instead.
+    """
+    value, density = hair_value_pdf(lobe_setup(coefficients_from_controls(theta, colour_mode), wo, h), wi)
+    return seed[0] * value[0] + seed[1] * value[1] + seed[2] * value[2] + seed[3] * density
+
+
+@wp.func
+def hair_value_pdf_vjp(controls: HairControls, wo: wp.vec3, wi: wp.vec3, h: float, seed: wp.vec4):
+    """Σ_r seed_r ∂(S_r, S_g, S_b, pdf)_r / ∂θ: one reverse pass."""
+    d_theta, d_mode, d_wo, d_wi, d_h, d_seed = wp.grad(value_pdf_dot)(controls.theta, controls.colour_mode, wo, wi, h, seed)
+    return d_theta
+
+
+@wp.func
+def hair_value_pdf_jacobian(controls: HairControls, wo: wp.vec3, wi: wp.vec3, h: float):
+    """J[r, k] = ∂(S_r, S_g, S_b, pdf)_r / ∂θ_k, row by row (four reverse passes).
+
+    Calls wp.grad itself rather than `hair_value_pdf_vjp`: see the module docstring on where these
+    functions may be called from.
+    """
+    J = jacobian_mat()
+    for r in range(4):
+        seed = wp.vec4(0.0)
+        seed[r] = 1.0
+        d_theta, d_mode, d_wo, d_wi, d_h, d_seed = wp.grad(value_pdf_dot)(
+            controls.theta, controls.colour_mode, wo, wi, h, seed
+        )
+        J[r] = d_theta
+    return J
+
+
+@wp.kernel
+def _vjp_kernel(
+    controls: HairControls,
+    seeds: wp.array(dtype=wp.vec4),
+    wo: wp.array(dtype=wp.vec3),
+    wi: wp.array(dtype=wp.vec3),
+    h: wp.array(dtype=float),
+    out: wp.array2d(dtype=controls_vec),
+    first: int,
+):
+    i = wp.tid() + first
+    for r in range(seeds.shape[0]):
+        out[i, r] = hair_value_pdf_vjp(controls, wo[i], wi[i], h[i], seeds[r])
+
+
+def _gradients(params, wo, wi, h, rows, threads, device) -> np.ndarray:
+    """(N, len(rows), 8): the chosen rows of the Jacobian per item, after the checks of `bsdf.eval`."""
+    _check_params(params)  # the type check; the coefficients are rebuilt in the kernel from the controls
+    n, a = _broadcast(wo=_directions("wo", wo), wi=_directions("wi", wi), h=_offsets(h))
+    seeds = np.eye(4, dtype=np.float32)[list(rows)]
+    out = wp.empty((n, len(rows)), dtype=controls_vec, device=device)
+    inputs = [
+        hair_controls(params),
+        wp.array(seeds, dtype=wp.vec4, device=device),
+        _to_warp(a["wo"], wp.vec3, device),
+        _to_warp(a["wi"], wp.vec3, device),
+        _to_warp(a["h"], float, device),
+        out,
+    ]
+    launch_ranges(_vjp_kernel, n, inputs, threads, device)
+    return out.numpy()
+
+
+def _by_control(params: HairParams, g: np.ndarray) -> dict:
+    """Name the columns of g (..., 8): the colour input's own name(s), then the scalar controls."""
+    mode = params.colour_input
+    if mode == "melanin":
+        named = {"eumelanin": g[..., 0], "pheomelanin": g[..., 1]}
+    else:
+        named = {mode: g[..., 0:3]}
+    named.update({name: g[..., k] for name, k in SCALAR_CONTROLS.items()})
+    return named
+
+
+def eval_grad(params: HairParams, wo, wi, h, threads: int | None = None, device: str = "cpu") -> dict:
+    """∂S/∂control per item: (N, 3) for scalar controls; (N, 3, 3) for albedo or σ_a, [item, channel of S,
+    component of the control]. Melanin inputs give "eumelanin" and "pheomelanin", each (N, 3)."""
+    return _by_control(params, _gradients(params, wo, wi, h, VALUE_ROWS, threads, device))
+
+
+def pdf_grad(params: HairParams, wo, wi, h, threads: int | None = None, device: str = "cpu") -> dict:
+    """∂pdf/∂control per item: (N,) for scalar controls, (N, 3) for albedo or σ_a. The pdf depends on the
+    colour through the lobe probabilities (channel means of A_p)."""
+    return _by_control(params, _gradients(params, wo, wi, h, (PDF_ROW,), threads, device)[:, 0])
