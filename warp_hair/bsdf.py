@@ -181,24 +181,31 @@ def _to_warp(a: np.ndarray, dtype, device: str):
     return wp.array(np.ascontiguousarray(a, dtype=np.float32), dtype=dtype, device=device)
 
 
+# The Warp type of each checked per-item input, by name.
+_WARP_TYPES = {"wo": wp.vec3, "wi": wp.vec3, "h": float, "u": wp.vec3}
+
+
+def _launch(kernel, leading: list, items: dict, outputs: list, threads, device) -> list:
+    """Broadcast the checked per-item inputs `items` (name → array), launch
+    `kernel(*leading, *items, *outputs, first)` over all cores and return the outputs as NumPy arrays.
+    `outputs` holds (shape per item, Warp dtype) pairs."""
+    n, a = _broadcast(**items)
+    outs = [wp.empty((n, *shape), dtype=dtype, device=device) for shape, dtype in outputs]
+    inputs = [*leading, *(_to_warp(a[name], _WARP_TYPES[name], device) for name in items), *outs]
+    launch_ranges(kernel, n, inputs, threads, device)
+    return [out.numpy() for out in outs]
+
+
 def eval(params: HairParams, wo, wi, h, threads: int | None = None, device: str = "cpu") -> np.ndarray:
     """S(wo, wi, h) per item, RGB: the cosine-weighted value (pbrt's f·|cos θ_i|, Mitsuba's eval)."""
-    c = _check_params(params)
-    n, a = _broadcast(wo=_directions("wo", wo), wi=_directions("wi", wi), h=_offsets(h))
-    out = wp.empty(n, dtype=wp.vec3, device=device)
-    inputs = [c, _to_warp(a["wo"], wp.vec3, device), _to_warp(a["wi"], wp.vec3, device), _to_warp(a["h"], float, device), out]
-    launch_ranges(_eval_kernel, n, inputs, threads, device)
-    return out.numpy()
+    items = dict(wo=_directions("wo", wo), wi=_directions("wi", wi), h=_offsets(h))
+    return _launch(_eval_kernel, [_check_params(params)], items, [((), wp.vec3)], threads, device)[0]
 
 
 def pdf(params: HairParams, wo, wi, h, threads: int | None = None, device: str = "cpu") -> np.ndarray:
     """The solid-angle density with which `sample` draws wi."""
-    c = _check_params(params)
-    n, a = _broadcast(wo=_directions("wo", wo), wi=_directions("wi", wi), h=_offsets(h))
-    out = wp.empty(n, dtype=float, device=device)
-    inputs = [c, _to_warp(a["wo"], wp.vec3, device), _to_warp(a["wi"], wp.vec3, device), _to_warp(a["h"], float, device), out]
-    launch_ranges(_pdf_kernel, n, inputs, threads, device)
-    return out.numpy()
+    items = dict(wo=_directions("wo", wo), wi=_directions("wi", wi), h=_offsets(h))
+    return _launch(_pdf_kernel, [_check_params(params)], items, [((), float)], threads, device)[0]
 
 
 def sample(params: HairParams, wo, h, u, threads: int | None = None, device: str = "cpu"):
@@ -207,31 +214,19 @@ def sample(params: HairParams, wo, h, u, threads: int | None = None, device: str
     u[:, 0] chooses the lobe (and its remainder the rotation about the longitudinal cone), u[:, 1] the
     longitudinal angle, u[:, 2] the azimuth.
     """
-    c = _check_params(params)
-    n, a = _broadcast(wo=_directions("wo", wo), h=_offsets(h), u=_uniforms(u))
-    wi = wp.empty(n, dtype=wp.vec3, device=device)
-    weight = wp.empty(n, dtype=wp.vec3, device=device)
-    density = wp.empty(n, dtype=float, device=device)
-    inputs = [c, _to_warp(a["wo"], wp.vec3, device), _to_warp(a["h"], float, device), _to_warp(a["u"], wp.vec3, device), wi, weight, density]
-    launch_ranges(_sample_kernel, n, inputs, threads, device)
-    return wi.numpy(), weight.numpy(), density.numpy()
+    items = dict(wo=_directions("wo", wo), h=_offsets(h), u=_uniforms(u))
+    outputs = [((), wp.vec3), ((), wp.vec3), ((), float)]
+    wi, weight, density = _launch(_sample_kernel, [_check_params(params)], items, outputs, threads, device)
+    return wi, weight, density
 
 
 def eval_lobes(params: HairParams, wo, wi, h, threads: int | None = None, device: str = "cpu") -> np.ndarray:
     """The four terms of S (R, TT, TRT, residual), shape (N, 4, 3); they sum to `eval`."""
-    c = _check_params(params)
-    n, a = _broadcast(wo=_directions("wo", wo), wi=_directions("wi", wi), h=_offsets(h))
-    out = wp.empty((n, 4), dtype=wp.vec3, device=device)
-    inputs = [c, _to_warp(a["wo"], wp.vec3, device), _to_warp(a["wi"], wp.vec3, device), _to_warp(a["h"], float, device), out]
-    launch_ranges(_lobes_kernel, n, inputs, threads, device)
-    return out.numpy()
+    items = dict(wo=_directions("wo", wo), wi=_directions("wi", wi), h=_offsets(h))
+    return _launch(_lobes_kernel, [_check_params(params)], items, [((4,), wp.vec3)], threads, device)[0]
 
 
 def attenuation(params: HairParams, wo, h, threads: int | None = None, device: str = "cpu") -> np.ndarray:
     """A_p of each lobe (R, TT, TRT, residual), shape (N, 4, 3); with σ_a = 0 they sum to 1."""
-    c = _check_params(params)
-    n, a = _broadcast(wo=_directions("wo", wo), h=_offsets(h))
-    out = wp.empty((n, 4), dtype=wp.vec3, device=device)
-    inputs = [c, _to_warp(a["wo"], wp.vec3, device), _to_warp(a["h"], float, device), out]
-    launch_ranges(_attenuation_kernel, n, inputs, threads, device)
-    return out.numpy()
+    items = dict(wo=_directions("wo", wo), h=_offsets(h))
+    return _launch(_attenuation_kernel, [_check_params(params)], items, [((4,), wp.vec3)], threads, device)[0]

@@ -50,10 +50,9 @@ import math
 import numpy as np
 import warp as wp
 
-from .bsdf import _broadcast, _check_params, _directions, _offsets, _to_warp
+from .bsdf import _check_params, _directions, _launch, _offsets
 from .hair_bsdf import HairCoefficients, hair_value_pdf, lobe_setup
 from .lobes import PI
-from .parallel import launch_ranges
 from .params import BETA_FLOOR, EUMELANIN_SIGMA_A, PHEOMELANIN_SIGMA_A, HairParams
 
 # wp.grad runs forward only: the kernels here need no backward pass of their own.
@@ -239,19 +238,10 @@ def _vjp_kernel(
 def _gradients(params, wo, wi, h, rows, threads, device) -> np.ndarray:
     """(N, len(rows), 8): the chosen rows of the Jacobian per item, after the checks of `bsdf.eval`."""
     _check_params(params)  # the type check; the coefficients are rebuilt in the kernel from the controls
-    n, a = _broadcast(wo=_directions("wo", wo), wi=_directions("wi", wi), h=_offsets(h))
-    seeds = np.eye(4, dtype=np.float32)[list(rows)]
-    out = wp.empty((n, len(rows)), dtype=controls_vec, device=device)
-    inputs = [
-        hair_controls(params),
-        wp.array(seeds, dtype=wp.vec4, device=device),
-        _to_warp(a["wo"], wp.vec3, device),
-        _to_warp(a["wi"], wp.vec3, device),
-        _to_warp(a["h"], float, device),
-        out,
-    ]
-    launch_ranges(_vjp_kernel, n, inputs, threads, device)
-    return out.numpy()
+    seeds = wp.array(np.eye(4, dtype=np.float32)[list(rows)], dtype=wp.vec4, device=device)
+    items = dict(wo=_directions("wo", wo), wi=_directions("wi", wi), h=_offsets(h))
+    leading = [hair_controls(params), seeds]
+    return _launch(_vjp_kernel, leading, items, [((len(rows),), controls_vec)], threads, device)[0]
 
 
 def _by_control(params: HairParams, g: np.ndarray) -> dict:
