@@ -14,9 +14,11 @@ from .card import NO_HIT, CardData, card_distance
 from .envmap import EnvironmentData, env_pdf, env_radiance, env_sample
 from .hair_bsdf import HairCoefficients, LobeSetup, hair_sample, hair_value_pdf, lobe_setup
 from .intersect import FiberGeometry, fibers_occluded, intersect_fibers
+from .bsdf_grad import HairControls, controls_vec, value_pdf_dot
 from .lobes import TWO_PI
 
-# Forward only (gradients replay paths in their own kernels); -O3 for the renderer's hot loop.
+# Forward only (the gradient tracer differentiates the BSDF with wp.grad inside its own forward pass, see
+# `make_trace_path`); -O3 for the renderer's hot loop.
 wp.set_module_options({"enable_backward": False, "optimization_level": 3})
 
 INV_PI = wp.constant(0.31830988618379067)
@@ -100,90 +102,183 @@ def scatter_value_pdf(scene: SceneData, on_card: bool, setup: LobeSetup, wi: wp.
     return hair_value_pdf(setup, wi)
 
 
+grad_rows_mat = wp.types.matrix(shape=(3, 8), dtype=wp.float32)
+
+
 @wp.func
-def trace_path(scene: SceneData, origin: wp.vec3, direction: wp.vec3, rng: wp.uint32):
-    radiance = wp.vec3(0.0)
-    throughput = wp.vec3(1.0)
-    o = origin
-    d = direction
-    # One light sample per vertex, the light chosen uniformly (as Mitsuba does): one shadow ray per vertex
-    # whatever the number of lights.
-    num_emitters = scene.num_lights + scene.has_env
-    select_pdf = 1.0 / float(wp.max(num_emitters, 1))
-    prev_pdf = float(0.0)  # solid-angle pdf of the BSDF sample that produced d; 0 for the camera ray
-    depth = int(0)  # scattering vertices so far
-    while True:
-        hit = intersect_fibers(scene.fibers, o, d, NO_HIT)
-        t_card = card_distance(scene.card, o, d)
-        if hit.t >= NO_HIT and t_card >= NO_HIT:
-            if scene.has_env != 0:
-                mis = float(1.0)
-                if prev_pdf > 0.0:
-                    mis = power_heuristic(prev_pdf, select_pdf * env_pdf(scene.env, d))
-                radiance += mis * wp.cw_mul(throughput, env_radiance(scene.env, d))
-            break
-        # The ray sampled at the last allowed vertex is still traced above: light sampling there was
-        # MIS-weighted on the understanding that this ray would bring the rest of the environment.
-        if depth >= scene.max_depth:
-            break
+def path_gradient(G: grad_rows_mat, adjoint: wp.vec3, contribution: wp.vec3):
+    """Σ_c adjoint_c C_c G[c]: the part of a contribution's gradient from the vertices before its own."""
+    w = wp.cw_mul(adjoint, contribution)
+    return w[0] * G[0] + w[1] * G[1] + w[2] * G[2]
 
-        # The shading frame: at a fiber, x along it and z its normal (MODEL.md); at the card, z its normal
-        # turned toward the incoming ray.
-        on_card = t_card < hit.t
-        x = hit.tangent
-        z = hit.normal
-        position = hit.position
-        setup = LobeSetup()
-        if on_card:
-            z = scene.card.normal
-            if wp.dot(z, d) > 0.0:
-                z = -z
-            x = card_frame_x(z)
-            position = o + t_card * d + 1.0e-5 * z
-        y = wp.cross(z, x)
-        if not on_card:
-            setup = lobe_setup(scene.hair, to_local(-d, x, y, z), hit.h)
 
-        # Next-event estimation with one light.
-        if num_emitters > 0:
-            k = wp.min(int(wp.randf(rng) * float(num_emitters)), num_emitters - 1)
-            if k < scene.num_lights:
-                light = scene.lights[k]
-                value, pdf_bsdf = scatter_value_pdf(scene, on_card, setup, to_local(light.to_light, x, y, z))
-                if pdf_bsdf > 0.0 and not occluded(scene, position, light.to_light):
-                    radiance += wp.cw_mul(throughput, wp.cw_mul(value, light.irradiance)) / select_pdf
-            else:
-                u_env, rng = rand2(rng)
-                d_env, pdf_env = env_sample(scene.env, u_env)
-                if pdf_env > 0.0:
-                    value, pdf_bsdf = scatter_value_pdf(scene, on_card, setup, to_local(d_env, x, y, z))
-                    if pdf_bsdf > 0.0 and not occluded(scene, position, d_env):
-                        light_pdf = select_pdf * pdf_env
-                        w = power_heuristic(light_pdf, pdf_bsdf) / light_pdf
-                        radiance += w * wp.cw_mul(throughput, wp.cw_mul(value, env_radiance(scene.env, d_env)))
+@wp.func
+def log_seed(adjoint: wp.vec3, contribution: wp.vec3, value: wp.vec3):
+    """The seed (adjoint_c C_c / S_c; 0 where S_c = 0) whose vector-Jacobian product is Σ_c adjoint_c C_c ∂ log S_c."""
+    seed = wp.vec4(0.0)
+    for c in range(3):
+        if value[c] > 0.0:
+            seed[c] = adjoint[c] * contribution[c] / value[c]
+    return seed
 
-        # Continue the path by sampling the BSDF.
-        wi = wp.vec3(0.0)
-        if on_card:
-            u2, rng = rand2(rng)
-            wi = cosine_hemisphere(u2)
-        else:
-            wi = hair_sample(setup, wp.vec3(wp.randf(rng), wp.randf(rng), wp.randf(rng)))
-        value, pdf = scatter_value_pdf(scene, on_card, setup, wi)
-        if pdf <= 0.0:
-            break
-        throughput = wp.cw_mul(throughput, value / pdf)
-        prev_pdf = pdf
-        o = position
-        d = wp.normalize(to_world(wi, x, y, z))
-        depth += 1
 
-        if depth >= scene.rr_depth:
-            survive = wp.min(1.0, wp.max(throughput[0], wp.max(throughput[1], throughput[2])))
-            if wp.randf(rng) >= survive:
+@wp.func
+def unit_seed(c: int):
+    seed = wp.vec4(0.0)
+    seed[c] = 1.0
+    return seed
+
+
+def make_trace_path(differentiable: bool):
+    """The path tracer as a `wp.func`; with `differentiable` it also returns the path's ∂L/∂θ.
+
+    trace_path(scene, origin, direction, rng, controls, adjoint) -> (radiance, d_theta, rng). The forward
+    variant ignores `controls` and `adjoint` and returns d_theta = 0: the branches under wp.static are
+    compiled out of it, so the forward renderer runs the same code as it did without them.
+
+    The gradient (detached sampling; render_grad.py explains why it is unbiased): every contribution C of a
+    path is a product of BSDF values S_c over its fiber vertices divided by θ-independent factors (pdfs, MIS
+    weights and roulette probabilities held fixed), so ∂C_c/∂θ_k = C_c Σ_vertices ∂ log S_c/∂θ_k. G[c, k]
+    carries that sum over the vertices so far (at the directions the path continued in); each contribution
+    adds Σ_c adjoint_c C_c (G[c, k] + ∂ log S_c(w_light)/∂θ_k at an NEE vertex on a fiber) to d_theta. The
+    card does not depend on θ. Memory is flat in the depth: no tape over the loop.
+
+    The differentiable variant calls wp.grad itself rather than bsdf_grad's helpers (a wp.func that calls a
+    function that calls wp.grad does not build; see bsdf_grad's docstring), so it must be called from a
+    kernel. Row c of ∂S/∂θ costs one reverse pass (seed e_c); the NEE term needs one, seeded with the
+    weights adjoint_c C_c / S_c.
+    """
+
+    def trace_path(
+        scene: SceneData,
+        origin: wp.vec3,
+        direction: wp.vec3,
+        rng: wp.uint32,
+        controls: HairControls,
+        adjoint: wp.vec3,
+    ):
+        radiance = wp.vec3(0.0)
+        d_theta = controls_vec()
+        G = grad_rows_mat()
+        throughput = wp.vec3(1.0)
+        o = origin
+        d = direction
+        # One light sample per vertex, the light chosen uniformly (as Mitsuba does): one shadow ray per vertex
+        # whatever the number of lights.
+        num_emitters = scene.num_lights + scene.has_env
+        select_pdf = 1.0 / float(wp.max(num_emitters, 1))
+        prev_pdf = float(0.0)  # solid-angle pdf of the BSDF sample that produced d; 0 for the camera ray
+        depth = int(0)  # scattering vertices so far
+        while True:
+            hit = intersect_fibers(scene.fibers, o, d, NO_HIT)
+            t_card = card_distance(scene.card, o, d)
+            if hit.t >= NO_HIT and t_card >= NO_HIT:
+                if scene.has_env != 0:
+                    mis = float(1.0)
+                    if prev_pdf > 0.0:
+                        mis = power_heuristic(prev_pdf, select_pdf * env_pdf(scene.env, d))
+                    contribution = mis * wp.cw_mul(throughput, env_radiance(scene.env, d))
+                    radiance += contribution
+                    if wp.static(differentiable):
+                        d_theta += path_gradient(G, adjoint, contribution)
                 break
-            throughput = throughput / survive
-    return radiance, rng
+            # The ray sampled at the last allowed vertex is still traced above: light sampling there was
+            # MIS-weighted on the understanding that this ray would bring the rest of the environment.
+            if depth >= scene.max_depth:
+                break
+
+            # The shading frame: at a fiber, x along it and z its normal (MODEL.md); at the card, z its normal
+            # turned toward the incoming ray.
+            on_card = t_card < hit.t
+            x = hit.tangent
+            z = hit.normal
+            position = hit.position
+            setup = LobeSetup()
+            if on_card:
+                z = scene.card.normal
+                if wp.dot(z, d) > 0.0:
+                    z = -z
+                x = card_frame_x(z)
+                position = o + t_card * d + 1.0e-5 * z
+            y = wp.cross(z, x)
+            wo = to_local(-d, x, y, z)
+            if not on_card:
+                setup = lobe_setup(scene.hair, wo, hit.h)
+
+            # Next-event estimation with one light.
+            if num_emitters > 0:
+                k = wp.min(int(wp.randf(rng) * float(num_emitters)), num_emitters - 1)
+                lit = False
+                nee = wp.vec3(0.0)  # the light sample's contribution
+                nee_value = wp.vec3(0.0)  # S toward the light
+                w_light = wp.vec3(0.0)  # local direction toward the light
+                if k < scene.num_lights:
+                    light = scene.lights[k]
+                    w_light = to_local(light.to_light, x, y, z)
+                    nee_value, pdf_bsdf = scatter_value_pdf(scene, on_card, setup, w_light)
+                    if pdf_bsdf > 0.0 and not occluded(scene, position, light.to_light):
+                        lit = True
+                        nee = wp.cw_mul(throughput, wp.cw_mul(nee_value, light.irradiance)) / select_pdf
+                else:
+                    u_env, rng = rand2(rng)
+                    d_env, pdf_env = env_sample(scene.env, u_env)
+                    if pdf_env > 0.0:
+                        w_light = to_local(d_env, x, y, z)
+                        nee_value, pdf_bsdf = scatter_value_pdf(scene, on_card, setup, w_light)
+                        if pdf_bsdf > 0.0 and not occluded(scene, position, d_env):
+                            light_pdf = select_pdf * pdf_env
+                            w = power_heuristic(light_pdf, pdf_bsdf) / light_pdf
+                            lit = True
+                            nee = w * wp.cw_mul(throughput, wp.cw_mul(nee_value, env_radiance(scene.env, d_env)))
+                if lit:
+                    radiance += nee
+                    if wp.static(differentiable):
+                        d_theta += path_gradient(G, adjoint, nee)
+                        if not on_card:
+                            # Σ_c adjoint_c C_c ∂ log S_c(w_light)/∂θ: one reverse pass.
+                            g_nee, g_mode, g_wo, g_wi, g_h, g_seed = wp.grad(value_pdf_dot)(
+                                controls.theta, controls.colour_mode, wo, w_light, hit.h, log_seed(adjoint, nee, nee_value)
+                            )
+                            d_theta += g_nee
+
+            # Continue the path by sampling the BSDF.
+            wi = wp.vec3(0.0)
+            if on_card:
+                u2, rng = rand2(rng)
+                wi = cosine_hemisphere(u2)
+            else:
+                wi = hair_sample(setup, wp.vec3(wp.randf(rng), wp.randf(rng), wp.randf(rng)))
+            value, pdf = scatter_value_pdf(scene, on_card, setup, wi)
+            if pdf <= 0.0:
+                break
+            throughput = wp.cw_mul(throughput, value / pdf)
+            if wp.static(differentiable):
+                if not on_card:
+                    # G[c] += ∂ log S_c(wi)/∂θ, one reverse pass per channel (none where S_c = 0).
+                    for c in range(3):
+                        if value[c] > 0.0:
+                            g_cont, g_mode, g_wo, g_wi, g_h, g_seed = wp.grad(value_pdf_dot)(
+                                controls.theta, controls.colour_mode, wo, wi, hit.h, unit_seed(c)
+                            )
+                            G[c] = G[c] + g_cont / value[c]
+            prev_pdf = pdf
+            o = position
+            d = wp.normalize(to_world(wi, x, y, z))
+            depth += 1
+
+            if depth >= scene.rr_depth:
+                survive = wp.min(1.0, wp.max(throughput[0], wp.max(throughput[1], throughput[2])))
+                if wp.randf(rng) >= survive:
+                    break
+                throughput = throughput / survive
+        return radiance, d_theta, rng
+
+    # Distinct keys: two same-named functions with one signature in a module would be taken for one overload.
+    trace_path.__name__ = trace_path.__qualname__ = "trace_path_grad" if differentiable else "trace_path"
+    return wp.func(trace_path)
+
+
+trace_path = make_trace_path(False)
 
 
 @wp.kernel
@@ -206,7 +301,7 @@ def render_kernel(
     for s in range(spp):
         jitter, rng = rand2(rng)
         origin, direction = generate_ray(scene.camera, px, py, jitter)
-        radiance, rng = trace_path(scene, origin, direction, rng)
+        radiance, unused_grad, rng = trace_path(scene, origin, direction, rng, HairControls(), wp.vec3(0.0))
         total += radiance
         total_sq += wp.cw_mul(radiance, radiance)
     n = float(spp)
@@ -217,3 +312,7 @@ def render_kernel(
     stderr[pixel] = wp.vec3(
         wp.sqrt(wp.max(variance[0], 0.0) / n), wp.sqrt(wp.max(variance[1], 0.0) / n), wp.sqrt(wp.max(variance[2], 0.0) / n)
     )
+
+
+# The gradient tracer (render_grad.py): the same loop with the wp.static(differentiable) branches compiled in.
+trace_path_grad = make_trace_path(True)

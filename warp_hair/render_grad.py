@@ -1,0 +1,159 @@
+"""Gradients of a rendered image's scalar loss with respect to the hair controls.
+
+    g = render_grad(scene, adjoint)     # {control: ∂L/∂control}, L = Σ_pixels Σ_c adjoint[y, x, c] image[y, x, c]
+
+For a loss ℓ(image), pass adjoint = ∂ℓ/∂image (for 0.5‖image − target‖², image − target; render that primal
+image with a different seed from the gradient pass, or the two estimates are correlated and the product biased).
+Controls are named as in `HairParams.to_dict()`: "albedo" (3,), "sigma_a" (3,) or the scalars "eumelanin" and
+"pheomelanin", then "beta_m", "beta_n", "alpha" (per degree), "eta", "r_roughness_scale". With albedo as the
+colour input, ∂/∂β_n includes the chain through the albedo inversion (σ_a depends on β_n).
+
+Estimator: detached sampling. Each path is traced exactly as `render` traces it (same seed, same random
+streams, same directions), and the directions it samples, its MIS weights and its Russian-roulette probabilities
+are held fixed: they are treated as functions of the random numbers only, not of θ. This is unbiased: the
+derivative of ∫ f_θ is ∫ ∂f_θ, and the MIS weights of the strategies that can produce a given path sum to one
+whatever values they are frozen at, so Σ_strategies E[w ∂f/p] = ∫ ∂f. (Roulette likewise: frozen survival
+probabilities q and the 1/q factor cancel in expectation.) Every contribution C of a path — next-event estimation
+at vertex k, or the environment reached by a BSDF-sampled ray — is then a product of BSDF values S over its
+vertices divided by θ-independent quantities, so
+
+    ∂C_c/∂θ_k = C_c Σ_vertices ∂ log S_c/∂θ_k,
+
+with S at each vertex evaluated at the direction actually used there (the continuation for the vertices before,
+the light direction for the NEE vertex itself). One forward pass accumulates it: a per-path running matrix
+G[c, k] = Σ_previous fiber vertices ∂ log S_c(wi_j)/∂θ_k (= J[c, k]/S_c, skipped where S_c = 0, where the
+contribution vanishes too), and each contribution adds Σ_c adjoint_c C_c (G[c, k] + ∂ log S_c(w_light)/∂θ_k)
+/ spp to its pixel. Memory does not grow with the path depth (no tape over the bounce loop; Warp's autodiff does
+not replay dynamic loops). The BSDF Jacobian rows come from wp.grad of bsdf_grad.value_pdf_dot inside the
+forward kernel. The card does not depend on θ.
+
+The tracer is integrator.make_trace_path(True): the forward renderer's own loop, with the gradient code
+compiled in under wp.static branches (the forward variant compiles them out). Per-pixel gradients (pixels × 8)
+are summed on the host in float64: the result depends on the seed only, not on the threads.
+
+What the estimator does not include: derivatives through the sampling of the path (the directions are fixed,
+which is what makes it a "detached" estimator, valid because the pdfs cancel), and nothing of the geometry.
+The roughness floor (β = 0.01) is a clamp: ∂/∂β there is 0.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import warp as wp
+
+from .bsdf_grad import SCALAR_CONTROLS, HairControls, controls_vec, hair_controls, value_pdf_dot
+from .camera import generate_ray
+from .integrator import SceneData, rand2, trace_path_grad
+from .parallel import launch_ranges
+from .render import PreparedScene
+from .scene import Scene
+
+wp.set_module_options({"enable_backward": False, "optimization_level": 3})
+
+# Pixels per range handed to a thread: gradient pixels cost several times a forward pixel, and fiber pixels
+# far more than background ones, so smaller ranges than `render`'s balance better.
+TILE_PIXELS = 256
+
+
+@wp.kernel
+def render_grad_kernel(
+    scene: SceneData,
+    controls: HairControls,
+    spp: int,
+    seed: int,
+    adjoint: wp.array(dtype=wp.vec3),
+    image: wp.array(dtype=wp.vec3),
+    grad: wp.array(dtype=controls_vec),
+    first: int,
+):
+    pixel = wp.tid() + first
+    width = scene.camera.width_px
+    px = pixel % width
+    py = pixel / width
+    # The same random streams as render_kernel: with the same seed, the same paths.
+    rng = wp.rand_init(seed, pixel)
+    a = adjoint[pixel]
+    if spp < 0:
+        # Never runs; it must come first. Warp 1.19 generates a function's adjoint only if the function was
+        # first built under a wp.grad (it marks callees as it builds them, and builds each once per module).
+        # The tracer calls lobe_setup and hair_value_pdf forward before its first wp.grad, so without this
+        # their adjoints would be empty stubs and every gradient 0. Building value_pdf_dot's gradient here
+        # first marks the whole chain. (tests/test_render_grad.py fails if this is lost: gradients vanish.)
+        g_theta, g_mode, g_wo, g_wi, g_h, g_seed = wp.grad(value_pdf_dot)(
+            controls.theta, controls.colour_mode, wp.vec3(0.0), wp.vec3(0.0), 0.0, wp.vec4(0.0)
+        )
+    total = wp.vec3(0.0)
+    total_grad = controls_vec()
+    for s in range(spp):
+        jitter, rng = rand2(rng)
+        origin, direction = generate_ray(scene.camera, px, py, jitter)
+        radiance, d_theta, rng = trace_path_grad(scene, origin, direction, rng, controls, a)
+        total += radiance
+        total_grad += d_theta
+    n = float(spp)
+    image[pixel] = total / n
+    grad[pixel] = total_grad / n
+
+
+def _check_adjoint(adjoint, shape) -> np.ndarray:
+    a = np.asarray(adjoint)
+    if a.shape != shape:
+        raise ValueError(f"adjoint must have the image's shape {shape} (H, W, 3), got {a.shape}")
+    if not np.issubdtype(a.dtype, np.number) or np.iscomplexobj(a):
+        raise ValueError(f"adjoint must be real numbers, got dtype {a.dtype}")
+    a = a.astype(np.float32)
+    if not np.isfinite(a).all():
+        raise ValueError("adjoint has NaN or infinite entries")
+    return a
+
+
+def named_gradients(params, g: np.ndarray) -> dict:
+    """Name the 8 θ columns of g by control, as in `HairParams.to_dict()` (colour by its input's kind)."""
+    g = np.asarray(g, dtype=np.float64)
+    mode = params.colour_input
+    if mode == "melanin":
+        named = {"eumelanin": float(g[0]), "pheomelanin": float(g[1])}
+    else:
+        named = {mode: g[0:3].copy()}
+    named.update({name: float(g[k]) for name, k in SCALAR_CONTROLS.items()})
+    return named
+
+
+def render_grad(
+    scene: Scene,
+    adjoint,
+    spp: int | None = None,
+    seed: int | None = None,
+    threads: int | None = None,
+    device: str = "cpu",
+    return_image: bool = False,
+):
+    """{control: ∂L/∂control} for L = Σ adjoint ⊙ image, the image `render(scene, spp, seed)` would give.
+
+    adjoint: (H, W, 3), the image's shape, finite. spp and seed default to the scene's [render] table. With
+    `return_image`, returns (gradients, image): the image of the same paths (equal to `render`'s up to float
+    rounding).
+    """
+    spp = scene.render.spp if spp is None else int(spp)
+    seed = scene.render.seed if seed is None else int(seed)
+    if spp < 1:
+        raise ValueError(f"spp must be at least 1, got {spp}")
+    prepared = PreparedScene(scene, device=device)
+    width, height = prepared.resolution
+    a = _check_adjoint(adjoint, (height, width, 3))
+    n = width * height
+    image = wp.zeros(n, dtype=wp.vec3, device=device)
+    grad = wp.zeros(n, dtype=controls_vec, device=device)
+    launch_ranges(
+        render_grad_kernel,
+        n,
+        [prepared.data, hair_controls(scene.hair), spp, seed, wp.array(a.reshape(n, 3), dtype=wp.vec3, device=device), image, grad],
+        threads=threads,
+        device=device,
+        chunk=TILE_PIXELS,
+    )
+    total = grad.numpy().astype(np.float64).sum(axis=0)
+    named = named_gradients(scene.hair, total)
+    if return_image:
+        return named, image.numpy().reshape(height, width, 3)
+    return named
