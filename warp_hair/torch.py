@@ -1,0 +1,178 @@
+"""A differentiable render for PyTorch: the hair controls as tensors in, the image as a tensor out.
+
+    from warp_hair.torch import render_torch
+
+    albedo = torch.tensor([0.6, 0.4, 0.3], requires_grad=True)
+    beta_m = torch.tensor(0.3, requires_grad=True)
+    image = render_torch(scene, {"albedo": albedo, "beta_m": beta_m}, spp=16, seed=it)   # (H, W, 3) float32
+    loss = any_torch_loss(image, target)          # e.g. torch.nn.functional.mse_loss(image, target)
+    loss.backward()                               # albedo.grad, beta_m.grad
+
+Controls are named as in `HairParams.to_dict()`: the colour under the scene's own colour input ("albedo" or
+"sigma_a" as (3,) tensors, or "eumelanin" and "pheomelanin" as 0-d tensors), then the 0-d scalars "beta_m",
+"beta_n", "alpha" (degrees), "eta" and "r_roughness_scale". Controls not passed keep the scene's values. A name
+that is not a control, a colour control of another colour input than the scene's, or a tensor of the wrong
+shape raises ValueError naming the control; values outside a control's range raise HairParams' ValueError.
+To optimise a grey albedo through one scalar, pass `scalar.expand(3)`; torch sums the gradient back.
+
+With torch.optim, optimise unconstrained latents and map them into each control's range inside the loop, so
+that every step gives valid controls (albedo in (0, 1], roughness in [0, 1], η > 1):
+
+    latent = torch.logit(torch.tensor(0.7)).requires_grad_()
+    opt = torch.optim.Adam([latent], lr=0.1)
+    for it in range(n):
+        opt.zero_grad()
+        image = render_torch(scene, {"albedo": torch.sigmoid(latent).expand(3)}, spp=4, seed=it)
+        loss = ((image - target) ** 2).mean()
+        loss.backward()
+        opt.step()
+
+Use a fresh `seed` each iteration (the noise then averages out over the iterations instead of biasing every
+step the same way).
+
+How the gradient is computed: the forward pass is `render(scene', spp, seed)` with the controls substituted
+(scene' = the scene with its hair replaced). The backward pass receives ∂loss/∂image = grad_output and calls
+`render_grad(scene', adjoint=grad_output, spp, grad_seed)`, which returns ∂/∂θ Σ adjoint ⊙ image, i.e. the
+chain rule ∂loss/∂θ = Σ (∂loss/∂image)(∂image/∂θ), estimated by Monte Carlo.
+
+Why the gradient pass uses another seed: for a nonlinear loss the adjoint depends on the primal image (for
+0.5‖image − target‖² it is image − target). If the primal and the gradient estimate came from the same random
+paths their errors would be correlated, and E[adjoint(image) · ∂image] ≠ adjoint(E[image]) · E[∂image]: the
+gradient would be biased (for the squared error, by a covariance term that pulls toward making the noise
+itself smaller or larger, not the image closer to the target). With independent random streams the two
+estimates are independent, and the expected gradient is the gradient of the expected loss to first order.
+So `grad_seed` defaults to (seed + 1_000_003) mod 2**32, never equal to `seed`; pass it explicitly to
+reproduce a gradient, e.g. to compare with `render_grad(scene', adjoint, spp, seed=grad_seed)` (the numbers
+are the same, whatever `threads`).
+
+Everything runs on Warp's CPU device; the image is returned on the device of the first control tensor (CPU if
+none), and gradients have each control's dtype and device. Double backward is not supported.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import torch
+
+from .params import CONTROL_NAMES
+from .render import render
+from .render_grad import render_grad
+from .scene import Scene
+
+COLOUR_CONTROLS = {"albedo": ("albedo",), "sigma_a": ("sigma_a",), "melanin": ("eumelanin", "pheomelanin")}
+SCALAR_CONTROLS = ("beta_m", "beta_n", "alpha", "eta", "r_roughness_scale")
+RGB_CONTROLS = ("albedo", "sigma_a")
+GRAD_SEED_OFFSET = 1_000_003
+SEED_MODULUS = 2**32
+
+
+def default_grad_seed(seed: int) -> int:
+    """The gradient pass's seed when none is given: another random stream than the primal's."""
+    return (int(seed) + GRAD_SEED_OFFSET) % SEED_MODULUS
+
+
+def allowed_controls(scene: Scene) -> tuple:
+    """The control names `render_torch` accepts for this scene (its colour input's, then the scalars)."""
+    return COLOUR_CONTROLS[scene.hair.colour_input] + SCALAR_CONTROLS
+
+
+def _check_controls(scene: Scene, controls: dict) -> dict:
+    """Validate names and shapes; returns {name: tensor} in a fixed order."""
+    if not isinstance(controls, dict):
+        raise ValueError(f"controls must be a dict of name → tensor, got {type(controls).__name__}")
+    allowed = allowed_controls(scene)
+    mode = scene.hair.colour_input
+    checked = {}
+    for name, value in controls.items():
+        if name not in allowed:
+            if name in CONTROL_NAMES:
+                raise ValueError(
+                    f"control {name!r} does not apply: the scene's hair colour is given as {mode!r}, so the "
+                    f"colour control is {' / '.join(repr(n) for n in COLOUR_CONTROLS[mode])}; "
+                    f"allowed: {list(allowed)}"
+                )
+            raise ValueError(f"unknown control {name!r}; allowed for this scene: {list(allowed)}")
+        if not isinstance(value, torch.Tensor):
+            try:
+                value = torch.as_tensor(value, dtype=torch.float32)
+            except (TypeError, ValueError, RuntimeError):
+                raise ValueError(f"control {name!r} must be a tensor or a number, got {value!r}") from None
+        if not (value.is_floating_point()):
+            raise ValueError(f"control {name!r} must be a floating-point tensor, got dtype {value.dtype}")
+        expected = (3,) if name in RGB_CONTROLS else ()
+        if tuple(value.shape) != expected:
+            hint = " (for a grey value use t.expand(3))" if expected else " (use a 0-d tensor, e.g. t.squeeze())"
+            raise ValueError(f"control {name!r} must have shape {expected}, got {tuple(value.shape)}{hint}")
+        if not torch.isfinite(value.detach()).all():
+            raise ValueError(f"control {name!r} has NaN or infinite entries: {value.detach().tolist()}")
+        checked[name] = value
+    return {name: checked[name] for name in allowed if name in checked}
+
+
+def scene_with_controls(scene: Scene, values: dict) -> Scene:
+    """A copy of the scene with the named controls (floats, or lists of three for RGB) replacing its own."""
+    if not values:
+        return scene
+    return dataclasses.replace(scene, hair=scene.hair.replace(**values))
+
+
+def _to_python(name, tensor):
+    t = tensor.detach().to("cpu", torch.float64)
+    return [float(v) for v in t.tolist()] if name in RGB_CONTROLS else float(t.item())
+
+
+class _RenderFunction(torch.autograd.Function):
+    @staticmethod
+    def forward(ctx, config, names, *tensors):
+        scene, spp, seed, grad_seed, threads = config
+        values = {name: _to_python(name, t) for name, t in zip(names, tensors)}
+        scene2 = scene_with_controls(scene, values)
+        image = render(scene2, spp=spp, seed=seed, threads=threads, device="cpu")
+        ctx.scene = scene2
+        ctx.names = names
+        ctx.spp, ctx.grad_seed, ctx.threads = spp, grad_seed, threads
+        ctx.meta = [(t.dtype, t.device) for t in tensors]
+        out_device = tensors[0].device if tensors else torch.device("cpu")
+        return torch.from_numpy(np.ascontiguousarray(image, dtype=np.float32)).to(out_device)
+
+    @staticmethod
+    @torch.autograd.function.once_differentiable
+    def backward(ctx, grad_output):
+        needs = ctx.needs_input_grad[2:]
+        if not any(needs):
+            return (None, None) + (None,) * len(needs)
+        adjoint = grad_output.detach().to("cpu", torch.float32).numpy()
+        grads = render_grad(ctx.scene, adjoint, spp=ctx.spp, seed=ctx.grad_seed, threads=ctx.threads, device="cpu")
+        out = []
+        for name, need, (dtype, device) in zip(ctx.names, needs, ctx.meta):
+            if not need:
+                out.append(None)
+                continue
+            g = np.asarray(grads[name], dtype=np.float64)
+            out.append(torch.as_tensor(g, dtype=dtype, device=device).reshape((3,) if name in RGB_CONTROLS else ()))
+        return (None, None) + tuple(out)
+
+
+def render_torch(scene: Scene, controls: dict, spp=None, seed=0, grad_seed=None, threads=None) -> torch.Tensor:
+    """The image (H, W, 3) float32 of `scene` with `controls` substituted, differentiable in the controls.
+
+    controls: {name: tensor}, "albedo"/"sigma_a" (3,) or the 0-d scalars (see the module docstring); not
+    passed ⇒ the scene's value. spp defaults to the scene's [render] spp. The forward pass renders with `seed`;
+    the backward pass estimates the gradient with `grad_seed`, by default (seed + 1_000_003) mod 2**32, an
+    independent random stream (see the module docstring for why).
+    """
+    checked = _check_controls(scene, controls)
+    spp = scene.render.spp if spp is None else int(spp)
+    if spp < 1:
+        raise ValueError(f"spp must be at least 1, got {spp}")
+    seed = int(seed)
+    if not 0 <= seed < SEED_MODULUS:
+        raise ValueError(f"seed must be in [0, 2**32), got {seed}")
+    grad_seed = default_grad_seed(seed) if grad_seed is None else int(grad_seed)
+    if not 0 <= grad_seed < SEED_MODULUS:
+        raise ValueError(f"grad_seed must be in [0, 2**32), got {grad_seed}")
+    names = tuple(checked)
+    config = (scene, spp, seed, grad_seed, threads)
+    return _RenderFunction.apply(config, names, *checked.values())
