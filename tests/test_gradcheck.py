@@ -1,0 +1,113 @@
+"""`warp-hair gradcheck`: render_grad against finite differences of the loss, on a tiny sparse scene."""
+
+import re
+
+import pytest
+
+from warp_hair.cli import main
+from warp_hair.gradcheck import GradcheckRow, gradcheck, target_hair
+
+
+# 12×12 px, one sparse layer of 24 fibers, directional + constant sky, max_depth 8 without roulette (as
+# tests/test_render_grad.py: sparse, so that central differences with common random numbers are not swamped by
+# the discrete choices a change of the controls flips).
+TINY_SCENE = """
+[camera]
+type = "orthographic"
+origin = [0.0, 0.0, 3.0]
+target = [0.0, 0.0, 0.0]
+up = [0.0, 1.0, 0.0]
+width = 0.25
+resolution = [12, 12]
+
+[[lights]]
+type = "directional"
+direction = [0.3, -0.4, -1.0]
+irradiance = [3.0, 3.0, 3.0]
+
+[[lights]]
+type = "environment"
+radiance = [0.3, 0.3, 0.3]
+
+[fibers]
+generator = "swatch"
+count = 24
+layers = 1
+length = 0.6
+radius = 0.004
+seed = 3
+
+[hair]
+albedo = [0.7, 0.5, 0.3]
+beta_m = 0.3
+beta_n = 0.35
+alpha = 2.0
+eta = 1.55
+r_roughness_scale = 1.5
+
+[render]
+spp = 16
+max_depth = 8
+rr_depth = 8
+seed = 1
+"""
+
+
+@pytest.fixture
+def tiny_scene(tmp_path):
+    path = tmp_path / "tiny.toml"
+    path.write_text(TINY_SCENE)
+    return path
+
+
+def test_gradcheck_prints_a_row_per_control(tiny_scene, capsys):
+    assert main(["gradcheck", str(tiny_scene), "--spp", "64", "--seeds", "4", "--params", "albedo,eta"]) == 0
+    out = capsys.readouterr().out
+    rows = {line.split()[0]: line for line in out.splitlines() if re.match(r"(albedo\[[rgb]\]|eta)\s", line)}
+    assert set(rows) == {"albedo[r]", "albedo[g]", "albedo[b]", "eta"}, out
+    for control, line in rows.items():
+        assert line.split()[-1] == "OK", out
+    assert "4/4 OK" in out
+
+
+def test_unknown_control_exits_2(tiny_scene, capsys):
+    assert main(["gradcheck", str(tiny_scene), "--params", "albedo,bogus"]) == 2
+    err = capsys.readouterr().err
+    assert "warp-hair: error:" in err and "'bogus'" in err
+
+
+def test_step_outside_the_range_is_an_error(tiny_scene, capsys):
+    assert main(["gradcheck", str(tiny_scene), "--params", "beta_m", "--eps", "0.5"]) == 2
+    assert "use a smaller --eps" in capsys.readouterr().err
+
+
+def test_target_perturbation():
+    scene = load_scene_from_text(TINY_SCENE)
+    moved = target_hair(scene.hair, ["albedo", "beta_m", "alpha", "eta"])
+    assert moved.albedo == pytest.approx((0.63, 0.45, 0.27))
+    assert (moved.beta_m, moved.alpha, moved.eta) == pytest.approx((0.35, 5.0, 1.60))
+    assert (moved.beta_n, moved.r_roughness_scale) == (0.35, 1.5)  # unchecked controls stay
+    # An upward step that would leave the range is taken downward.
+    assert target_hair(scene.hair.replace(beta_m=0.98), ["beta_m"]).beta_m == pytest.approx(0.93)
+
+
+def test_verdict_rule():
+    row = GradcheckRow("eta", "eta", None, 0.04, grad=1.02, grad_se=0.1, fd=1.0, fd_se=0.1, se=0.001)
+    assert row.ok  # within 3%
+    row = GradcheckRow("eta", "eta", None, 0.04, grad=1.2, grad_se=0.1, fd=1.0, fd_se=0.1, se=0.1)
+    assert row.ok and row.z == pytest.approx(2.0)  # within 3 SE
+    row = GradcheckRow("eta", "eta", None, 0.04, grad=1.5, grad_se=0.1, fd=1.0, fd_se=0.1, se=0.1)
+    assert not row.ok and row.relative_difference == pytest.approx(0.5)
+
+
+def test_gradcheck_needs_two_seeds():
+    with pytest.raises(ValueError, match="seeds must be at least 2"):
+        gradcheck(load_scene_from_text(TINY_SCENE), ["eta"], seeds=1)
+
+
+def load_scene_from_text(text):
+    import tomllib
+
+    from warp_hair.scene import scene_from_dict
+
+    return scene_from_dict(tomllib.loads(text))
