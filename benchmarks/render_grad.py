@@ -1,0 +1,196 @@
+"""Benchmark: the cost of one gradient of an image loss with respect to the hair controls, on the standard swatch,
+against a forward render, its peak memory at two path depths, and (where Mitsuba 3 is installed) against
+Mitsuba's `prb` differentiating its hair BSDF.
+
+    python benchmarks/render_grad.py [--spp 64] [--threads N] [--memory-spp 8]
+
+The loss is 0.5‖image − target‖² with a fixed synthetic target (0.9 × a primal render at spp/8, made before
+any timing), so its adjoint is image − target. One gradient evaluation is what an optimiser step pays: a primal
+render for the adjoint (seed A) plus `render_grad` (seed B; a different seed keeps the two estimates uncorrelated).
+`render_grad` differentiates every control at once (albedo or sigma_a, beta_m, beta_n, alpha, eta,
+r_roughness_scale): there is no cheaper call for fewer controls.
+
+Peak memory is each depth's own subprocess's ru_maxrss (a process's peak never goes down, so two depths in one
+process cannot be told apart). It includes the interpreter, Warp and the loaded kernels, the same for both.
+
+Timings are wall-clock seconds on a shared machine: other jobs running at the same time inflate them.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import os
+import resource
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from warp_hair.parallel import default_threads
+from warp_hair.render import render
+from warp_hair.render_grad import render_grad
+from warp_hair.scene import load_scene
+
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE))
+from render_swatch import import_mitsuba, mitsuba_scene  # noqa: E402  (the same scene translation)
+
+SCENE = HERE / "standard_swatch.toml"
+SEED_TARGET, SEED_PRIMAL, SEED_GRAD = 7, 1, 2
+MEMORY_DEPTHS = (16, 128)
+# Mitsuba hair BSDF parameters differentiated when present and flagged differentiable by mi.traverse.
+MITSUBA_KEYS = ("longitudinal_roughness", "azimuthal_roughness", "sigma_a.value", "scale_tilt", "eta")
+
+
+def load(max_depth=None):
+    scene = load_scene(SCENE)
+    if max_depth is not None:
+        scene.render = dataclasses.replace(scene.render, max_depth=max_depth)
+    return scene
+
+
+def target_spp(spp):
+    """The target only has to be fixed and plausible, not converged: render it at an eighth of the spp."""
+    return max(1, spp // 8)
+
+
+def synthetic_target(scene, spp, threads):
+    """0.9 × a primal render: fixed before timing, so the loss and its adjoint are non-trivial everywhere."""
+    return 0.9 * render(scene, spp=target_spp(spp), seed=SEED_TARGET, threads=threads)
+
+
+def gradient_evaluation(scene, target, spp, threads):
+    """One gradient of 0.5‖image − target‖²: the primal for the adjoint, then the gradient pass."""
+    image = render(scene, spp=spp, seed=SEED_PRIMAL, threads=threads)
+    adjoint = image - target
+    grads = render_grad(scene, adjoint, spp=spp, seed=SEED_GRAD, threads=threads)
+    return 0.5 * float(np.sum(adjoint.astype(np.float64) ** 2)), grads
+
+
+def timed(fn, *args):
+    start = time.perf_counter()
+    result = fn(*args)
+    return time.perf_counter() - start, result
+
+
+def warm_up(scene, threads):
+    """Compile (or load) the forward and gradient kernels at 1 spp so no timing includes it."""
+    image = render(scene, spp=1, threads=threads)
+    render_grad(scene, np.zeros_like(image), spp=1, threads=threads)
+
+
+def memory_child(depth, spp, threads):
+    """Hidden mode: one gradient evaluation at `depth`; print ru_maxrss (MiB) before it and at the end. The
+    warm-up (kernel loading, buffers) runs at depth 1 so that `before` holds nothing of the deep paths."""
+    warm_up(load(1), threads)
+    scene = load(depth)
+    target = synthetic_target(scene, 1, threads)
+    before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # Linux: KiB
+    gradient_evaluation(scene, target, spp, threads)
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    print(json.dumps({"depth": depth, "before_mib": before, "peak_mib": peak}))
+
+
+def peak_memory(depth, spp, threads):
+    out = subprocess.run(
+        [sys.executable, __file__, "--_memory-child", str(depth), "--spp", str(spp), "--threads", str(threads)],
+        check=True, capture_output=True, text=True,
+    )
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def mitsuba_gradient(mi, scene, spp, threads):
+    """(seconds of one forward+backward pass, differentiated keys, non-differentiable keys) for prb."""
+    import drjit as dr
+
+    dr.set_thread_count(threads)
+    mi_scene = mitsuba_scene(mi, scene, spp)
+    # Same translation as render_swatch.py, but the prb integrator (path replay backpropagation): its backward
+    # pass re-traces the paths, so forward+backward is a primal plus an adjoint pass, like ours.
+    integrator = mi.load_dict({"type": "prb", "max_depth": scene.render.max_depth + 1,
+                               "rr_depth": scene.render.rr_depth})
+    params = mi.traverse(mi_scene)
+    keys, skipped = [], []
+    for name in MITSUBA_KEYS:
+        matches = [k for k in params.keys() if k.endswith("bsdf." + name)]
+        for k in matches:
+            (keys if params.flags(k) & mi.ParamFlags.NonDifferentiable.value == 0 else skipped).append(k)
+    target = 0.9 * mi.TensorXf(mi.render(mi_scene, integrator=integrator, spp=target_spp(spp), seed=SEED_TARGET))
+    dr.eval(target)
+
+    def step(seed, spp):
+        for k in keys:
+            dr.enable_grad(params[k])
+        params.update()
+        image = mi.render(mi_scene, params, integrator=integrator, spp=spp, seed=seed, seed_grad=seed + 1)
+        loss = 0.5 * dr.sum(dr.square(image - target), axis=None)
+        dr.backward(loss)
+        grads = {k: np.array(dr.grad(params[k])) for k in keys}  # forces evaluation of every gradient
+        dr.sync_thread()
+        return float(np.array(loss).ravel()[0]), grads
+
+    step(100, 1)  # warm-up: traces and JIT-compiles the primal and adjoint kernels (1 spp compiles the same)
+    seconds, (loss, grads) = timed(step, SEED_PRIMAL, spp)
+    return seconds, loss, grads, skipped
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--spp", type=int, default=64)
+    parser.add_argument("--threads", type=int, default=None, help="default: every core this process may use")
+    parser.add_argument("--memory-spp", type=int, default=8,
+                        help="spp of the memory subprocesses: memory holds per-pixel buffers only, so it does not "
+                             "grow with spp, and fewer keep the two extra gradient evaluations short")
+    parser.add_argument("--_memory-child", type=int, default=None, help=argparse.SUPPRESS)
+    args = parser.parse_args(argv)
+    threads = args.threads or default_threads()
+    if args._memory_child is not None:
+        memory_child(args._memory_child, args.spp, threads)
+        return
+
+    scene = load()
+    width, height = scene.camera.resolution
+    print(f"{SCENE.name}: {width}x{height}, {args.spp} spp, max depth {scene.render.max_depth}, "
+          f"{scene.fibers.num_strands} fibers; loss 0.5|image - 0.9 x primal|^2")
+    print(f"machine: {os.cpu_count()} cores; threads used: {threads} (wall-clock; other jobs on the machine "
+          "slow these down)")
+
+    warm_up(scene, threads)
+    target = synthetic_target(scene, args.spp, threads)
+    forward, _ = timed(render, scene, args.spp, SEED_PRIMAL, threads)
+    gradient, (loss, grads) = timed(gradient_evaluation, scene, target, args.spp, threads)
+    print(f"warp-hair forward render: {forward:.2f} s")
+    print(f"warp-hair gradient evaluation (primal + render_grad, all controls at once): {gradient:.2f} s "
+          f"= {gradient / forward:.2f} x forward (render_grad alone ~ {gradient / forward - 1:.2f} x)")
+    print(f"  loss {loss:.4f}; gradients: " + ", ".join(
+        f"{k} {np.array2string(np.asarray(v), precision=4) if np.ndim(v) else format(v, '.4g')}"
+        for k, v in grads.items()))
+
+    for depth in MEMORY_DEPTHS:
+        m = peak_memory(depth, args.memory_spp, threads)
+        print(f"peak memory, gradient evaluation at max_depth {depth}: {m['peak_mib']:.0f} MiB "
+              f"(subprocess ru_maxrss at {args.memory_spp} spp; {m['before_mib']:.0f} MiB after a depth-1 warm-up, "
+              "before the evaluation)")
+
+    mi = import_mitsuba()
+    if mi is None:
+        return
+    try:
+        mi_seconds, mi_loss, mi_grads, skipped = mitsuba_gradient(mi, scene, args.spp, threads)
+    except Exception as error:  # report and carry on: the comparison is optional
+        print(f"Mitsuba gradient skipped: {type(error).__name__}: {error}")
+        return
+    print(f"Mitsuba {mi.__version__} ({mi.variant()}, prb, max_depth {scene.render.max_depth + 1}) forward+backward: "
+          f"{mi_seconds:.2f} s; loss {mi_loss:.4f}; differentiated: " + ", ".join(
+              f"{k.split('.', 2)[-1]} {np.array2string(v.ravel(), precision=4)}" for k, v in mi_grads.items()))
+    if skipped:
+        print(f"  not differentiable in Mitsuba: {', '.join(skipped)}")
+    print(f"time ratio warp-hair / Mitsuba (gradient evaluation): {gradient / mi_seconds:.2f}")
+
+
+if __name__ == "__main__":
+    main()
