@@ -16,7 +16,16 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from .hair_bsdf import HairCoefficients, hair_coefficients, hair_pdf, hair_sample, hair_value, lobe_densities, lobe_setup
+from .hair_bsdf import (
+    HairCoefficients,
+    hair_coefficients,
+    hair_pdf,
+    hair_sample,
+    hair_value,
+    hair_value_pdf,
+    lobe_densities,
+    lobe_setup,
+)
 from .parallel import launch_ranges
 from .params import HairParams
 
@@ -66,12 +75,12 @@ def _sample_kernel(
     i = wp.tid() + first
     L = lobe_setup(c, wo[i], h[i])
     wi = hair_sample(L, u[i])
-    density = hair_pdf(L, wi)
+    value, density = hair_value_pdf(L, wi)
     weight = wp.vec3(0.0)
     # A direction whose density underflowed to 0 (the extreme tail of a very narrow lobe, with a
     # probability near 2^-24) carries no weight rather than 0/0.
     if density > 0.0:
-        weight = hair_value(L, wi) / density
+        weight = value / density
     wi_out[i] = wi
     weight_out[i] = weight
     pdf_out[i] = density
