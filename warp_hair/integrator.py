@@ -14,11 +14,20 @@ from .card import NO_HIT, CardData, card_distance
 from .envmap import EnvironmentData, env_pdf, env_radiance, env_sample
 from .hair_bsdf import HairCoefficients, LobeSetup, hair_sample, hair_value_pdf, lobe_setup
 from .intersect import FiberGeometry, fibers_occluded, intersect_fibers
-from .bsdf_grad import HairControls, controls_vec, value_pdf_dot
+from .bsdf_grad import controls_vec
+from .bsdf_jacobian import (
+    CoefficientDerivatives,
+    LobeEvaluation,
+    LobeSetupGrad,
+    hair_value_jacobian,
+    hair_value_pdf_lobes,
+    lobe_setup_grad,
+    value_jacobian_mat,
+)
 from .lobes import TWO_PI
 
-# Forward only (the gradient tracer differentiates the BSDF with wp.grad inside its own forward pass, see
-# `make_trace_path`); -O3 for the renderer's hot loop.
+# Forward only (the gradient tracer carries its derivatives forward itself, see `make_trace_path`); -O3 for the
+# renderer's hot loop.
 wp.set_module_options({"enable_backward": False, "optimization_level": 3})
 
 INV_PI = wp.constant(0.31830988618379067)
@@ -102,39 +111,39 @@ def scatter_value_pdf(scene: SceneData, on_card: bool, setup: LobeSetup, wi: wp.
     return hair_value_pdf(setup, wi)
 
 
-grad_rows_mat = wp.types.matrix(shape=(3, 8), dtype=wp.float32)
+@wp.func
+def scatter_value_pdf_lobes(scene: SceneData, on_card: bool, setup: LobeSetup, wi: wp.vec3):
+    """`scatter_value_pdf`, and at a fiber the evaluation of its lobes that `hair_value_jacobian` differentiates."""
+    if on_card:
+        value, density = scatter_value_pdf(scene, on_card, setup, wi)
+        return value, density, LobeEvaluation()
+    value, density, lobes = hair_value_pdf_lobes(setup, wi)
+    return value, density, lobes
 
 
 @wp.func
-def path_gradient(G: grad_rows_mat, adjoint: wp.vec3, contribution: wp.vec3):
-    """Σ_c adjoint_c C_c G[c]: the part of a contribution's gradient from the vertices before its own."""
-    w = wp.cw_mul(adjoint, contribution)
+def row_combination(w: wp.vec3, G: value_jacobian_mat):
+    """Σ_c w_c G[c]."""
     return w[0] * G[0] + w[1] * G[1] + w[2] * G[2]
 
 
 @wp.func
-def log_seed(adjoint: wp.vec3, contribution: wp.vec3, value: wp.vec3):
-    """The seed (adjoint_c C_c / S_c; 0 where S_c = 0) whose vector-Jacobian product is Σ_c adjoint_c C_c ∂ log S_c."""
-    seed = wp.vec4(0.0)
+def log_weights(adjoint: wp.vec3, contribution: wp.vec3, value: wp.vec3):
+    """adjoint_c C_c / S_c (0 where S_c = 0): Σ_c of them times ∂S_c/∂θ is Σ_c adjoint_c C_c ∂ log S_c/∂θ."""
+    w = wp.vec3(0.0)
     for c in range(3):
         if value[c] > 0.0:
-            seed[c] = adjoint[c] * contribution[c] / value[c]
-    return seed
-
-
-@wp.func
-def unit_seed(c: int):
-    seed = wp.vec4(0.0)
-    seed[c] = 1.0
-    return seed
+            w[c] = adjoint[c] * contribution[c] / value[c]
+    return w
 
 
 def make_trace_path(differentiable: bool):
     """The path tracer as a `wp.func`; with `differentiable` it also returns the path's ∂L/∂θ.
 
-    trace_path(scene, origin, direction, rng, controls, adjoint) -> (radiance, d_theta, rng). The forward
-    variant ignores `controls` and `adjoint` and returns d_theta = 0: the branches under wp.static are
-    compiled out of it, so the forward renderer runs the same code as it did without them.
+    trace_path(scene, origin, direction, rng, derivs, adjoint) -> (radiance, d_theta, rng), `derivs` the
+    material's `bsdf_jacobian.coefficient_derivatives`. The forward variant ignores `derivs` and `adjoint` and
+    returns d_theta = 0: the branches under wp.static are compiled out of it, so the forward renderer runs the
+    same code as it did without them.
 
     The gradient (detached sampling; render_grad.py explains why it is unbiased): every contribution C of a
     path is a product of BSDF values S_c over its fiber vertices divided by θ-independent factors (pdfs, MIS
@@ -143,10 +152,11 @@ def make_trace_path(differentiable: bool):
     adds Σ_c adjoint_c C_c (G[c, k] + ∂ log S_c(w_light)/∂θ_k at an NEE vertex on a fiber) to d_theta. The
     card does not depend on θ. Memory is flat in the depth: no tape over the loop.
 
-    The differentiable variant calls wp.grad itself rather than bsdf_grad's helpers (a wp.func that calls a
-    function that calls wp.grad does not build; see bsdf_grad's docstring), so it must be called from a
-    kernel. Row c of ∂S/∂θ costs one reverse pass (seed e_c); the NEE term needs one, seeded with the
-    weights adjoint_c C_c / S_c.
+    ∂S/∂θ comes in closed form from `bsdf_jacobian`: at a fiber vertex, `lobe_setup_grad` once (what depends
+    on wo and h); S and the pdf toward the light and toward the continuation come from `hair_value_pdf_lobes`
+    (the values `hair_value_pdf` gives, so the path is the forward renderer's), and `hair_value_jacobian`
+    differentiates that same evaluation: for the continuation, and toward the light only when the light
+    sample is visible.
     """
 
     def trace_path(
@@ -154,12 +164,12 @@ def make_trace_path(differentiable: bool):
         origin: wp.vec3,
         direction: wp.vec3,
         rng: wp.uint32,
-        controls: HairControls,
+        derivs: CoefficientDerivatives,
         adjoint: wp.vec3,
     ):
         radiance = wp.vec3(0.0)
         d_theta = controls_vec()
-        G = grad_rows_mat()
+        G = value_jacobian_mat()
         throughput = wp.vec3(1.0)
         o = origin
         d = direction
@@ -180,7 +190,7 @@ def make_trace_path(differentiable: bool):
                     contribution = mis * wp.cw_mul(throughput, env_radiance(scene.env, d))
                     radiance += contribution
                     if wp.static(differentiable):
-                        d_theta += path_gradient(G, adjoint, contribution)
+                        d_theta += row_combination(wp.cw_mul(adjoint, contribution), G)
                 break
             # The ray sampled at the last allowed vertex is still traced above: light sampling there was
             # MIS-weighted on the understanding that this ray would bring the rest of the environment.
@@ -194,6 +204,8 @@ def make_trace_path(differentiable: bool):
             z = hit.normal
             position = hit.position
             setup = LobeSetup()
+            if wp.static(differentiable):
+                d_setup = LobeSetupGrad()
             if on_card:
                 z = scene.card.normal
                 if wp.dot(z, d) > 0.0:
@@ -204,6 +216,8 @@ def make_trace_path(differentiable: bool):
             wo = to_local(-d, x, y, z)
             if not on_card:
                 setup = lobe_setup(scene.hair, wo, hit.h)
+                if wp.static(differentiable):
+                    d_setup = lobe_setup_grad(setup, wo, hit.h)
 
             # Next-event estimation with one light.
             if num_emitters > 0:
@@ -212,10 +226,15 @@ def make_trace_path(differentiable: bool):
                 nee = wp.vec3(0.0)  # the light sample's contribution
                 nee_value = wp.vec3(0.0)  # S toward the light
                 w_light = wp.vec3(0.0)  # local direction toward the light
+                if wp.static(differentiable):
+                    lobes_light = LobeEvaluation()
                 if k < scene.num_lights:
                     light = scene.lights[k]
                     w_light = to_local(light.to_light, x, y, z)
-                    nee_value, pdf_bsdf = scatter_value_pdf(scene, on_card, setup, w_light)
+                    if wp.static(differentiable):
+                        nee_value, pdf_bsdf, lobes_light = scatter_value_pdf_lobes(scene, on_card, setup, w_light)
+                    else:
+                        nee_value, pdf_bsdf = scatter_value_pdf(scene, on_card, setup, w_light)
                     if pdf_bsdf > 0.0 and not occluded(scene, position, light.to_light):
                         lit = True
                         nee = wp.cw_mul(throughput, wp.cw_mul(nee_value, light.irradiance)) / select_pdf
@@ -224,7 +243,10 @@ def make_trace_path(differentiable: bool):
                     d_env, pdf_env = env_sample(scene.env, u_env)
                     if pdf_env > 0.0:
                         w_light = to_local(d_env, x, y, z)
-                        nee_value, pdf_bsdf = scatter_value_pdf(scene, on_card, setup, w_light)
+                        if wp.static(differentiable):
+                            nee_value, pdf_bsdf, lobes_light = scatter_value_pdf_lobes(scene, on_card, setup, w_light)
+                        else:
+                            nee_value, pdf_bsdf = scatter_value_pdf(scene, on_card, setup, w_light)
                         if pdf_bsdf > 0.0 and not occluded(scene, position, d_env):
                             light_pdf = select_pdf * pdf_env
                             w = power_heuristic(light_pdf, pdf_bsdf) / light_pdf
@@ -233,13 +255,11 @@ def make_trace_path(differentiable: bool):
                 if lit:
                     radiance += nee
                     if wp.static(differentiable):
-                        d_theta += path_gradient(G, adjoint, nee)
+                        d_theta += row_combination(wp.cw_mul(adjoint, nee), G)
                         if not on_card:
-                            # Σ_c adjoint_c C_c ∂ log S_c(w_light)/∂θ: one reverse pass.
-                            g_nee, g_mode, g_wo, g_wi, g_h, g_seed = wp.grad(value_pdf_dot)(
-                                controls.theta, controls.colour_mode, wo, w_light, hit.h, log_seed(adjoint, nee, nee_value)
-                            )
-                            d_theta += g_nee
+                            # Σ_c adjoint_c C_c ∂ log S_c(w_light)/∂θ, only for visible light samples.
+                            J_light = hair_value_jacobian(setup, d_setup, derivs, lobes_light)
+                            d_theta += row_combination(log_weights(adjoint, nee, nee_value), J_light)
 
             # Continue the path by sampling the BSDF.
             wi = wp.vec3(0.0)
@@ -248,19 +268,20 @@ def make_trace_path(differentiable: bool):
                 wi = cosine_hemisphere(u2)
             else:
                 wi = hair_sample(setup, wp.vec3(wp.randf(rng), wp.randf(rng), wp.randf(rng)))
-            value, pdf = scatter_value_pdf(scene, on_card, setup, wi)
+            if wp.static(differentiable):
+                value, pdf, lobes = scatter_value_pdf_lobes(scene, on_card, setup, wi)
+            else:
+                value, pdf = scatter_value_pdf(scene, on_card, setup, wi)
             if pdf <= 0.0:
                 break
             throughput = wp.cw_mul(throughput, value / pdf)
             if wp.static(differentiable):
                 if not on_card:
-                    # G[c] += ∂ log S_c(wi)/∂θ, one reverse pass per channel (none where S_c = 0).
+                    # G[c] += ∂ log S_c(wi)/∂θ; nothing where S_c = 0 (every later contribution of the path is 0 in c).
+                    J = hair_value_jacobian(setup, d_setup, derivs, lobes)
                     for c in range(3):
                         if value[c] > 0.0:
-                            g_cont, g_mode, g_wo, g_wi, g_h, g_seed = wp.grad(value_pdf_dot)(
-                                controls.theta, controls.colour_mode, wo, wi, hit.h, unit_seed(c)
-                            )
-                            G[c] = G[c] + g_cont / value[c]
+                            G[c] = G[c] + J[c] * (1.0 / value[c])
             prev_pdf = pdf
             o = position
             d = wp.normalize(to_world(wi, x, y, z))
@@ -301,7 +322,7 @@ def render_kernel(
     for s in range(spp):
         jitter, rng = rand2(rng)
         origin, direction = generate_ray(scene.camera, px, py, jitter)
-        radiance, unused_grad, rng = trace_path(scene, origin, direction, rng, HairControls(), wp.vec3(0.0))
+        radiance, unused_grad, rng = trace_path(scene, origin, direction, rng, CoefficientDerivatives(), wp.vec3(0.0))
         total += radiance
         total_sq += wp.cw_mul(radiance, radiance)
     n = float(spp)

@@ -23,9 +23,11 @@ with S at each vertex evaluated at the direction actually used there (the contin
 the light direction for the NEE vertex itself). One forward pass accumulates it: a per-path running matrix
 G[c, k] = Σ_previous fiber vertices ∂ log S_c(wi_j)/∂θ_k (= J[c, k]/S_c, skipped where S_c = 0, where the
 contribution vanishes too), and each contribution adds Σ_c adjoint_c C_c (G[c, k] + ∂ log S_c(w_light)/∂θ_k)
-/ spp to its pixel. Memory does not grow with the path depth (no tape over the bounce loop; Warp's autodiff does
-not replay dynamic loops). The BSDF Jacobian rows come from wp.grad of bsdf_grad.value_pdf_dot inside the
-forward kernel. The card does not depend on θ.
+/ spp to its pixel. Memory does not grow with the path depth (no tape over the bounce loop). The BSDF Jacobian
+J = ∂S/∂θ is in closed form (`bsdf_jacobian`): the map from the controls to the model's coefficients and its
+derivatives are formed once per material on the host in float64 (`coefficient_derivatives`), and each vertex
+differentiates the same evaluation of the lobes that gave S (bsdf_grad's wp.grad of the same model is its
+independent check, tests/test_bsdf_jacobian.py). The card does not depend on θ.
 
 The tracer is integrator.make_trace_path(True): the forward renderer's own loop, with the gradient code
 compiled in under wp.static branches (the forward variant compiles them out). Per-pixel gradients (pixels × 8)
@@ -41,7 +43,8 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from .bsdf_grad import SCALAR_CONTROLS, HairControls, controls_vec, hair_controls, value_pdf_dot
+from .bsdf_grad import SCALAR_CONTROLS, controls_vec
+from .bsdf_jacobian import CoefficientDerivatives, coefficient_derivatives
 from .camera import generate_ray
 from .integrator import SceneData, rand2, trace_path_grad
 from .parallel import launch_ranges
@@ -50,15 +53,15 @@ from .scene import Scene
 
 wp.set_module_options({"enable_backward": False, "optimization_level": 3})
 
-# Pixels per range handed to a thread: gradient pixels cost several times a forward pixel, and fiber pixels
-# far more than background ones, so smaller ranges than `render`'s balance better.
+# Pixels per range handed to a thread: fiber pixels cost far more than background ones, and ranges smaller than
+# `render`'s balance the threads better at a negligible cost per launch.
 TILE_PIXELS = 256
 
 
 @wp.kernel
 def render_grad_kernel(
     scene: SceneData,
-    controls: HairControls,
+    derivs: CoefficientDerivatives,
     spp: int,
     seed: int,
     adjoint: wp.array(dtype=wp.vec3),
@@ -73,21 +76,12 @@ def render_grad_kernel(
     # The same random streams as render_kernel: with the same seed, the same paths.
     rng = wp.rand_init(seed, pixel)
     a = adjoint[pixel]
-    if spp < 0:
-        # Never runs; it must come first. Warp 1.19 generates a function's adjoint only if the function was
-        # first built under a wp.grad (it marks callees as it builds them, and builds each once per module).
-        # The tracer calls lobe_setup and hair_value_pdf forward before its first wp.grad, so without this
-        # their adjoints would be empty stubs and every gradient 0. Building value_pdf_dot's gradient here
-        # first marks the whole chain. (tests/test_render_grad.py fails if this is lost: gradients vanish.)
-        g_theta, g_mode, g_wo, g_wi, g_h, g_seed = wp.grad(value_pdf_dot)(
-            controls.theta, controls.colour_mode, wp.vec3(0.0), wp.vec3(0.0), 0.0, wp.vec4(0.0)
-        )
     total = wp.vec3(0.0)
     total_grad = controls_vec()
     for s in range(spp):
         jitter, rng = rand2(rng)
         origin, direction = generate_ray(scene.camera, px, py, jitter)
-        radiance, d_theta, rng = trace_path_grad(scene, origin, direction, rng, controls, a)
+        radiance, d_theta, rng = trace_path_grad(scene, origin, direction, rng, derivs, a)
         total += radiance
         total_grad += d_theta
     n = float(spp)
@@ -147,7 +141,7 @@ def render_grad(
     launch_ranges(
         render_grad_kernel,
         n,
-        [prepared.data, hair_controls(scene.hair), spp, seed, wp.array(a.reshape(n, 3), dtype=wp.vec3, device=device), image, grad],
+        [prepared.data, coefficient_derivatives(scene.hair), spp, seed, wp.array(a.reshape(n, 3), dtype=wp.vec3, device=device), image, grad],
         threads=threads,
         device=device,
         chunk=TILE_PIXELS,

@@ -1,0 +1,263 @@
+"""∂S/∂θ of the hair BSDF in closed form, evaluated together with S: the gradient tracer's per-vertex derivative.
+
+θ is ordered as in `bsdf_grad` (colour[0:3], β_m, β_n, α in degrees, η, r_roughness_scale). Usage:
+
+    derivs = coefficient_derivatives(params)       # host, once per material (float64 → float32)
+    # in a kernel, at a fiber vertex:
+    setup = lobe_setup(coeffs, wo, h)
+    d_setup = lobe_setup_grad(setup, wo, h)          # the wo- and h-dependent derivatives, shared by every wi
+    value, density, lobes = hair_value_pdf_lobes(setup, wi)     # = hair_value_pdf(setup, wi), and ...
+    J = hair_value_jacobian(setup, d_setup, derivs, lobes)      # ... J[c, k] = ∂S_c/∂θ_k there
+
+S and pdf are those of `hair_value_pdf` (the same operations on the same values), so the gradient tracer follows
+the renderer's paths, and J differentiates that same evaluation of the lobes. `bsdf_grad` (Warp's reverse mode
+through the model as written) is the independent check of J: tests/test_bsdf_jacobian.py.
+
+Structure. S_c = Σ_p D_p A_pc with D_p = M_p N_p the same for every channel, so
+
+    ∂S_c/∂θ_k = Σ_p D_p (A_pc ∂ln D_p/∂θ_k + ∂A_pc/∂θ_k),
+
+and each control reaches few factors: β_m the variances v_p of every M_p (r_roughness_scale only R's), α the
+tilted θ_o of M_R, M_TT, M_TRT, β_n the logistic scale s of N_R, N_TT, N_TRT (and σ_a, through the albedo
+inversion), η the attenuation (Fresnel, the internal path length) and the azimuthal centres Φ_TT, Φ_TRT, the
+colour only σ_a,c in A_pc. The map θ → (σ_a, v, s, α), its derivatives and those of the material's
+normalisations (m_norm(v), n_norm(s)) depend on the material only: `coefficient_derivatives` forms them on the
+host in float64. What depends on wo and h (∂A/∂σ_a, ∂A/∂η, ∂Φ_p/∂η, the tilt's sign) is `lobe_setup_grad`,
+once per vertex; the log-derivatives of M_p and N_p in their own parameters come out of the evaluation of the
+lobes (lobes.longitudinal_scattering_with_slopes, lobes.trimmed_logistic_with_slope), and
+`hair_value_jacobian` combines them. The model's conventions carry over as wp.grad sees them: the |cos| of a
+tilted θ_o that passed the pole flips the sign of its slope, the wrap of Δφ − Φ_p gives the slope of the side
+it lands on, and the roughness floor (β ≤ 0.01 renders as 0.01) gives derivative 0, through the lobes and the
+albedo inversion. Everything per vertex is float32, like S.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import warp as wp
+
+from .bsdf_grad import CONTROL_COUNT, controls_vec
+from .hair_bsdf import LobeSetup, cos_from_sin
+from .lobes import (
+    INV_TWO_PI,
+    attenuation_partials,
+    fresnel_dielectric_d_eta,
+    longitudinal_scattering_with_slopes,
+    mat43,
+    trimmed_logistic_with_slope,
+    wrap_angle,
+)
+from .params import (
+    BETA_FLOOR,
+    EUMELANIN_SIGMA_A,
+    PHEOMELANIN_SIGMA_A,
+    HairParams,
+    albedo_denominator,
+    lobe_variances,
+    logistic_scale,
+    longitudinal_variance,
+)
+
+wp.set_module_options({"enable_backward": False})
+
+value_jacobian_mat = wp.types.matrix(shape=(3, CONTROL_COUNT), dtype=wp.float32)
+
+# ∂θ_o,p/∂α of the tilted angles (R: θ_o − 2α, TT: θ_o + α, TRT: θ_o + 4α, residual: θ_o), per degree of α.
+_TILT = wp.constant(wp.vec4(-2.0 * math.pi / 180.0, math.pi / 180.0, 4.0 * math.pi / 180.0, 0.0))
+
+
+@wp.struct
+class CoefficientDerivatives:
+    """What the per-vertex derivative needs of one material, beyond its HairCoefficients."""
+
+    d_sigma_d_colour: wp.mat33  # [c, k] = ∂σ_a,c/∂θ_k for the colour columns k = 0, 1, 2
+    d_sigma_d_beta_n: wp.vec3  # the albedo inversion's dependence on β_n (0 for the other colour inputs)
+    d_log_v_d_beta_m: float  # every lobe's v is a fixed multiple of v(β_m)
+    d_log_v_r_d_scale: float  # 1 / r_roughness_scale: the R lobe's v only
+    m_norm_log_slope: wp.vec4  # ∂ln m_norm_p/∂ln v_p
+    d_log_s_d_beta_n: float
+    n_norm_log_slope: float  # ∂ln n_norm/∂ln s
+
+
+def _slope(mapping, x: float) -> float:
+    """d mapping/dx at x by the complex step (exact to rounding: no difference is taken), so that the
+    polynomial fits are differentiated from params.py's own definitions rather than restated here."""
+    step = 1e-30
+    return float(np.imag(mapping(complex(x, step)))) / step
+
+
+def _live(beta: float) -> bool:
+    """Whether β is above the roughness floor, where the mappings depend on it (at the floor: the floor's side,
+    as wp.grad of max(β, floor) takes it)."""
+    return beta > BETA_FLOOR
+
+
+def coefficient_derivatives(params: HairParams) -> CoefficientDerivatives:
+    """The material's CoefficientDerivatives, in float64 from the controls (HairParams), rounded once to float32."""
+    mode = params.colour_input
+    d_colour = np.zeros((3, 3))
+    d_beta_n = np.zeros(3)
+    if mode == "albedo":
+        albedo = np.asarray(params.albedo, dtype=np.float64)
+        denominator = albedo_denominator(params.beta_n)
+        # σ_c = (ln albedo_c / d(β_n))²
+        d_colour = np.diag(2.0 * np.log(albedo) / (denominator * denominator * albedo))
+        if _live(params.beta_n):
+            d_beta_n = -2.0 * params.sigma_a * _slope(albedo_denominator, params.beta_n) / denominator
+    elif mode == "sigma_a":
+        d_colour = np.eye(3)
+    else:
+        d_colour[:, 0], d_colour[:, 1] = EUMELANIN_SIGMA_A, PHEOMELANIN_SIGMA_A
+    k = CoefficientDerivatives()
+    k.d_sigma_d_colour = wp.mat33(*d_colour.ravel())
+    k.d_sigma_d_beta_n = wp.vec3(*d_beta_n)
+    k.d_log_v_d_beta_m = (
+        _slope(longitudinal_variance, params.beta_m) / longitudinal_variance(params.beta_m) if _live(params.beta_m) else 0.0
+    )
+    k.d_log_v_r_d_scale = 1.0 / params.r_roughness_scale
+    # m_norm = 1 / (v (1 − e^(−y))), y = 2/v: ∂ln m_norm/∂ln v = −1 + y e^(−y) / (1 − e^(−y)); no overflow at small v.
+    y = 2.0 / lobe_variances(params.beta_m, params.r_roughness_scale)
+    k.m_norm_log_slope = wp.vec4(*(-1.0 + y * np.exp(-y) / -np.expm1(-y)))
+    s = logistic_scale(params.beta_n)
+    k.d_log_s_d_beta_n = _slope(logistic_scale, params.beta_n) / s if _live(params.beta_n) else 0.0
+    # n_norm = 1 / (s tanh(z/2)), z = π/s: ∂ln n_norm/∂ln s = −1 + z / sinh z, formed with e^(−z).
+    z = math.pi / s
+    k.n_norm_log_slope = -1.0 + 2.0 * z * math.exp(-z) / -math.expm1(-2.0 * z)
+    return k
+
+
+@wp.struct
+class LobeSetupGrad:
+    """The wo- and h-dependent derivatives of one vertex (the counterpart of LobeSetup)."""
+
+    dA_d_sigma: mat43  # ∂A_pc/∂σ_a,c: A_pc depends on its own channel's σ_a only
+    dA_d_eta: mat43
+    dphi_d_eta: wp.vec3  # ∂Φ_p/∂η, p = R (0), TT, TRT
+    tilt: wp.vec4  # ∂θ_o,p/∂α per degree, of the angle whose (sin, |cos|) the lobe uses: past the pole it turns back
+
+
+@wp.func
+def lobe_setup_grad(L: LobeSetup, wo: wp.vec3, h: float):
+    """The derivatives of `lobe_setup(c, wo, h)`'s attenuation, azimuthal centres and tilt, given its result L."""
+    sin_o = wp.clamp(wo[0], -1.0, 1.0)
+    cos_o = cos_from_sin(sin_o)
+    h = wp.clamp(h, -1.0, 1.0)
+    eta = L.c.eta
+    sin_t = sin_o / eta
+    cos_t = cos_from_sin(sin_t)
+    q2 = eta * eta - sin_o * sin_o
+    sin_gamma_t = h * cos_o / wp.sqrt(q2)
+    cos_gamma_t = cos_from_sin(sin_gamma_t)
+    # sin γ_t = h cos θ_o / sqrt(η² − sin² θ_o), sin θ_t = sin θ_o / η; T = e^(−σ_a ℓ), ℓ = 2 cos γ_t / cos θ_t.
+    d_gamma_t = float(0.0)
+    if cos_gamma_t > 0.0:  # |sin γ_t| < |h| ≤ 1 for η > 1; only float32 rounding reaches 1
+        d_gamma_t = -sin_gamma_t * eta / (q2 * cos_gamma_t)
+    d_cos_gamma_t = -sin_gamma_t * d_gamma_t
+    d_cos_t = sin_t * sin_t / (eta * cos_t)
+    length = 2.0 * cos_gamma_t / cos_t
+    d_length = 2.0 * (d_cos_gamma_t - cos_gamma_t * d_cos_t / cos_t) / cos_t
+    f = L.A[0, 0]
+    df = fresnel_dielectric_d_eta(cos_o * cos_from_sin(h), eta)
+
+    # T from A_TT = (1 − f)² T rather than a second exp; where f = 1 (grazing) every term T enters is 0.
+    g = 1.0 - f
+    inv_g2 = float(0.0)
+    if g > 0.0:
+        inv_g2 = 1.0 / (g * g)
+
+    G = LobeSetupGrad()
+    for c in range(3):
+        sigma = L.c.sigma_a[c]
+        T = L.A[1, c] * inv_g2
+        d_f, d_t = attenuation_partials(f, T)
+        dT_d_sigma = -length * T
+        dT_d_eta = -sigma * d_length * T
+        for p in range(4):
+            G.dA_d_sigma[p, c] = d_t[p] * dT_d_sigma
+            G.dA_d_eta[p, c] = d_f[p] * df + d_t[p] * dT_d_eta
+    G.dphi_d_eta = wp.vec3(0.0, 2.0 * d_gamma_t, 4.0 * d_gamma_t)
+
+    # The signed cosines of the tilted angles, as lobe_setup forms them before taking |cos|.
+    sa = L.c.sin_2k_alpha
+    ca = L.c.cos_2k_alpha
+    signed_cos = wp.vec3(cos_o * ca[1] + sin_o * sa[1], cos_o * ca[0] - sin_o * sa[0], cos_o * ca[2] - sin_o * sa[2])
+    G.tilt = _TILT
+    for p in range(3):
+        if signed_cos[p] < 0.0:
+            G.tilt[p] = -_TILT[p]
+    return G
+
+
+@wp.func
+def lobe_sum(A: mat43, w: wp.vec4):
+    """Σ_p w_p A_p (the rows of A): one channel-vector per lobe weighted per lobe."""
+    return w[0] * A[0] + w[1] * A[1] + w[2] * A[2] + w[3] * A[3]
+
+
+@wp.struct
+class LobeEvaluation:
+    """One evaluation of the lobes toward wi, with the log-derivatives of each D_p = M_p N_p in its own
+    parameters: what `hair_value_jacobian` combines into ∂S/∂θ. Kept apart from the combination so that a light
+    sample, evaluated before its shadow ray, is differentiated only if the light turns out to be visible."""
+
+    d: wp.vec4  # D_p
+    log_v: wp.vec4  # ∂ln M_p/∂ln v_p, less ∂ln m_norm_p/∂ln v_p
+    theta_o: wp.vec4  # ∂ln M_p/∂θ_o,p
+    log_s: wp.vec3  # ∂ln N_p/∂ln s, less ∂ln n_norm/∂ln s
+    x: wp.vec3  # ∂ln N_p/∂x_p, x_p = Δφ − Φ_p wrapped to [−π, π)
+
+
+@wp.func
+def hair_value_pdf_lobes(L: LobeSetup, wi: wp.vec3):
+    """(S, pdf, E): `hair_value_pdf(L, wi)` (the same operations on the same values, so the same floats) and the
+    LobeEvaluation of `hair_value_jacobian`."""
+    E = LobeEvaluation()
+    sin_i = wp.clamp(wi[0], -1.0, 1.0)
+    cos_i = cos_from_sin(sin_i)
+    dphi = wp.atan2(wp.float64(wi[2]), wp.float64(wi[1])) - L.phi_o
+    for p in range(4):
+        m, log_v, theta_o = longitudinal_scattering_with_slopes(sin_i, cos_i, L.sin_o[p], L.cos_o[p], L.c.inv_v[p], L.c.m_norm[p])
+        E.log_v[p] = log_v
+        E.theta_o[p] = theta_o
+        if p < 3:
+            x = float(wrap_angle(dphi - L.phi_center[p]))
+            n, slope = trimmed_logistic_with_slope(x, L.c.inv_s, L.c.n_norm)
+            E.d[p] = m * n
+            E.log_s[p] = wp.abs(x) * slope
+            E.x[p] = -wp.sign(x) * slope
+        else:
+            E.d[p] = m * INV_TWO_PI
+    d = E.d
+    return d[0] * L.A[0] + d[1] * L.A[1] + d[2] * L.A[2] + d[3] * L.A[3], wp.dot(L.prob, d), E
+
+
+@wp.func
+def hair_value_jacobian(L: LobeSetup, G: LobeSetupGrad, k: CoefficientDerivatives, E: LobeEvaluation):
+    """J[c, j] = ∂S_c/∂θ_j toward the direction E was evaluated at (`hair_value_pdf_lobes`)."""
+    d = E.d
+    log_v = E.log_v + k.m_norm_log_slope
+    log_s = wp.vec4(E.log_s[0] + k.n_norm_log_slope, E.log_s[1] + k.n_norm_log_slope, E.log_s[2] + k.n_norm_log_slope, 0.0)
+    # x_p = Δφ − Φ_p: ∂x_p/∂η = −∂Φ_p/∂η.
+    d_eta = wp.vec4(-E.x[0] * G.dphi_d_eta[0], -E.x[1] * G.dphi_d_eta[1], -E.x[2] * G.dphi_d_eta[2], 0.0)
+
+    d_sigma = lobe_sum(G.dA_d_sigma, d)  # ∂S_c/∂σ_a,c
+    d_beta_m = lobe_sum(L.A, wp.cw_mul(d, log_v)) * k.d_log_v_d_beta_m
+    d_beta_n = lobe_sum(L.A, wp.cw_mul(d, log_s)) * k.d_log_s_d_beta_n + wp.cw_mul(d_sigma, k.d_sigma_d_beta_n)
+    d_tilt = lobe_sum(L.A, wp.cw_mul(d, wp.cw_mul(G.tilt, E.theta_o)))
+    d_index = lobe_sum(L.A, wp.cw_mul(d, d_eta)) + lobe_sum(G.dA_d_eta, d)
+    d_scale = (d[0] * log_v[0] * k.d_log_v_r_d_scale) * L.A[0]
+    J = value_jacobian_mat()
+    for c in range(3):
+        J[c] = controls_vec(
+            d_sigma[c] * k.d_sigma_d_colour[c, 0],
+            d_sigma[c] * k.d_sigma_d_colour[c, 1],
+            d_sigma[c] * k.d_sigma_d_colour[c, 2],
+            d_beta_m[c],
+            d_beta_n[c],
+            d_tilt[c],
+            d_index[c],
+            d_scale[c],
+        )
+    return J
