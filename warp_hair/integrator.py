@@ -275,13 +275,6 @@ def make_trace_path(differentiable: bool):
             if pdf <= 0.0:
                 break
             throughput = wp.cw_mul(throughput, value / pdf)
-            if wp.static(differentiable):
-                if not on_card:
-                    # G[c] += ∂ log S_c(wi)/∂θ; nothing where S_c = 0 (every later contribution of the path is 0 in c).
-                    J = hair_value_jacobian(setup, d_setup, derivs, lobes)
-                    for c in range(3):
-                        if value[c] > 0.0:
-                            G[c] = G[c] + J[c] * (1.0 / value[c])
             prev_pdf = pdf
             o = position
             d = wp.normalize(to_world(wi, x, y, z))
@@ -292,6 +285,14 @@ def make_trace_path(differentiable: bool):
                 if wp.randf(rng) >= survive:
                     break
                 throughput = throughput / survive
+            if wp.static(differentiable):
+                # After roulette: a path it ends has no later contribution to carry the vertex's derivative to.
+                if not on_card:
+                    # G[c] += ∂ log S_c(wi)/∂θ; nothing where S_c = 0 (every later contribution of the path is 0 in c).
+                    J = hair_value_jacobian(setup, d_setup, derivs, lobes)
+                    for c in range(3):
+                        if value[c] > 0.0:
+                            G[c] = G[c] + J[c] * (1.0 / value[c])
         return radiance, d_theta, rng
 
     # Distinct keys: two same-named functions with one signature in a module would be taken for one overload.
