@@ -1,4 +1,13 @@
-"""Fitting the artist controls of warp_hair to target images (losses, reparametrisation, the fitting loop).
+"""Fitting the hair controls to target images: losses, reparametrisation, the fitting loop, targets, reports.
 
-Empty until the fitting issue lands; it depends on warp_hair, never the reverse.
+    from optimize import fit, load_target
+    result = fit(load_target("targets/blonde_straight"))
+    print(result.values, result.uncertainties)
+
+Depends on warp_hair (the renderer and its gradients), never the reverse.
 """
+
+from .fit import FitResult, FitSettings, fit
+from .target import Target, load_target, make_target
+
+__all__ = ["FitResult", "FitSettings", "Target", "fit", "load_target", "make_target"]

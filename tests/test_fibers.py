@@ -417,3 +417,22 @@ def test_fur_rises_from_the_patch():
 def test_fur_rejects_fibers_that_would_not_rise():
     with pytest.raises(ValueError, match="lean"):
         fur(lean=60, bend=40)
+
+
+def test_draped_swatch_lies_on_its_cylinder():
+    """drape bends the flat swatch over a cylinder (axis along x at z = −R): each fiber keeps its distance to the
+    axis (R + its flat z) and its length along y becomes arc length."""
+    from warp_hair.fibers import swatch
+
+    flat = swatch(count=12, layers=2, length=0.5, width=0.2, segments=48, jitter=0.0, seed=2)
+    draped = swatch(count=12, layers=2, length=0.5, width=0.2, segments=48, jitter=0.0, seed=2, drape=0.25)
+    p, q = flat.points, draped.points
+    np.testing.assert_allclose(q[:, 0], p[:, 0])
+    np.testing.assert_allclose(np.hypot(q[:, 1], q[:, 2] + 0.25), 0.25 + p[:, 2], rtol=1e-6)  # float32 points
+    for k in range(draped.num_strands):
+        points = draped.strand(k)[0]
+        arc = np.linalg.norm(np.diff(points, axis=0), axis=1).sum()
+        z_flat = flat.strand(k)[0][0, 2]
+        assert arc == pytest.approx(0.5 * (0.25 + z_flat) / 0.25, rel=1e-3)  # chords of a 48-segment arc
+    with pytest.raises(ValueError, match="drape = 0.1 is too tight"):
+        swatch(count=12, layers=2, length=0.5, width=0.2, drape=0.1)

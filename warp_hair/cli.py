@@ -7,11 +7,14 @@ itself lives in the library. Bad input (a control out of range, an unwritable pa
     warp-hair plot-bsdf -o lobes.png [hair controls] [--theta-o DEG ...] [--h H]
     warp-hair render SCENE.toml -o OUT.exr [--spp N] [--seed S] [--threads T] [--png PREVIEW.png]
     warp-hair gradcheck SCENE.toml [--spp N] [--seeds K] [--params albedo,eta,...] [--eps E] [--threads T]
+
+and, added by optimize/cli.py, `warp-hair fit` and `warp-hair targets make`.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import sys
 import warnings
 from pathlib import Path
@@ -98,8 +101,6 @@ def add_render(subparsers) -> None:
 def render_scene(args: argparse.Namespace) -> None:
     import time
 
-    from tqdm import tqdm
-
     from .io import write_exr, write_png
     from .render import render, render_metadata
     from .scene import load_scene
@@ -109,11 +110,7 @@ def render_scene(args: argparse.Namespace) -> None:
     seed = scene.render.seed if args.seed is None else args.seed
     width, height = scene.camera.resolution
     start = time.perf_counter()
-    with tqdm(total=width * height, unit="px", desc=f"{args.scene.name} {width}x{height} {spp} spp") as bar:
-
-        def progress(done, total):
-            bar.update(done - bar.n)
-
+    with progress_bar(total=width * height, unit="px", desc=f"{args.scene.name} {width}x{height} {spp} spp") as progress:
         image = render(scene, spp=spp, seed=seed, threads=args.threads, progress=progress)
     seconds = time.perf_counter() - start
     write_exr(args.output, image, render_metadata(scene, spp, seed))
@@ -148,20 +145,13 @@ def add_gradcheck(subparsers) -> None:
 
 
 def gradcheck_scene(args: argparse.Namespace) -> None:
-    from tqdm import tqdm
-
     from .gradcheck import format_table, gradcheck
     from .scene import load_scene
 
     scene = load_scene(args.scene)
     names = None if args.params is None else args.params.split(",")
     width, height = scene.camera.resolution
-    with tqdm(unit="render", desc=f"{args.scene.name} {width}x{height} {args.spp} spp") as bar:
-
-        def progress(done, total):
-            bar.total = total
-            bar.update(done - bar.n)
-
+    with progress_bar(unit="render", desc=f"{args.scene.name} {width}x{height} {args.spp} spp") as progress:
         rows = gradcheck(scene, names, spp=args.spp, seeds=args.seeds, eps=args.eps, threads=args.threads,
                          progress=progress)
     print(format_table(rows))
@@ -169,13 +159,28 @@ def gradcheck_scene(args: argparse.Namespace) -> None:
     print(f"{len(rows) - len(bad)}/{len(rows)} OK" + (f"; mismatched: {', '.join(bad)}" if bad else ""))
 
 
+@contextlib.contextmanager
+def progress_bar(**tqdm_args):
+    """A tqdm bar as the library's progress(done, total) callback (the total may grow as work is found)."""
+    from tqdm import tqdm
+
+    with tqdm(**tqdm_args) as bar:
+
+        def progress(done, total):
+            bar.total = total
+            bar.update(done - bar.n)
+
+        yield progress
+
+
 SUBCOMMANDS = (add_plot_bsdf, add_render, add_gradcheck)
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(extra=()) -> argparse.ArgumentParser:
+    """The parser of the renderer's subcommands, plus `extra` ones (add_* functions) from packages built on it."""
     parser = argparse.ArgumentParser(prog=PROG, description="Hair and fur appearance (the Chiang et al. BSDF) in Warp.")
     subparsers = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    for add in SUBCOMMANDS:
+    for add in SUBCOMMANDS + tuple(extra):
         add(subparsers)
     return parser
 
@@ -184,8 +189,10 @@ def _show_warning(message, category, filename, lineno, file=None, line=None) -> 
     print(f"{PROG}: warning: {message}", file=sys.stderr)
 
 
-def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+def main(argv: list[str] | None = None, extra=()) -> int:
+    """Run a subcommand. The installed `warp-hair` is optimize.cli.main, which adds the fitting subcommands
+    (fit, targets) through `extra`: the renderer does not depend on the optimiser."""
+    args = build_parser(extra).parse_args(argv)
     with warnings.catch_warnings():
         # Users of the command see the library's warnings as messages, not as source locations.
         warnings.showwarning = _show_warning

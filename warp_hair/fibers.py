@@ -535,6 +535,7 @@ def swatch(
     width=None,
     seed=0,
     layer_gap=None,
+    drape=None,
 ):
     """A flat swatch of straight, parallel fibers, like a hair swatch card.
 
@@ -561,6 +562,8 @@ def swatch(
         seed: seed of the NumPy random generator; a seed always gives the same swatch.
         layer_gap: distance between neighbouring layers along z, scene units. Default: 2·radius +
             jitter·spacing, at which fibers of different layers never touch.
+        drape: radius of a cylinder (axis along x, top at z = 0) to lay the swatch over, scene units, above
+            length / π; default flat. Shows the highlight band of swatch photographs (see `_swatch_assembly`).
 
     With the default spacing and layer gap no two fibers intersect. A smaller spacing, or a `width` that
     implies one, packs them tighter and lets neighbours overlap.
@@ -568,7 +571,7 @@ def swatch(
     rng = np.random.default_rng(seed)
     y = _heights(length, segments)
     x, z = _swatch_axes(y, count, layers, radius, spacing, width, jitter, layer_gap, rng)
-    return _swatch_assembly(x, y, z, radius)
+    return _swatch_assembly(x, y, z, radius, drape)
 
 
 def wavy(
@@ -585,11 +588,12 @@ def wavy(
     width=None,
     seed=0,
     layer_gap=None,
+    drape=None,
 ):
     """A swatch of wavy fibers: the fibers of `swatch`, each swinging in x as amplitude·sin(2π·y/wavelength + phase).
 
     Args:
-        count, layers, length, radius, spacing, jitter, width, seed, layer_gap: as for `swatch` (fiber axes
+        count, layers, length, radius, spacing, jitter, width, seed, layer_gap, drape: as for `swatch` (fiber axes
             reach up to `amplitude` beyond its width; `length` is the extent along y, not the arc length).
         amplitude: half the peak-to-peak swing of a wave in x, scene units.
         wavelength: length of one wave along y, scene units.
@@ -603,7 +607,7 @@ def wavy(
     y = _heights(length, _segments_per_period(segments, length, wavelength, 12))
     x, z = _swatch_axes(y, count, layers, radius, spacing, width, jitter, layer_gap, rng)
     angle = _fiber_phases(count, phase_jitter, rng)[:, None] + 2 * np.pi * y / wavelength
-    return _swatch_assembly(x + amplitude * np.sin(angle), y, z, radius)
+    return _swatch_assembly(x + amplitude * np.sin(angle), y, z, radius, drape)
 
 
 def curly(
@@ -620,13 +624,14 @@ def curly(
     width=None,
     seed=0,
     layer_gap=None,
+    drape=None,
 ):
     """A swatch of curly fibers: helices around the fiber axes of `swatch`, all turning the same way.
 
     Each fiber is (x + curl_radius·cos a, y, z + curl_radius·sin a) with a = 2π·y/pitch + phase.
 
     Args:
-        count, layers, length, radius, spacing, jitter, width, seed, layer_gap: as for `swatch` (fibers reach
+        count, layers, length, radius, spacing, jitter, width, seed, layer_gap, drape: as for `swatch` (fibers reach
             up to `curl_radius` beyond its width and layers; `length` is the extent along y, not the arc
             length).
         curl_radius: radius of the helix, scene units.
@@ -641,7 +646,7 @@ def curly(
     y = _heights(length, _segments_per_period(segments, length, pitch, 16))
     x, z = _swatch_axes(y, count, layers, radius, spacing, width, jitter, layer_gap, rng)
     angle = _fiber_phases(count, phase_jitter, rng)[:, None] + 2 * np.pi * y / pitch
-    return _swatch_assembly(x + curl_radius * np.cos(angle), y, z + curl_radius * np.sin(angle), radius)
+    return _swatch_assembly(x + curl_radius * np.cos(angle), y, z + curl_radius * np.sin(angle), radius, drape)
 
 
 def fur(
@@ -758,8 +763,26 @@ def _fiber_phases(count, phase_jitter, rng):
     return rng.uniform(0, 2 * np.pi) + 2 * np.pi * phase_jitter * rng.uniform(0, 1, count)
 
 
-def _swatch_assembly(x, y, z, radius):
-    points = np.stack([x, np.broadcast_to(y, x.shape), z], axis=-1)
+def _swatch_assembly(x, y, z, radius, drape=None):
+    """The assembly of fibers with axes (x, y, z); with `drape`, the swatch is laid over a cylinder.
+
+    Draping bends the flat swatch over a cylinder of radius `drape` whose axis runs along x at z = −drape, the
+    way hair swatches are photographed: (y, z) → ((drape + z) sin(y/drape), (drape + z) cos(y/drape) − drape).
+    Layer 0 lies on the cylinder, deeper layers inside it, and lengths along y become arc lengths. Seen from +z
+    the fibers' tangents then sweep through a range of angles, so one image shows the highlight band whose
+    position and width the longitudinal controls (α, β_m) set; a flat swatch shows one angle only.
+    """
+    y = np.broadcast_to(y, x.shape)
+    if drape is not None:
+        _check_positive(drape=drape)
+        half_angle = np.abs(y).max() / drape
+        if half_angle >= np.pi / 2:
+            raise ValueError(f"drape = {drape} is too tight for the swatch's length: it must exceed length / π = {2 * np.abs(y).max() / np.pi:.4g}")
+        if (z <= -drape).any():
+            raise ValueError(f"drape = {drape} is smaller than the swatch's depth {-z.min():.4g}")
+        bent = drape + z
+        y, z = bent * np.sin(y / drape), bent * np.cos(y / drape) - drape
+    points = np.stack([x, y, z], axis=-1)
     return FiberAssembly.from_arrays(points, radius)
 
 

@@ -61,7 +61,11 @@ def logistic_scale(beta_n):
 
 def albedo_denominator(beta_n):
     """The β_n polynomial of the talk's albedo inversion, fitted by Chiang et al. to brute-force simulations."""
-    b = effective_beta(beta_n)
+    return albedo_polynomial(effective_beta(beta_n))
+
+
+def albedo_polynomial(b):
+    """albedo_denominator without the floor: plain arithmetic, so it also takes torch tensors (the fit's latents)."""
     return 5.969 - 0.215 * b + 2.532 * b**2 - 10.73 * b**3 + 5.574 * b**4 + 0.245 * b**5
 
 

@@ -128,6 +128,23 @@ def render_grad(
     `return_image`, returns (gradients, image): the image of the same paths (equal to `render`'s up to float
     rounding).
     """
+    grad, image = _gradient_pass(scene, adjoint, spp, seed, threads, device)
+    named = named_gradients(scene.hair, grad.sum(axis=(0, 1)))
+    if return_image:
+        return named, image
+    return named
+
+
+def per_pixel_gradients(scene: Scene, adjoint, spp=None, seed=None, threads=None, device: str = "cpu") -> np.ndarray:
+    """(H, W, 8) float64: each pixel's Σ_c adjoint_c ∂image_c/∂θ, θ in bsdf_grad's order (what render_grad sums).
+
+    With the adjoint e_c everywhere this is row c of every pixel's Jacobian (render_jacobian.py).
+    """
+    return _gradient_pass(scene, adjoint, spp, seed, threads, device)[0]
+
+
+def _gradient_pass(scene, adjoint, spp, seed, threads, device):
+    """(per-pixel gradients (H, W, 8) float64, image (H, W, 3)) of one gradient pass."""
     spp = scene.render.spp if spp is None else int(spp)
     seed = scene.render.seed if seed is None else int(seed)
     if spp < 1:
@@ -146,8 +163,4 @@ def render_grad(
         device=device,
         chunk=TILE_PIXELS,
     )
-    total = grad.numpy().astype(np.float64).sum(axis=0)
-    named = named_gradients(scene.hair, total)
-    if return_image:
-        return named, image.numpy().reshape(height, width, 3)
-    return named
+    return grad.numpy().astype(np.float64).reshape(height, width, -1), image.numpy().reshape(height, width, 3)

@@ -1,0 +1,61 @@
+"""Acceptance: fit every shipped target from the neutral guess and tabulate fitted vs true controls and the time.
+
+    python benchmarks/fit_targets.py [NAME ...] [--out benchmarks/out/fits] [--threads N]
+
+Runs `optimize.fit` with its default settings (what `warp-hair fit TARGET -o OUT` runs) on each target in
+targets/ (or the named ones), writes each fit's params.json, convergence.png and comparison.png under --out, and
+prints a Markdown table: per target the true and fitted albedo, β_m and β_n, the largest albedo error, the β
+errors, whether they meet the acceptance bounds (albedo within 0.02 per channel, β within 0.03) and the wall time.
+Timings are wall-clock seconds on whatever else the machine is doing at the time.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+
+from optimize.fit import fit
+from optimize.report import true_values, write_outputs
+from optimize.target import load_target, shipped_targets
+
+HERE = Path(__file__).resolve().parent
+ALBEDO_BOUND, BETA_BOUND = 0.02, 0.03
+
+
+def fmt(v):
+    return "(" + ", ".join(f"{c:.3f}" for c in v) + ")" if isinstance(v, list) else f"{v:.3f}"
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("names", nargs="*")
+    parser.add_argument("--out", type=Path, default=HERE / "out" / "fits")
+    parser.add_argument("--threads", type=int)
+    args = parser.parse_args()
+    directories = [d for d in shipped_targets() if not args.names or d.name in args.names]
+    rows = []
+    for directory in directories:
+        target = load_target(directory)
+        result = fit(target, threads=args.threads)
+        write_outputs(args.out / directory.name, result, target)
+        truth = true_values(target, result.values)
+        a_err = float(np.max(np.abs(np.subtract(result.values["albedo"], truth["albedo"]))))
+        m_err = abs(result.values["beta_m"] - truth["beta_m"])
+        n_err = abs(result.values["beta_n"] - truth["beta_n"])
+        ok = a_err <= ALBEDO_BOUND and m_err <= BETA_BOUND and n_err <= BETA_BOUND
+        rows.append(
+            f"| {directory.name} | {fmt(truth['albedo'])} / {truth['beta_m']:.2f} / {truth['beta_n']:.2f} "
+            f"| {fmt(result.values['albedo'])} / {result.values['beta_m']:.3f} / {result.values['beta_n']:.3f} "
+            f"| {a_err:.3f} | {m_err:.3f} | {n_err:.3f} | {'yes' if ok else 'no'} | {result.seconds:.0f} s |"
+        )
+        print(rows[-1], flush=True)
+    print()
+    print("| target | true albedo / β_m / β_n | fitted albedo / β_m / β_n | max albedo error | β_m error | β_n error | within bounds | time |")
+    print("| --- | --- | --- | --- | --- | --- | --- | --- |")
+    print("\n".join(rows))
+
+
+if __name__ == "__main__":
+    main()

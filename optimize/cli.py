@@ -1,0 +1,158 @@
+"""`warp-hair fit` and `warp-hair targets`: the fitting subcommands, added to the renderer's command line.
+
+    warp-hair fit TARGET -o OUT_DIR [--fit albedo,beta_m,beta_n] [--iters N] [--spp N] [--loss l2]
+                  [--lr LR] [--init NAME=V ...] [--fix NAME=V ...] [--seed S] [--patience P] [--threads T]
+    warp-hair targets make [NAME ...] [--threads T]
+    warp-hair targets list
+
+TARGET is a target directory (optimize/target.py describes the layout) or the name of a shipped one in
+targets/ (e.g. blonde_straight).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import sys
+import time
+from pathlib import Path
+
+from warp_hair import cli as render_cli
+from warp_hair.params import HairParams
+
+from .controls import DEFAULT_FIT, SPECS, as_values
+from .fit import FitSettings
+
+
+def resolve_target(name_or_path: str) -> Path:
+    from .target import SHIPPED_TARGETS, TARGET_FILE
+
+    path = Path(name_or_path)
+    if path.exists():
+        return path
+    shipped = SHIPPED_TARGETS / name_or_path
+    if (shipped / TARGET_FILE).is_file():
+        return shipped
+    names = sorted(p.name for p in SHIPPED_TARGETS.iterdir() if (p / TARGET_FILE).is_file())
+    raise FileNotFoundError(f"{name_or_path}: no such target directory, nor a shipped target (shipped: {', '.join(names)})")
+
+
+def parse_assignments(items, option: str) -> dict:
+    """["albedo=0.5,0.4,0.3", "beta_m=0.4"] → {"albedo": [0.5, 0.4, 0.3], "beta_m": [0.4]}."""
+    values = {}
+    for item in items or ():
+        name, sep, text = item.partition("=")
+        name = name.strip()
+        if not sep or not name or not text:
+            raise ValueError(f"{option} takes NAME=VALUE (e.g. {option} beta_m=0.4 or {option} albedo=0.6,0.4,0.2), got {item!r}")
+        if name not in SPECS:
+            raise ValueError(f"{option}: unknown control {name!r}; allowed: {list(SPECS)}")
+        try:
+            numbers = [float(v) for v in text.split(",")]
+        except ValueError:
+            raise ValueError(f"{option} {name}: {text!r} is not a number or a comma-separated list of numbers") from None
+        values[name] = as_values(name, numbers)
+    return values
+
+
+def add_fit(subparsers) -> None:
+    parser = subparsers.add_parser(
+        "fit",
+        help="fit hair controls to a target's images",
+        description="Fit hair controls to the images of a target by gradient descent on path-traced renders "
+        "(Adam over unconstrained latents, fresh seeds every iteration, growing spp, cosine learning-rate decay). "
+        "Writes params.json, convergence.png and comparison.png to OUT_DIR and prints fitted vs true controls "
+        "when the target has truth.json. Ctrl-C stops early and saves the estimate so far.",
+    )
+    parser.add_argument("target", metavar="TARGET", help="a target directory, or the name of a shipped target (targets/)")
+    parser.add_argument("-o", "--output", required=True, type=Path, metavar="OUT_DIR", help="directory for the results")
+    defaults = FitSettings()
+    parser.add_argument("--fit", default=",".join(DEFAULT_FIT), metavar="NAMES",
+                        help=f"comma-separated controls to fit (default {','.join(DEFAULT_FIT)}); any of "
+                        f"{', '.join(SPECS)}")
+    parser.add_argument("--iters", type=int, default=defaults.iters, metavar="N", help=f"most iterations (default {defaults.iters})")
+    parser.add_argument("--spp", type=int, default=defaults.spp, metavar="N",
+                        help=f"samples per pixel at the end of the schedule (default {defaults.spp}; it starts at spp/4)")
+    parser.add_argument("--loss", default=defaults.loss, choices=("l2", "rel_l2", "l1"), help="image loss (default l2)")
+    parser.add_argument("--lr", type=float, default=defaults.lr, metavar="LR", help=f"Adam's initial learning rate on the latents (default {defaults.lr})")
+    parser.add_argument("--init", nargs="+", metavar="NAME=V", help="start values of fitted controls (default: albedo 0.5 grey, "
+                        "beta_m = beta_n = 0.5, the others their usual values)")
+    parser.add_argument("--fix", nargs="+", metavar="NAME=V", help="set controls that are not fitted, overriding the scene files")
+    parser.add_argument("--seed", type=int, default=defaults.seed, metavar="S", help="seed of the fit's random streams (default 0)")
+    parser.add_argument("--patience", type=int, default=defaults.patience, metavar="P",
+                        help=f"stop after P iterations without improvement at the final spp (default {defaults.patience})")
+    parser.add_argument("--threads", type=int, metavar="T", help="CPU threads (default: all cores)")
+    parser.set_defaults(run=run_fit)
+
+
+def run_fit(args: argparse.Namespace) -> None:
+    from .fit import fit
+    from .report import format_table, true_values, write_outputs
+    from .target import load_target
+
+    target = load_target(resolve_target(args.target))
+    names = [n.strip() for n in args.fit.split(",") if n.strip()]
+    fixed = parse_assignments(args.fix, "--fix")
+    both = sorted(set(fixed) & set(names))
+    if both:
+        raise ValueError(f"control(s) {both} are both fixed (--fix) and fitted (--fit); choose one")
+    if fixed:
+        _fix_controls(target, fixed)
+    settings = FitSettings(controls=tuple(names), iters=args.iters, spp=args.spp, loss=args.loss, lr=args.lr,
+                           seed=args.seed, patience=args.patience, init=parse_assignments(args.init, "--init"),
+                           threads=args.threads)
+    sizes = ", ".join(f"{im.name} {im.image.shape[1]}x{im.image.shape[0]}" for im in target.images)
+    print(f"fitting {', '.join(names)} of {target.name} ({sizes})")
+    result = fit(target, settings)
+    if result.stop_reason == "interrupted":
+        print("interrupted: saving the estimate so far (no uncertainties)")
+    paths = write_outputs(args.output, result, target)
+    print(format_table(result, true_values(target, result.values)))
+    print(f"{result.iterations} iterations ({result.stop_reason}), {result.seconds:.0f} s, final loss {result.loss:.4g}")
+    for warning in result.warnings:
+        print(f"{render_cli.PROG}: warning: {warning}", file=sys.stderr)
+    print("wrote " + ", ".join(str(p) for p in paths))
+
+
+def _fix_controls(target, fixed: dict) -> None:
+    for image in target.images:
+        values = {name: v if SPECS[name].size == 3 else v[0] for name, v in fixed.items()}
+        hair = HairParams.from_dict({**image.scene.hair.to_dict(), **values}, where="--fix")
+        image.scene = dataclasses.replace(image.scene, hair=hair)
+
+
+def add_targets(subparsers) -> None:
+    parser = subparsers.add_parser(
+        "targets",
+        help="list or regenerate the shipped fit targets",
+        description="make: render each target's images from its scene files (at their [render] spp and seed) and "
+        "write truth.json, reproducing the committed files; list: the shipped targets and their true controls.",
+    )
+    parser.add_argument("action", choices=("make", "list"))
+    parser.add_argument("names", nargs="*", metavar="NAME", help="shipped target names or target directories (default: all shipped)")
+    parser.add_argument("--threads", type=int, metavar="T", help="CPU threads (default: all cores)")
+    parser.set_defaults(run=run_targets)
+
+
+def run_targets(args: argparse.Namespace) -> None:
+    from .target import load_target, make_target, shipped_targets
+
+    directories = [resolve_target(n) for n in args.names] if args.names else shipped_targets()
+    for directory in directories:
+        if args.action == "list":
+            target = load_target(directory)
+            truth = "" if target.truth is None else " ".join(f"{k}={v}" for k, v in target.truth.to_dict().items())
+            print(f"{directory.name}: {', '.join(im.name for im in target.images)}; {truth}")
+            continue
+        start = time.perf_counter()
+        with render_cli.progress_bar(unit="px", desc=f"make {directory.name}") as progress:
+            written = make_target(directory, threads=args.threads, progress=progress)
+        print(f"{directory.name}: wrote {', '.join(p.name for p in written)} ({time.perf_counter() - start:.0f} s)")
+
+
+def main(argv: list[str] | None = None) -> int:
+    return render_cli.main(argv, extra=(add_fit, add_targets))
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,122 @@
+"""The controls a fit can move, and the unconstrained latents the optimiser moves instead.
+
+Adam steps in latent space; each control is a fixed smooth map of its latent onto the open interval the
+control may take, so no step can leave the valid range and nothing is clipped:
+
+    bounded (lo, hi)      x = lo + (hi − lo) · sigmoid(z)     β_m, β_n, α
+    bounded below (lo, ∞) x = lo + exp(z)                     σ_a, melanins, η, r_roughness_scale, exposure
+    albedo, in (0, 1)     a = exp(−e^(z/2) · d(β_n))          z = log σ_a, the absorption it stands for
+
+The albedo's latent is the log of the absorption σ_a = (ln a / d(β_n))² the renderer derives from it (talk,
+"Controllability"). Albedo and β_n are coupled through that inversion: at fixed albedo a change of β_n changes
+σ_a too, so in (albedo, β_n) the loss has a long diagonal valley that plain Adam crawls along. In (log σ_a, β_n)
+each latent has its own effect on the images (absorption; azimuthal spread), and the fit converges in a fraction
+of the iterations. The result is still reported, and its uncertainty estimated, as albedo.
+
+The roughnesses live in (BETA_FLOOR, 1), not [0, 1]: below the floor the renderer clamps β, so the loss would be
+flat there and the fit stuck. "exposure" is not a hair control: it is a gain on every rendered image, for targets
+whose light level is not known exactly.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+
+from warp_hair.params import ALPHA_RANGE_DEG, BETA_FLOOR, albedo_polynomial
+
+EXPOSURE = "exposure"
+DEFAULT_FIT = ("albedo", "beta_m", "beta_n")
+
+
+@dataclass(frozen=True)
+class ControlSpec:
+    """A fittable control: its size (3 for RGB), its open interval, and the neutral starting guess."""
+
+    name: str
+    size: int
+    lo: float
+    hi: float  # math.inf for controls bounded below only
+    neutral: float
+
+    @property
+    def interval(self) -> str:
+        return f"({self.lo:g}, {self.hi:g})"
+
+    def to_latent(self, value: torch.Tensor, beta_n) -> torch.Tensor:
+        if self.name == "albedo":
+            return 2.0 * torch.log(-torch.log(value) / albedo_polynomial(beta_n))
+        if math.isinf(self.hi):
+            return torch.log(value - self.lo)
+        return torch.logit((value - self.lo) / (self.hi - self.lo))
+
+    def from_latent(self, latent: torch.Tensor, beta_n) -> torch.Tensor:
+        """The control's value; `beta_n` (≥ BETA_FLOOR, a tensor when it is fitted too) is used by albedo only."""
+        if self.name == "albedo":
+            return torch.exp(-torch.exp(0.5 * latent) * albedo_polynomial(beta_n))
+        if math.isinf(self.hi):
+            return self.lo + torch.exp(latent)
+        return self.lo + (self.hi - self.lo) * torch.sigmoid(latent)
+
+    def check_start(self, values: list[float], where: str) -> None:
+        """A start must lie strictly inside the interval: the latent of a bound is infinite."""
+        for k, v in enumerate(values):
+            label = self.name if self.size == 1 else f"{self.name}[{k}]"
+            if not (math.isfinite(v) and self.lo < v < self.hi):
+                raise ValueError(
+                    f"{where}: {label} = {v} cannot start a fit: it must lie strictly inside {self.interval}"
+                )
+
+
+SPECS = {
+    spec.name: spec
+    for spec in (
+        ControlSpec("albedo", 3, 0.0, 1.0, 0.5),
+        ControlSpec("sigma_a", 3, 0.0, math.inf, 1.0),
+        ControlSpec("eumelanin", 1, 0.0, math.inf, 1.0),
+        ControlSpec("pheomelanin", 1, 0.0, math.inf, 0.3),
+        ControlSpec("beta_m", 1, BETA_FLOOR, 1.0, 0.5),
+        ControlSpec("beta_n", 1, BETA_FLOOR, 1.0, 0.5),
+        ControlSpec("alpha", 1, ALPHA_RANGE_DEG[0], ALPHA_RANGE_DEG[1], 2.0),
+        ControlSpec("eta", 1, 1.0, math.inf, 1.55),
+        ControlSpec("r_roughness_scale", 1, 0.0, math.inf, 1.0),
+        ControlSpec(EXPOSURE, 1, 0.0, math.inf, 1.0),
+    )
+}
+
+COLOUR_CONTROLS = {"albedo": ("albedo",), "sigma_a": ("sigma_a",), "melanin": ("eumelanin", "pheomelanin")}
+
+
+def parse_control_names(names, colour_input: str) -> tuple:
+    """The controls to fit, validated against the scene's colour input; `names` a list or "a,b,c"."""
+    if isinstance(names, str):
+        names = [n.strip() for n in names.split(",") if n.strip()]
+    names = list(names)
+    if not names:
+        raise ValueError("no controls to fit: give at least one, e.g. albedo,beta_m,beta_n")
+    colour = COLOUR_CONTROLS[colour_input]
+    for name in names:
+        if name not in SPECS:
+            raise ValueError(f"unknown control {name!r} to fit; allowed: {list(SPECS)}")
+        if name in sum(COLOUR_CONTROLS.values(), ()) and name not in colour:
+            raise ValueError(
+                f"cannot fit {name!r}: the target's scenes give the hair colour as {colour_input!r}, so the colour "
+                f"control is {' and '.join(repr(c) for c in colour)}"
+            )
+    duplicates = sorted({n for n in names if names.count(n) > 1})
+    if duplicates:
+        raise ValueError(f"control(s) {duplicates} listed twice to fit")
+    return tuple(names)
+
+
+def as_values(name: str, value) -> list[float]:
+    """A control's value as a list of its size (a single number for an RGB control means grey)."""
+    spec = SPECS[name]
+    values = [float(v) for v in value] if isinstance(value, (list, tuple)) else [float(value)]
+    if spec.size == 3 and len(values) == 1:
+        values = values * 3
+    if len(values) != spec.size:
+        raise ValueError(f"{name} takes {spec.size} value(s), got {len(values)}: {values}")
+    return values

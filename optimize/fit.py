@@ -1,0 +1,268 @@
+"""Fit hair controls to the images of a target by stochastic gradient descent on the renders.
+
+    from optimize import fit, load_target
+    result = fit(load_target("targets/blonde_straight"))          # albedo, beta_m, beta_n from a neutral guess
+    result.values, result.uncertainties, result.warnings
+
+Each iteration renders every image of the target at the current controls (`warp_hair.torch.render_torch`: a
+forward render, and a path-replay gradient pass with an independent seed), sums the image losses, and takes one
+torch.optim.Adam step on the controls' latents (`controls.py`: no step leaves a control's range). Fresh seeds
+every iteration, so the Monte Carlo noise averages out over the iterations instead of biasing every step alike.
+
+Schedules: the samples per pixel grow from spp/4 over the first 30% of the iterations to spp/2 and then spp
+(noisy, cheap steps while far away; precise ones near the optimum), and the learning rate stays at lr for the first half, then
+decays on a cosine to lr/20. The estimate is the mean of the controls over the last fifth of the iterations run (averaging
+the iterates of a noisy descent reduces their spread further than a smaller step would). The fit stops early
+when the smoothed loss has not improved by 0.1% for `patience` iterations at the final spp; Ctrl-C stops it
+too, and the estimate so far is returned (stop_reason "interrupted").
+
+Then, at 4 × spp, the fitted images are rendered (for the final loss and the comparison picture) and, unless
+interrupted, each control's uncertainty and identifiability are estimated (`uncertainty.py`).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from warp_hair.params import effective_beta
+from warp_hair.render import render
+from warp_hair.torch import render_torch, scene_with_controls
+
+from .controls import DEFAULT_FIT, EXPOSURE, SPECS, as_values, parse_control_names
+from .losses import LOSSES, image_loss
+from .target import Target
+from .uncertainty import gauss_newton
+
+SPP_STAGES = ((0.3, 4), (0.6, 2), (1.0, 1))  # (fraction of the iterations, divisor of spp) in order
+FINAL_LR_FRACTION = 0.05
+PLATEAU_TOLERANCE = 1e-3
+SMOOTHING = 0.9  # of the loss's exponential moving average, for the plateau test
+AVERAGED_FRACTION = 0.2
+FINAL_SPP_FACTOR = 4
+
+
+@dataclass
+class FitSettings:
+    controls: tuple = DEFAULT_FIT
+    iters: int = 120
+    spp: int = 16  # at the end of the schedule
+    loss: str = "l2"
+    pool: int = 4  # compare k×k block averages (losses.py says why)
+    lr: float = 0.1
+    seed: int = 0
+    patience: int = 30
+    init: dict = field(default_factory=dict)  # start values of fitted controls; default: each control's neutral guess
+    threads: int | None = None
+    uncertainty: bool = True
+
+
+@dataclass
+class FitResult:
+    target: str
+    values: dict  # fitted control → float, or list of 3 for RGB controls
+    uncertainties: dict | None  # the same shapes; None when not estimated
+    loss: float  # at the fitted controls, from the final evaluation
+    start: dict
+    history: dict  # "loss", "spp", "lr": one entry per iteration; "values": {control: per-iteration values}
+    iterations: int
+    stop_reason: str  # "plateau", "iterations" or "interrupted"
+    seconds: float
+    images: list  # the fitted renders (H, W, 3) of the final evaluation, one per target image
+    warnings: list = field(default_factory=list)
+    correlations: dict = field(default_factory=dict)  # "a/b" → correlation of the two estimates
+
+
+def spp_at(iteration: int, iters: int, spp: int) -> int:
+    for fraction, divisor in SPP_STAGES:
+        if iteration < fraction * iters:
+            return max(1, spp // divisor)
+    return spp
+
+
+def lr_factor(iteration: int, iters: int) -> float:
+    """1 for the first half of the iterations, then a cosine down to FINAL_LR_FRACTION at the last."""
+    half = iters // 2
+    if iteration < half:
+        return 1.0
+    t = (iteration - half) / max(iters - 1 - half, 1)
+    return FINAL_LR_FRACTION + (1 - FINAL_LR_FRACTION) * 0.5 * (1 + math.cos(math.pi * min(t, 1.0)))
+
+
+def iteration_seed(seed: int, iteration: int, image: int) -> int:
+    """A fresh, reproducible seed per (fit seed, iteration, image)."""
+    return int(np.random.SeedSequence([seed, iteration, image]).generate_state(1)[0])
+
+
+def check_settings(target: Target, settings: FitSettings) -> tuple:
+    names = parse_control_names(settings.controls, target.hair.colour_input)
+    if settings.loss not in LOSSES:
+        raise ValueError(f"unknown loss {settings.loss!r}; allowed: {list(LOSSES)}")
+    for key, minimum in (("iters", 1), ("spp", 1), ("patience", 1), ("pool", 1)):
+        value = getattr(settings, key)
+        if not isinstance(value, int) or value < minimum:
+            raise ValueError(f"{key} must be an integer >= {minimum}, got {value!r}")
+    if not (isinstance(settings.lr, (int, float)) and math.isfinite(settings.lr) and settings.lr > 0):
+        raise ValueError(f"lr must be a positive number, got {settings.lr!r}")
+    unknown = sorted(set(settings.init) - set(names))
+    if unknown:
+        raise ValueError(f"init gives control(s) {unknown} that are not fitted (fitted: {list(names)}); the scene files set the others")
+    return names
+
+
+def start_values(names, settings: FitSettings) -> dict:
+    values = {}
+    for name in names:
+        spec = SPECS[name]
+        values[name] = as_values(name, settings.init.get(name, spec.neutral))
+        spec.check_start(values[name], "init")
+    return values
+
+
+def _as_control(name, values):
+    return values if SPECS[name].size == 3 else values[0]
+
+
+class _Latents:
+    """The optimiser's parameters: one latent tensor per fitted control, float64.
+
+    The albedo's latent depends on β_n (controls.py): the fitted β_n's current value, else the scenes' own.
+    """
+
+    def __init__(self, start: dict, fixed_beta_n: float):
+        self.fixed_beta_n = float(effective_beta(fixed_beta_n))
+        beta_n = torch.tensor(start["beta_n"][0] if "beta_n" in start else self.fixed_beta_n, dtype=torch.float64)
+        self.tensors = {
+            name: SPECS[name].to_latent(torch.tensor(v if SPECS[name].size == 3 else v[0], dtype=torch.float64), beta_n).requires_grad_()
+            for name, v in start.items()
+        }
+
+    def values(self) -> dict:
+        beta_n = self.fixed_beta_n
+        if "beta_n" in self.tensors:
+            beta_n = SPECS["beta_n"].from_latent(self.tensors["beta_n"], None)
+        return {name: SPECS[name].from_latent(z, beta_n) for name, z in self.tensors.items()}
+
+
+def _plain(values: dict) -> dict:
+    return {name: (v.detach().tolist() if v.dim() else float(v)) for name, v in values.items()}
+
+
+def _mean_values(history_values: dict, window: int) -> dict:
+    return {name: _as_control(name, np.atleast_1d(np.mean(np.asarray(vals[-window:], dtype=np.float64), axis=0)).tolist())
+            for name, vals in history_values.items()}
+
+
+def _loss(target: Target, values: dict, spp: int, seeds, settings: FitSettings, targets, masks):
+    hair = {name: v for name, v in values.items() if name != EXPOSURE}
+    gain = values.get(EXPOSURE, 1.0)
+    total = 0.0
+    for k, image in enumerate(target.images):
+        rendered = render_torch(image.scene, hair, spp=spp, seed=seeds[k], threads=settings.threads)
+        total = total + image_loss(rendered * gain, targets[k], settings.loss, masks[k], settings.pool)
+    return total / len(target.images)
+
+
+def _describe(values: dict) -> str:
+    parts = []
+    for name, v in values.items():
+        parts.append(f"{name}=" + ("(" + ",".join(f"{c:.3f}" for c in v) + ")" if isinstance(v, list) else f"{v:.3f}"))
+    return " ".join(parts)
+
+
+def fit(target: Target, settings: FitSettings | None = None, progress: bool = True, **overrides) -> FitResult:
+    """Fit the chosen controls of `target`; see the module docstring. Keyword overrides set FitSettings fields."""
+    settings = settings or FitSettings()
+    if overrides:
+        unknown = sorted(set(overrides) - set(FitSettings.__dataclass_fields__))
+        if unknown:
+            raise TypeError(f"unknown fit setting(s) {unknown}")
+        settings = FitSettings(**{**settings.__dict__, **overrides})
+    names = check_settings(target, settings)
+    start = start_values(names, settings)
+    latents = _Latents(start, target.hair.beta_n)
+    optimizer = torch.optim.Adam(latents.tensors.values(), lr=settings.lr)
+    schedule = torch.optim.lr_scheduler.LambdaLR(optimizer, lambda it: lr_factor(it, settings.iters))
+    targets = [torch.from_numpy(image.image) for image in target.images]
+    masks = [None if image.mask is None else torch.from_numpy(image.mask) for image in target.images]
+
+    history = {"loss": [], "spp": [], "lr": [], "values": {name: [] for name in names}}
+    stop_reason = "iterations"
+    ema = best = None
+    since_best = 0
+    final_stage_start = spp_at(settings.iters - 1, settings.iters, settings.spp)
+    begun = time.perf_counter()
+    bar = tqdm(total=settings.iters, desc=f"fit {target.name}", unit="it", disable=not progress)
+    try:
+        for it in range(settings.iters):
+            spp = spp_at(it, settings.iters, settings.spp)
+            optimizer.zero_grad()
+            values = latents.values()
+            seeds = [iteration_seed(settings.seed, it, k) for k in range(len(target.images))]
+            loss = _loss(target, values, spp, seeds, settings, targets, masks)
+            loss.backward()
+            history["loss"].append(float(loss.detach()))
+            history["spp"].append(spp)
+            history["lr"].append(optimizer.param_groups[0]["lr"])
+            for name, v in _plain(values).items():
+                history["values"][name].append(v)
+            optimizer.step()
+            schedule.step()
+            bar.set_postfix_str(f"loss={float(loss):.3g} spp={spp} {_describe(_plain(values))}", refresh=False)
+            bar.update()
+
+            ema = float(loss) if ema is None else SMOOTHING * ema + (1 - SMOOTHING) * float(loss)
+            if spp == final_stage_start and it >= 1 and history["spp"][-2] == spp:
+                if best is None or ema < best * (1 - PLATEAU_TOLERANCE):
+                    best, since_best = ema, 0
+                else:
+                    since_best += 1
+                    if since_best >= settings.patience:
+                        stop_reason = "plateau"
+                        break
+    except KeyboardInterrupt:
+        stop_reason = "interrupted"
+    finally:
+        bar.close()
+    done = len(history["loss"])
+    if done == 0:
+        estimate = {name: _as_control(name, start[name]) for name in names}
+    else:
+        estimate = _mean_values(history["values"], max(1, int(AVERAGED_FRACTION * done)))
+    return _finish(target, settings, names, start, estimate, history, done, stop_reason, begun)
+
+
+def _finish(target, settings, names, start, estimate, history, done, stop_reason, begun) -> FitResult:
+    """The final renders and (unless interrupted) the uncertainties, at FINAL_SPP_FACTOR × spp."""
+    final_spp = settings.spp * FINAL_SPP_FACTOR
+    seed = iteration_seed(settings.seed, 2**31, 0)
+    hair = {name: v for name, v in estimate.items() if name != EXPOSURE}
+    gain = float(estimate.get(EXPOSURE, 1.0))
+    images, losses = [], []
+    for k, image in enumerate(target.images):
+        scene = scene_with_controls(image.scene, hair)
+        rendered = gain * render(scene, spp=final_spp, seed=seed + 500 + k, threads=settings.threads)
+        images.append(rendered)
+        mask = None if image.mask is None else torch.from_numpy(image.mask)
+        losses.append(float(image_loss(torch.from_numpy(rendered), torch.from_numpy(image.image), settings.loss, mask, settings.pool)))
+    result = FitResult(
+        target=target.name,
+        values=estimate,
+        uncertainties=None,
+        loss=float(np.mean(losses)),
+        start={name: _as_control(name, v) for name, v in start.items()},
+        history=history,
+        iterations=done,
+        stop_reason=stop_reason,
+        seconds=0.0,
+        images=images,
+    )
+    if settings.uncertainty and stop_reason != "interrupted":
+        gauss_newton(target, result, settings, final_spp, seed + 1000)
+    result.seconds = time.perf_counter() - begun
+    return result

@@ -1,0 +1,145 @@
+"""What a fit leaves behind: params.json, convergence.png, comparison.png and the fitted-vs-true table."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from .controls import EXPOSURE, SPECS
+from .fit import FitResult
+from .target import Target
+
+CHANNEL_COLOURS = ("tab:red", "tab:green", "tab:blue")
+
+
+def true_values(target: Target, names) -> dict:
+    """The true values of the fitted controls where the target has truth.json (exposure's truth is 1)."""
+    if target.truth is None:
+        return {}
+    truth = target.truth.to_dict()
+    truth[EXPOSURE] = 1.0
+    return {name: truth[name] for name in names if name in truth}
+
+
+def errors(result: FitResult, truth: dict) -> dict:
+    return {name: (np.asarray(result.values[name]) - np.asarray(truth[name])).tolist() for name in truth}
+
+
+def write_params(path: Path, result: FitResult, truth: dict) -> None:
+    data = {
+        "target": result.target,
+        "fitted": result.values,
+        "uncertainty": result.uncertainties,
+        "start": result.start,
+        "loss": result.loss,
+        "iterations": result.iterations,
+        "stop_reason": result.stop_reason,
+        "seconds": round(result.seconds, 1),
+        "warnings": result.warnings,
+        "correlations": result.correlations,
+    }
+    if truth:
+        data["true"] = truth
+        data["error"] = errors(result, truth)
+    Path(path).write_text(json.dumps(data, indent=2) + "\n", encoding="utf-8")
+
+
+def _fmt(value, digits=3) -> str:
+    if isinstance(value, (list, tuple, np.ndarray)):
+        return "(" + ", ".join(f"{v:.{digits}f}" for v in value) + ")"
+    return f"{value:.{digits}f}"
+
+
+def format_table(result: FitResult, truth: dict) -> str:
+    """A plain-text table: control, fitted ± uncertainty, true, error."""
+    header = ("control", "fitted", "± 1σ", "true", "error")
+    rows = []
+    for name, value in result.values.items():
+        sigma = "" if result.uncertainties is None else _fmt(result.uncertainties[name])
+        true = truth.get(name)
+        rows.append((name, _fmt(value), sigma, "" if true is None else _fmt(true),
+                     "" if true is None else _fmt(np.asarray(value) - np.asarray(true), 3)))
+    widths = [max(len(r[k]) for r in rows + [header]) for k in range(len(header))]
+    lines = ["  ".join(cell.ljust(w) for cell, w in zip(row, widths)).rstrip() for row in [header] + rows]
+    lines.insert(1, "  ".join("-" * w for w in widths))
+    return "\n".join(lines)
+
+
+def plot_convergence(path: Path, result: FitResult, truth: dict) -> None:
+    """The loss and every fitted control against the iteration; true values dashed."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    names = list(result.history["values"])
+    fig, axes = plt.subplots(1, len(names) + 1, figsize=(3.2 * (len(names) + 1), 3.0), constrained_layout=True)
+    its = np.arange(1, result.iterations + 1)
+    ax = axes[0]
+    ax.semilogy(its, result.history["loss"], color="0.3", lw=0.8)
+    ax.set_title(f"loss ({result.stop_reason})")
+    ax.set_xlabel("iteration")
+    for ax, name in zip(axes[1:], names):
+        values = np.asarray(result.history["values"][name], dtype=np.float64).reshape(result.iterations, -1)
+        colours = CHANNEL_COLOURS if values.shape[1] == 3 else ("0.2",)
+        true = np.atleast_1d(truth[name]) if name in truth else None
+        for k in range(values.shape[1]):
+            ax.plot(its, values[:, k], color=colours[k], lw=1.0)
+            if true is not None:
+                ax.axhline(true[k], color=colours[k], ls="--", lw=1.0)
+        spec = SPECS[name]
+        ax.set_title(name + ("  (dashed: true)" if true is not None else ""))
+        ax.set_xlabel("iteration")
+        if not np.isinf(spec.hi):
+            ax.set_ylim(spec.lo, spec.hi)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def _srgb(linear: np.ndarray) -> np.ndarray:
+    x = np.clip(linear, 0.0, 1.0)
+    return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)
+
+
+def plot_comparison(path: Path, result: FitResult, target: Target) -> None:
+    """One row per target image: target | fit | difference (fit − target, red brighter, blue darker)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    n = len(target.images)
+    fig, axes = plt.subplots(n, 3, figsize=(9.0, 3.0 * n), squeeze=False, constrained_layout=True)
+    for row, (image, fitted) in enumerate(zip(target.images, result.images)):
+        # One exposure for target and fit, so that brightness differences show.
+        exposure = 0.8 / max(float(np.percentile(image.image, 99)), 1e-6)
+        diff = (fitted - image.image).mean(axis=-1)
+        limit = max(float(np.percentile(np.abs(diff), 99)), 1e-6)
+        panels = ((_srgb(image.image * exposure), f"target: {image.name}", None),
+                  (_srgb(fitted * exposure), "fit", None),
+                  (diff, f"fit − target (±{limit:.3g})", limit))
+        for ax, (picture, title, lim) in zip(axes[row], panels):
+            if lim is None:
+                ax.imshow(picture, interpolation="nearest")
+            else:
+                shown = ax.imshow(picture, cmap="RdBu_r", vmin=-lim, vmax=lim, interpolation="nearest")
+                fig.colorbar(shown, ax=ax, shrink=0.8)
+            if image.mask is not None:
+                ax.contour(image.mask, levels=[0.5], colors="yellow", linewidths=0.6)
+            ax.set_title(title)
+            ax.axis("off")
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def write_outputs(out_dir, result: FitResult, target: Target) -> list[Path]:
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    truth = true_values(target, result.values)
+    paths = [out_dir / "params.json", out_dir / "convergence.png", out_dir / "comparison.png"]
+    write_params(paths[0], result, truth)
+    plot_convergence(paths[1], result, truth)
+    plot_comparison(paths[2], result, target)
+    return paths

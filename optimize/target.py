@@ -1,0 +1,216 @@
+"""Fit targets: a directory of reference images, each with the scene file that describes how it was made.
+
+    my_target/
+        target.toml          # lists the images
+        scene_front.toml     # camera, lights, fibers, [hair] (controls not fitted are taken from here)
+        front.exr            # linear radiance, the size of the scene's camera
+        scene_back.toml
+        back.exr
+        truth.json           # optional: the true controls, for reporting errors
+
+target.toml:
+
+    [[images]]
+    scene = "scene_front.toml"
+    image = "front.exr"
+    mask = "front_mask.png"    # optional: white (or > 0.5 in an EXR's first channel) = pixels that count
+
+    [[images]]
+    scene = "scene_back.toml"
+    image = "back.exr"
+
+All images of a target show the same fibers with the same hair: their scenes' [fibers] and [hair] must agree.
+`make_target` renders the images from their scenes (at the spp and seed of each scene's [render] table) and
+writes truth.json from the [hair] table: what the shipped targets are made with (`warp-hair targets make`).
+"""
+
+from __future__ import annotations
+
+import json
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from warp_hair.io import read_exr, write_exr
+from warp_hair.params import HairParams
+from warp_hair.render import render, render_metadata
+from warp_hair.scene import Scene, load_scene
+
+TARGET_FILE = "target.toml"
+TRUTH_FILE = "truth.json"
+IMAGE_KEYS = {"scene", "image", "mask"}
+# The shipped targets, next to the packages in the repository.
+SHIPPED_TARGETS = Path(__file__).resolve().parent.parent / "targets"
+
+
+@dataclass
+class TargetImage:
+    name: str  # the image file's stem, e.g. "front"
+    scene: Scene
+    image: np.ndarray  # (H, W, 3) float32 linear radiance
+    mask: np.ndarray | None  # (H, W) bool, True where the pixel counts
+    image_path: Path
+
+
+@dataclass
+class Target:
+    name: str
+    directory: Path
+    images: list
+    truth: HairParams | None
+
+    @property
+    def hair(self) -> HairParams:
+        """The hair of the target's scenes: the values of the controls that are not fitted."""
+        return self.images[0].scene.hair
+
+
+def read_target_spec(directory) -> list[dict]:
+    """The [[images]] entries of a target directory's target.toml, checked for shape (not for the files)."""
+    directory = Path(directory)
+    if not directory.is_dir():
+        raise FileNotFoundError(f"{directory}: target directory not found")
+    spec_path = directory / TARGET_FILE
+    try:
+        spec = tomllib.loads(spec_path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise FileNotFoundError(f"{spec_path}: not found; a target directory needs a {TARGET_FILE} listing its images") from None
+    except (OSError, UnicodeDecodeError) as error:
+        raise ValueError(f"{spec_path}: cannot read: {error}") from None
+    except tomllib.TOMLDecodeError as error:
+        raise ValueError(f"{spec_path}: TOML syntax error: {error}") from None
+    unknown = sorted(set(spec) - {"images"})
+    if unknown:
+        raise ValueError(f"{spec_path}: unknown key(s) {unknown}; a target file has only [[images]] tables")
+    entries = spec.get("images")
+    if not isinstance(entries, list) or not entries or not all(isinstance(e, dict) for e in entries):
+        raise ValueError(f"{spec_path}: needs at least one [[images]] table with scene = ... and image = ...")
+    for k, entry in enumerate(entries):
+        where = f"{spec_path}: [[images]] #{k + 1}"
+        unknown = sorted(set(entry) - IMAGE_KEYS)
+        if unknown:
+            raise ValueError(f"{where}: unknown key(s) {unknown}; allowed: {sorted(IMAGE_KEYS)}")
+        for key in ("scene", "image"):
+            if not isinstance(entry.get(key), str) or not entry[key]:
+                raise ValueError(f"{where}: needs {key} = \"<file name>\"")
+        if "mask" in entry and not isinstance(entry["mask"], str):
+            raise ValueError(f"{where}: mask must be a file name, got {entry['mask']!r}")
+    return entries
+
+
+def load_target(directory) -> Target:
+    """Read and check a target directory (see the module docstring); errors name the file and the problem."""
+    directory = Path(directory)
+    entries = read_target_spec(directory)
+    images = []
+    for entry in entries:
+        scene = load_scene(directory / entry["scene"])
+        image_path = directory / entry["image"]
+        image = _read_target_image(image_path, scene)
+        mask = None if "mask" not in entry else _read_mask(directory / entry["mask"], image.shape[:2])
+        images.append(TargetImage(Path(entry["image"]).stem, scene, image, mask, image_path))
+    _check_consistent(images)
+    truth = _read_truth(directory / TRUTH_FILE)
+    return Target(directory.resolve().name, directory, images, truth)
+
+
+def _read_target_image(path: Path, scene: Scene) -> np.ndarray:
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: target image not found")
+    image, _ = read_exr(path)
+    width, height = scene.camera.resolution
+    if image.shape[:2] != (height, width):
+        raise ValueError(
+            f"{path}: the image is {image.shape[1]}x{image.shape[0]} pixels but {scene.path.name}'s camera renders "
+            f"{width}x{height}; render the target with that camera or set its resolution"
+        )
+    bad = ~np.isfinite(image)
+    if bad.any():
+        y, x, c = np.argwhere(bad)[0]
+        raise ValueError(f"{path}: {int(bad.sum())} NaN or infinite value(s), the first at pixel (x={x}, y={y}), channel {'RGB'[c]}")
+    if (image < 0).any():
+        y, x, c = np.argwhere(image < 0)[0]
+        raise ValueError(f"{path}: negative radiance {image[y, x, c]} at pixel (x={x}, y={y}); targets are linear radiance >= 0")
+    return image
+
+
+def _read_mask(path: Path, shape) -> np.ndarray:
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: mask not found")
+    if path.suffix.lower() == ".exr":
+        mask = read_exr(path)[0][..., 0] > 0.5
+    else:
+        from PIL import Image, UnidentifiedImageError
+
+        try:
+            mask = np.asarray(Image.open(path).convert("L")) > 127
+        except (UnidentifiedImageError, OSError) as error:
+            raise ValueError(f"{path}: cannot read the mask: {error}") from None
+    if mask.shape != tuple(shape):
+        raise ValueError(f"{path}: the mask is {mask.shape[1]}x{mask.shape[0]} but its image is {shape[1]}x{shape[0]}")
+    if not mask.any():
+        raise ValueError(f"{path}: the mask selects no pixel")
+    return mask
+
+
+def _check_consistent(images) -> None:
+    first = images[0]
+    for other in images[1:]:
+        pair = f"{first.scene.path.name} and {other.scene.path.name}"
+        if other.scene.hair.to_dict() != first.scene.hair.to_dict():
+            raise ValueError(f"{pair} have different [hair] tables; the images of a target show one hair")
+        a, b = first.scene.fibers, other.scene.fibers
+        if a.points.shape != b.points.shape or not (np.array_equal(a.points, b.points) and np.array_equal(a.radii, b.radii)):
+            raise ValueError(f"{pair} have different fibers; the images of a target show the same fibers")
+
+
+def _read_truth(path: Path) -> HairParams | None:
+    if not path.exists():
+        return None
+    try:
+        controls = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, json.JSONDecodeError) as error:
+        raise ValueError(f"{path}: cannot read the true controls: {error}") from None
+    if not isinstance(controls, dict):
+        raise ValueError(f"{path}: must hold an object of control name -> value")
+    return HairParams.from_dict(controls, where=str(path))
+
+
+def make_target(directory, threads=None, progress=None) -> list[Path]:
+    """Render every image of a target from its scene file and write truth.json; returns the files written.
+
+    Each image is rendered at its scene's [render] spp and seed, so a target is reproduced exactly (the
+    renderer's result does not depend on the thread count). progress(done, total) counts pixels over all images.
+    """
+    directory = Path(directory)
+    entries = read_target_spec(directory)
+    scenes = [load_scene(directory / entry["scene"]) for entry in entries]
+    total = sum(s.camera.resolution[0] * s.camera.resolution[1] for s in scenes)
+    written, done = [], 0
+    for entry, scene in zip(entries, scenes):
+        offset = done
+
+        def report(pixels, _total, offset=offset):
+            if progress is not None:
+                progress(offset + pixels, total)
+
+        image = render(scene, spp=scene.render.spp, seed=scene.render.seed, threads=threads, progress=report)
+        # Record the scene's own file rather than its absolute paths: the header must not depend on the checkout.
+        meta = render_metadata(scene, scene.render.spp, scene.render.seed)
+        meta["warp_hair"]["scene"] = entry["scene"]
+        path = directory / entry["image"]
+        write_exr(path, image, meta)
+        written.append(path)
+        done += scene.camera.resolution[0] * scene.camera.resolution[1]
+    _check_consistent([TargetImage("", s, None, None, Path()) for s in scenes])
+    truth = directory / TRUTH_FILE
+    truth.write_text(json.dumps(scenes[0].hair.to_dict(), indent=2) + "\n", encoding="utf-8")
+    written.append(truth)
+    return written
+
+
+def shipped_targets() -> list[Path]:
+    """The target directories shipped in `targets/`, sorted by name."""
+    return sorted(p for p in SHIPPED_TARGETS.iterdir() if (p / TARGET_FILE).is_file())

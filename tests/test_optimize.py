@@ -1,0 +1,245 @@
+"""The optimize package's parts: latents, losses, target directories and their errors, the fit command's checks."""
+
+import json
+import math
+import shutil
+
+import numpy as np
+import pytest
+import torch
+
+from optimize.cli import main
+from optimize.controls import SPECS, parse_control_names
+from optimize.fit import FitSettings, check_settings, spp_at
+from optimize.losses import image_loss
+from optimize.target import SHIPPED_TARGETS, load_target, make_target, shipped_targets
+from warp_hair.io import read_exr, write_exr
+
+SCENE = """
+[camera]
+type = "orthographic"
+origin = [0.0, 0.0, 3.0]
+target = [0.0, 0.0, 0.0]
+up = [0.0, 1.0, 0.0]
+width = 0.2
+resolution = [{w}, {h}]
+
+[[lights]]
+type = "directional"
+direction = [0.2, -0.3, {dz}]
+irradiance = [3.0, 3.0, 3.0]
+
+[fibers]
+generator = "swatch"
+count = 30
+layers = 2
+length = 0.3
+width = 0.2
+radius = 0.004
+drape = 0.2
+segments = 12
+seed = 5
+
+[hair]
+albedo = [{red}, 0.4, 0.3]
+beta_m = 0.3
+beta_n = 0.4
+
+[render]
+spp = 4
+max_depth = 8
+"""
+
+
+def write_target(directory, w=8, h=6, red=0.6, image_shape=None, extra="", back_red=None):
+    directory.mkdir(parents=True, exist_ok=True)
+    (directory / "scene_front.toml").write_text(SCENE.format(w=w, h=h, dz=-1.0, red=red))
+    (directory / "scene_back.toml").write_text(SCENE.format(w=w, h=h, dz=1.0, red=red if back_red is None else back_red))
+    (directory / "target.toml").write_text(
+        '[[images]]\nscene = "scene_front.toml"\nimage = "front.exr"\n' + extra
+        + '\n[[images]]\nscene = "scene_back.toml"\nimage = "back.exr"\n'
+    )
+    shape = image_shape or (h, w, 3)
+    for name in ("front", "back"):
+        write_exr(directory / f"{name}.exr", np.full(shape, 0.25, dtype=np.float32))
+    return directory
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Latents
+
+
+@pytest.mark.parametrize("name", [n for n in SPECS if n != "albedo"])
+def test_latent_round_trip_stays_inside_the_interval(name):
+    spec = SPECS[name]
+    hi = spec.hi if math.isfinite(spec.hi) else spec.lo + 10.0
+    values = torch.linspace(spec.lo, hi, 9, dtype=torch.float64)[1:-1]
+    back = spec.from_latent(spec.to_latent(values, None), None)
+    assert torch.allclose(back, values, rtol=1e-10, atol=1e-12)
+    extreme = spec.from_latent(torch.tensor([-30.0, 30.0], dtype=torch.float64), None)
+    assert (extreme >= spec.lo).all() and (extreme <= spec.hi).all()
+
+
+def test_albedo_latent_is_log_sigma_a_of_the_inversion():
+    from warp_hair.params import sigma_a_from_albedo
+
+    albedo = torch.tensor([0.05, 0.5, 0.95], dtype=torch.float64)
+    for beta_n in (0.01, 0.3, 0.9):
+        z = SPECS["albedo"].to_latent(albedo, torch.tensor(beta_n, dtype=torch.float64))
+        assert np.allclose(torch.exp(z).numpy(), sigma_a_from_albedo(albedo.numpy(), beta_n), rtol=1e-12)
+        assert torch.allclose(SPECS["albedo"].from_latent(z, beta_n), albedo, rtol=1e-12)
+
+
+def test_start_on_a_bound_is_refused():
+    with pytest.raises(ValueError, match=r"beta_m = 0.005 cannot start a fit: it must lie strictly inside \(0.01, 1\)"):
+        SPECS["beta_m"].check_start([0.005], "init")
+    with pytest.raises(ValueError, match=r"albedo\[2\] = 1.0"):
+        SPECS["albedo"].check_start([0.5, 0.5, 1.0], "init")
+
+
+def test_control_names_are_checked():
+    assert parse_control_names("albedo, beta_m", "albedo") == ("albedo", "beta_m")
+    with pytest.raises(ValueError, match="unknown control 'beta'"):
+        parse_control_names("albedo,beta", "albedo")
+    with pytest.raises(ValueError, match="colour as 'albedo'"):
+        parse_control_names(["sigma_a"], "albedo")
+    with pytest.raises(ValueError, match="listed twice"):
+        parse_control_names(["beta_m", "beta_m"], "albedo")
+
+
+def test_spp_schedule_grows_to_the_final_spp():
+    schedule = [spp_at(i, 100, 8) for i in range(100)]
+    assert schedule[0] == 2 and schedule[45] == 4 and schedule[-1] == 8
+    assert schedule == sorted(schedule)
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Losses
+
+
+def test_losses_against_their_formulas():
+    gen = torch.Generator().manual_seed(0)
+    a, b = torch.rand(12, 10, 3, generator=gen), torch.rand(12, 10, 3, generator=gen)
+    mask = torch.rand(12, 10, generator=gen) > 0.3
+    assert torch.isclose(image_loss(a, b), ((a - b) ** 2).mean())
+    assert torch.isclose(image_loss(a, b, "l1", mask), (a - b)[mask].abs().mean())
+    scale = b + 0.01 * b.mean()
+    assert torch.isclose(image_loss(a, b, "rel_l2"), (((a - b) / scale) ** 2).mean())
+    assert torch.isclose(image_loss(a[:8, :10], b[:8, :10], pool=2),
+                         ((a - b)[:8, :10].reshape(4, 2, 5, 2, 3).mean(dim=(1, 3)) ** 2).mean())
+
+
+def test_pooled_loss_averages_blocks_and_skips_masked_pixels():
+    a = torch.zeros(4, 4, 3)
+    b = torch.zeros(4, 4, 3)
+    a[0, 0] = 4.0  # one bright pixel in the top-left 2×2 block: the block mean is 1
+    assert torch.isclose(image_loss(a, b, pool=2), torch.tensor(1.0 / 4))
+    mask = torch.ones(4, 4, dtype=torch.bool)
+    mask[0, 0] = False  # masked out: nothing differs any more
+    assert image_loss(a, b, pool=2, mask=mask) == 0
+    mask[:2, :2] = False  # a block with no counted pixel is left out, not counted as 0/0
+    assert torch.isfinite(image_loss(a, b, pool=2, mask=mask))
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Target directories
+
+
+def test_target_loads_with_truth_and_mask(tmp_path):
+    directory = write_target(tmp_path / "t", extra='mask = "mask.png"\n')
+    from PIL import Image
+
+    mask = np.zeros((6, 8), dtype=np.uint8)
+    mask[2:, 3:] = 255
+    Image.fromarray(mask).save(directory / "mask.png")
+    (directory / "truth.json").write_text(json.dumps({"albedo": [0.6, 0.4, 0.3], "beta_m": 0.3, "beta_n": 0.4}))
+    target = load_target(directory)
+    assert [im.name for im in target.images] == ["front", "back"]
+    assert target.images[0].mask.sum() == 4 * 5 and target.images[1].mask is None
+    assert target.truth.beta_n == 0.4
+
+
+@pytest.mark.parametrize(
+    "change, message",
+    [
+        (lambda d: (d / "target.toml").unlink(), "target.toml: not found"),
+        (lambda d: (d / "front.exr").unlink(), "front.exr: target image not found"),
+        (lambda d: write_exr(d / "front.exr", np.zeros((5, 8, 3), np.float32)), r"8x5 pixels but scene_front.toml's camera renders 8x6"),
+        (lambda d: write_exr(d / "back.exr", np.where(np.arange(48).reshape(6, 8, 1) == 13, np.nan, 0.1).repeat(3, 2).astype(np.float32)),
+         r"back.exr: 3 NaN or infinite value\(s\), the first at pixel \(x=5, y=1\)"),
+        (lambda d: write_exr(d / "back.exr", -np.ones((6, 8, 3), np.float32)), "negative radiance"),
+        (lambda d: (d / "target.toml").write_text('[[images]]\nscene = "scene_front.toml"\n'), r'needs image = "<file name>"'),
+        (lambda d: (d / "target.toml").write_text('[[images]]\nscene = "scene_front.toml"\nimage = "front.exr"\nweight = 2\n'), r"unknown key\(s\) \['weight'\]"),
+        (lambda d: (d / "truth.json").write_text('{"albedo": 0.5, "beta": 0.3}'), r"unknown key\(s\) \['beta'\]"),
+    ],
+)
+def test_bad_targets_are_named(tmp_path, change, message):
+    directory = write_target(tmp_path / "t")
+    change(directory)
+    with pytest.raises((ValueError, FileNotFoundError), match=message):
+        load_target(directory)
+
+
+def test_images_of_one_target_must_share_the_hair(tmp_path):
+    with pytest.raises(ValueError, match="different \\[hair\\] tables"):
+        load_target(write_target(tmp_path / "t", back_red=0.7))
+
+
+def test_fit_settings_are_checked(tmp_path):
+    target = load_target(write_target(tmp_path / "t"))
+    with pytest.raises(ValueError, match="unknown loss 'l3'"):
+        check_settings(target, FitSettings(loss="l3"))
+    with pytest.raises(ValueError, match=r"init gives control\(s\) \['eta'\] that are not fitted"):
+        check_settings(target, FitSettings(init={"eta": 1.5}))
+    with pytest.raises(ValueError, match="spp must be an integer >= 1"):
+        check_settings(target, FitSettings(spp=0))
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["--fit", "albedo,beta"], "unknown control 'beta'"),
+        (["--fit", "albedo,beta_m", "--fix", "beta_m=0.3"], r"\['beta_m'\] are both fixed \(--fix\) and fitted"),
+        (["--init", "beta_m"], "--init takes NAME=VALUE"),
+        (["--fix", "eta=abc"], "'abc' is not a number"),
+    ],
+)
+def test_fit_command_errors(tmp_path, capsys, args, message):
+    directory = write_target(tmp_path / "t")
+    assert main(["fit", str(directory), "-o", str(tmp_path / "out"), "--iters", "1"] + args) == 2
+    assert message.replace("\\", "") in capsys.readouterr().err.replace("\\", "") or pytest.fail(capsys.readouterr().err)
+
+
+def test_fit_command_names_a_missing_target(tmp_path, capsys):
+    assert main(["fit", str(tmp_path / "nowhere"), "-o", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert "nowhere: no such target directory, nor a shipped target" in err and "blonde_straight" in err
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Shipped targets
+
+
+def test_shipped_targets_are_complete():
+    names = [d.name for d in shipped_targets()]
+    assert names == ["auburn_curly", "black_straight", "blonde_straight", "brown_wavy", "fur_patch"]
+    total = sum(f.stat().st_size for f in SHIPPED_TARGETS.rglob("*") if f.is_file())
+    assert total < 4e6
+    for directory in shipped_targets():
+        target = load_target(directory)
+        assert len(target.images) >= 2 and target.truth is not None
+        assert target.truth.to_dict() == target.hair.to_dict()
+    assert load_target(SHIPPED_TARGETS / "fur_patch").truth.r_roughness_scale != 1.0
+
+
+def test_make_target_reproduces_the_committed_files(tmp_path):
+    """`warp-hair targets make` must give back what is committed: re-render the cheapest shipped target."""
+    source = SHIPPED_TARGETS / "black_straight"
+    copy = shutil.copytree(source, tmp_path / "black_straight")
+    for f in ("front.exr", "back.exr", "truth.json"):
+        (copy / f).unlink()
+    make_target(copy)
+    assert (copy / "truth.json").read_text() == (source / "truth.json").read_text()
+    for f in ("front.exr", "back.exr"):
+        made, committed = read_exr(copy / f)[0], read_exr(source / f)[0]
+        np.testing.assert_allclose(made, committed, rtol=1e-5, atol=1e-7)
