@@ -9,9 +9,9 @@ forward render, and a path-replay gradient pass with an independent seed), sums 
 torch.optim.Adam step on the controls' latents (`controls.py`: no step leaves a control's range). Fresh seeds
 every iteration, so the Monte Carlo noise averages out over the iterations instead of biasing every step alike.
 
-Schedules: the samples per pixel grow from spp/4 over the first 30% of the iterations to spp/2 and then spp
-(noisy, cheap steps while far away; precise ones near the optimum), and the learning rate stays at lr for the first half, then
-decays on a cosine to lr/20. The estimate is the mean of the controls over the last fifth of the iterations run (averaging
+Schedules: the samples per pixel grow from spp/4 over the first quarter of the iterations to spp/2 and then
+spp (noisy, cheap steps while far away; precise ones near the optimum), and the learning rate stays at lr for
+the first 60% of the iterations, then decays on a cosine to lr/20. The estimate is the mean of the controls over the last fifth of the iterations run (averaging
 the iterates of a noisy descent reduces their spread further than a smaller step would). The fit stops early
 when the smoothed loss has not improved by 0.1% for `patience` iterations at the final spp; Ctrl-C stops it
 too, and the estimate so far is returned (stop_reason "interrupted").
@@ -39,8 +39,9 @@ from .losses import LOSSES, image_loss
 from .target import Target
 from .uncertainty import gauss_newton
 
-SPP_STAGES = ((0.3, 4), (0.6, 2), (1.0, 1))  # (fraction of the iterations, divisor of spp) in order
+SPP_STAGES = ((0.25, 4), (0.5, 2), (1.0, 1))  # (fraction of the iterations, divisor of spp) in order
 FINAL_LR_FRACTION = 0.05
+CONSTANT_LR_FRACTION = 0.6
 PLATEAU_TOLERANCE = 1e-3
 SMOOTHING = 0.9  # of the loss's exponential moving average, for the plateau test
 AVERAGED_FRACTION = 0.2
@@ -50,7 +51,7 @@ FINAL_SPP_FACTOR = 4
 @dataclass
 class FitSettings:
     controls: tuple = DEFAULT_FIT
-    iters: int = 120
+    iters: int = 150
     spp: int = 16  # at the end of the schedule
     loss: str = "l2"
     pool: int = 4  # compare k×k block averages (losses.py says why)
@@ -86,8 +87,8 @@ def spp_at(iteration: int, iters: int, spp: int) -> int:
 
 
 def lr_factor(iteration: int, iters: int) -> float:
-    """1 for the first half of the iterations, then a cosine down to FINAL_LR_FRACTION at the last."""
-    half = iters // 2
+    """1 for the first 60% of the iterations, then a cosine down to FINAL_LR_FRACTION at the last."""
+    half = int(CONSTANT_LR_FRACTION * iters)
     if iteration < half:
         return 1.0
     t = (iteration - half) / max(iters - 1 - half, 1)
@@ -150,7 +151,7 @@ class _Latents:
 
 
 def _plain(values: dict) -> dict:
-    return {name: (v.detach().tolist() if v.dim() else float(v)) for name, v in values.items()}
+    return {name: (v.detach().tolist() if v.dim() else float(v.detach())) for name, v in values.items()}
 
 
 def _mean_values(history_values: dict, window: int) -> dict:

@@ -1,11 +1,14 @@
 """Image losses on linear radiance, with an optional mask of the pixels that count.
 
-    l2      mean (I − T)²                       the default: unbiased with decorrelated gradient passes
+    l2      mean (I − T)² / mean T²             the default: unbiased with decorrelated gradient passes
     rel_l2  mean (I − T)² / (T + ε)²            dark and bright pixels weigh alike; ε = 1% of the target's mean
-    l1      mean |I − T|                        robust to a few outlier pixels
+    l1      mean |I − T| / mean T               robust to a few outlier pixels
 
-All are means over the unmasked pixels and the three channels, so losses of differently sized images add up
-on one scale. The mask (H, W) of booleans marks the pixels that count (e.g. the fibers, not the background).
+All are means over the unmasked pixels and the three channels, and L2 and L1 are divided by the target's own
+scale, so losses of differently sized and differently bright images add up on one scale. That matters for a
+target's joint fit: a back-lit swatch can be ten times brighter than the front-lit one, and unnormalised its
+noise would drown the front image's signal (measured: a 24×24 test target fitted red albedo 0.73 against a
+true 0.55, the front image that carries the colour weighing 1% of the sum). The mask (H, W) of booleans marks the pixels that count (e.g. the fibers, not the background).
 
 `pool` k > 1 compares the images averaged over k×k blocks (masked pixels left out of the averages): the loss
 then measures appearance at the scale of a few fibers rather than per pixel. Why it matters: a target rendered
@@ -43,8 +46,8 @@ def image_loss(image: torch.Tensor, target: torch.Tensor, kind: str = "l2", mask
         image, target = image[mask], target[mask]
     diff = image - target
     if kind == "l2":
-        return (diff * diff).mean()
+        return (diff * diff).mean() / (target * target).mean().clamp_min(1e-30)
     if kind == "l1":
-        return diff.abs().mean()
+        return diff.abs().mean() / target.abs().mean().clamp_min(1e-30)
     scale = target + REL_EPSILON * target.mean()
     return ((diff / scale) ** 2).mean()

@@ -10,8 +10,8 @@ Uncertainty (the classical standard errors of nonlinear least squares):
 
 where Var_MC is the Monte Carlo variance of our own render of the residual (its per-pixel standard errors),
 removed so that s² measures what the target scatters by around the model (its own noise and any misfit), not
-the noise of our evaluation. For the relative L2 loss r and A are weighted by 1/(T + ε) as the loss is; the L1
-loss is treated as L2 here.
+the noise of our evaluation. r and A are weighted as the loss weighs them: per image by 1/sqrt(mean T²) for L2,
+per pixel by 1/(T + ε) for relative L2; the L1 loss is treated as L2 here.
 
 Identifiability: two components whose estimates correlate by |ρ| > 0.95 trade off against each other in these
 images (albedo and β_n can, through the albedo inversion, under a single front light); a control the images do
@@ -81,8 +81,7 @@ def jacobian(target, values: dict, settings, spp: int, seed: int) -> np.ndarray:
                                            threads=settings.threads)
         columns = [rendered[..., None] if name == EXPOSURE else gain * jac[..., COLUMNS[name]] for name in names]
         a = np.concatenate(columns, axis=-1)  # (H, W, 3, p)
-        if settings.loss == "rel_l2":
-            a = a * _rel_weight(image)[..., None]
+        a = a * (_rel_weight(image)[..., None] if settings.loss == "rel_l2" else _image_scale(image, settings.pool))
         blocks.append(_reduce(image, a, None, settings.pool)[0].reshape(-1, a.shape[-1]))
     return np.concatenate(blocks)
 
@@ -91,11 +90,18 @@ def _rel_weight(image) -> np.ndarray:
     return 1.0 / (image.image + REL_EPSILON * image.image.mean())
 
 
+def _image_scale(image, pool) -> float:
+    """1 / sqrt(mean T²) over the values the loss compares: L2's per-image normalisation (losses.py)."""
+    t, _ = _reduce(image, image.image, None, pool)
+    return 1.0 / max(float(np.sqrt(np.mean(t * t))), 1e-15)
+
+
 def _weighted(image, r, var, settings):
     if settings.loss == "rel_l2":
         w = _rel_weight(image)
         return r * w, var * w * w
-    return r, var
+    w = _image_scale(image, settings.pool)
+    return r * w, var * w * w
 
 
 def _reduce(image, x, var, pool):
