@@ -13,7 +13,9 @@ r_roughness_scale): there is no cheaper call for fewer controls.
 Peak memory is each depth's own subprocess's ru_maxrss (a process's peak never goes down, so two depths in one
 process cannot be told apart). It includes the interpreter, Warp and the loaded kernels, the same for both.
 
-Timings are wall-clock seconds on a shared machine: other jobs running at the same time inflate them.
+Timings are wall-clock seconds on a shared machine: other jobs running at the same time inflate them. Each is
+followed by the CPU seconds of this process (all its threads, Mitsuba's included), which sharing the cores with
+other jobs inflates less.
 """
 
 from __future__ import annotations
@@ -72,9 +74,10 @@ def gradient_evaluation(scene, target, spp, threads):
 
 
 def timed(fn, *args):
-    start = time.perf_counter()
+    """(wall-clock seconds, CPU seconds of this process, fn's result)."""
+    start, cpu = time.perf_counter(), time.process_time()
     result = fn(*args)
-    return time.perf_counter() - start, result
+    return time.perf_counter() - start, time.process_time() - cpu, result
 
 
 def warm_up(scene, threads):
@@ -104,7 +107,7 @@ def peak_memory(depth, spp, threads):
 
 
 def mitsuba_gradient(mi, scene, spp, threads):
-    """(seconds of one forward+backward pass, differentiated keys, non-differentiable keys) for prb."""
+    """(wall and CPU seconds of one forward+backward pass, loss, gradients, non-differentiable keys) for prb."""
     import drjit as dr
 
     dr.set_thread_count(threads)
@@ -134,8 +137,8 @@ def mitsuba_gradient(mi, scene, spp, threads):
         return float(np.array(loss).ravel()[0]), grads
 
     step(100, 1)  # warm-up: traces and JIT-compiles the primal and adjoint kernels (1 spp compiles the same)
-    seconds, (loss, grads) = timed(step, SEED_PRIMAL, spp)
-    return seconds, loss, grads, skipped
+    seconds, cpu, (loss, grads) = timed(step, SEED_PRIMAL, spp)
+    return seconds, cpu, loss, grads, skipped
 
 
 def main(argv=None):
@@ -161,11 +164,12 @@ def main(argv=None):
 
     warm_up(scene, threads)
     target = synthetic_target(scene, args.spp, threads)
-    forward, _ = timed(render, scene, args.spp, SEED_PRIMAL, threads)
-    gradient, (loss, grads) = timed(gradient_evaluation, scene, target, args.spp, threads)
-    print(f"warp-hair forward render: {forward:.2f} s")
+    forward, forward_cpu, _ = timed(render, scene, args.spp, SEED_PRIMAL, threads)
+    gradient, gradient_cpu, (loss, grads) = timed(gradient_evaluation, scene, target, args.spp, threads)
+    print(f"warp-hair forward render: {forward:.2f} s (CPU {forward_cpu:.2f} s)")
     print(f"warp-hair gradient evaluation (primal + render_grad, all controls at once): {gradient:.2f} s "
-          f"= {gradient / forward:.2f} x forward (render_grad alone ~ {gradient / forward - 1:.2f} x)")
+          f"= {gradient / forward:.2f} x forward (render_grad alone ~ {gradient / forward - 1:.2f} x); "
+          f"CPU {gradient_cpu:.2f} s = {gradient_cpu / forward_cpu:.2f} x")
     print(f"  loss {loss:.4f}; gradients: " + ", ".join(
         f"{k} {np.array2string(np.asarray(v), precision=4) if np.ndim(v) else format(v, '.4g')}"
         for k, v in grads.items()))
@@ -180,16 +184,17 @@ def main(argv=None):
     if mi is None:
         return
     try:
-        mi_seconds, mi_loss, mi_grads, skipped = mitsuba_gradient(mi, scene, args.spp, threads)
+        mi_seconds, mi_cpu, mi_loss, mi_grads, skipped = mitsuba_gradient(mi, scene, args.spp, threads)
     except Exception as error:  # report and carry on: the comparison is optional
         print(f"Mitsuba gradient skipped: {type(error).__name__}: {error}")
         return
     print(f"Mitsuba {mi.__version__} ({mi.variant()}, prb, max_depth {scene.render.max_depth + 1}) forward+backward: "
-          f"{mi_seconds:.2f} s; loss {mi_loss:.4f}; differentiated: " + ", ".join(
+          f"{mi_seconds:.2f} s (CPU {mi_cpu:.2f} s); loss {mi_loss:.4f}; differentiated: " + ", ".join(
               f"{k.split('.', 2)[-1]} {np.array2string(v.ravel(), precision=4)}" for k, v in mi_grads.items()))
     if skipped:
         print(f"  not differentiable in Mitsuba: {', '.join(skipped)}")
-    print(f"time ratio warp-hair / Mitsuba (gradient evaluation): {gradient / mi_seconds:.2f}")
+    print(f"time ratio warp-hair / Mitsuba (gradient evaluation): {gradient / mi_seconds:.2f} "
+          f"(CPU {gradient_cpu / mi_cpu:.2f})")
 
 
 if __name__ == "__main__":
