@@ -2,7 +2,7 @@
 against a forward render, its peak memory at two path depths, and (where Mitsuba 3 is installed) against
 Mitsuba's `prb` differentiating its hair BSDF.
 
-    python benchmarks/render_grad.py [--spp 64] [--threads N] [--memory-spp 8]
+    python benchmarks/render_grad.py [--spp 64] [--threads N] [--memory-spp 8] [--repeat 1]
 
 The loss is 0.5‖image − target‖² with a fixed synthetic target (0.9 × a primal render at spp/8, made before
 any timing), so its adjoint is image − target. One gradient evaluation is what an optimiser step pays: a primal
@@ -15,7 +15,8 @@ process cannot be told apart). It includes the interpreter, Warp and the loaded 
 
 Timings are wall-clock seconds on a shared machine: other jobs running at the same time inflate them. Each is
 followed by the CPU seconds of this process (all its threads, Mitsuba's included), which sharing the cores with
-other jobs inflates less.
+other jobs inflates less. With --repeat N each of the three timings is taken N times and the fastest run kept,
+the one least disturbed by other jobs.
 """
 
 from __future__ import annotations
@@ -80,6 +81,11 @@ def timed(fn, *args):
     return time.perf_counter() - start, time.process_time() - cpu, result
 
 
+def fastest(repeat, fn, *args):
+    """`timed(fn, *args)` of the fastest of `repeat` runs."""
+    return min((timed(fn, *args) for _ in range(repeat)), key=lambda run: run[0])
+
+
 def warm_up(scene, threads):
     """Compile (or load) the forward and gradient kernels at 1 spp so no timing includes it."""
     image = render(scene, spp=1, threads=threads)
@@ -106,7 +112,7 @@ def peak_memory(depth, spp, threads):
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
-def mitsuba_gradient(mi, scene, spp, threads):
+def mitsuba_gradient(mi, scene, spp, threads, repeat):
     """(wall and CPU seconds of one forward+backward pass, loss, gradients, non-differentiable keys) for prb."""
     import drjit as dr
 
@@ -137,7 +143,7 @@ def mitsuba_gradient(mi, scene, spp, threads):
         return float(np.array(loss).ravel()[0]), grads
 
     step(100, 1)  # warm-up: traces and JIT-compiles the primal and adjoint kernels (1 spp compiles the same)
-    seconds, cpu, (loss, grads) = timed(step, SEED_PRIMAL, spp)
+    seconds, cpu, (loss, grads) = fastest(repeat, step, SEED_PRIMAL, spp)
     return seconds, cpu, loss, grads, skipped
 
 
@@ -148,6 +154,7 @@ def main(argv=None):
     parser.add_argument("--memory-spp", type=int, default=8,
                         help="spp of the memory subprocesses: memory holds per-pixel buffers only, so it does not "
                              "grow with spp, and fewer keep the two extra gradient evaluations short")
+    parser.add_argument("--repeat", type=int, default=1, help="time each measurement this many times, keep the fastest")
     parser.add_argument("--_memory-child", type=int, default=None, help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     threads = args.threads or default_threads()
@@ -164,8 +171,8 @@ def main(argv=None):
 
     warm_up(scene, threads)
     target = synthetic_target(scene, args.spp, threads)
-    forward, forward_cpu, _ = timed(render, scene, args.spp, SEED_PRIMAL, threads)
-    gradient, gradient_cpu, (loss, grads) = timed(gradient_evaluation, scene, target, args.spp, threads)
+    forward, forward_cpu, _ = fastest(args.repeat, render, scene, args.spp, SEED_PRIMAL, threads)
+    gradient, gradient_cpu, (loss, grads) = fastest(args.repeat, gradient_evaluation, scene, target, args.spp, threads)
     print(f"warp-hair forward render: {forward:.2f} s (CPU {forward_cpu:.2f} s)")
     print(f"warp-hair gradient evaluation (primal + render_grad, all controls at once): {gradient:.2f} s "
           f"= {gradient / forward:.2f} x forward (render_grad alone ~ {gradient / forward - 1:.2f} x); "
@@ -184,7 +191,7 @@ def main(argv=None):
     if mi is None:
         return
     try:
-        mi_seconds, mi_cpu, mi_loss, mi_grads, skipped = mitsuba_gradient(mi, scene, args.spp, threads)
+        mi_seconds, mi_cpu, mi_loss, mi_grads, skipped = mitsuba_gradient(mi, scene, args.spp, threads, args.repeat)
     except Exception as error:  # report and carry on: the comparison is optional
         print(f"Mitsuba gradient skipped: {type(error).__name__}: {error}")
         return
