@@ -214,7 +214,7 @@ def fit(target: Target, settings: FitSettings | None = None, progress: bool = Tr
                 history["values"][name].append(v)
             optimizer.step()
             schedule.step()
-            bar.set_postfix_str(f"loss={float(loss):.3g} spp={spp} {_describe(_plain(values))}", refresh=False)
+            bar.set_postfix_str(f"loss={float(loss.detach()):.3g} spp={spp} {_describe(_plain(values))}", refresh=False)
             bar.update()
 
             ema = float(loss) if ema is None else SMOOTHING * ema + (1 - SMOOTHING) * float(loss)
