@@ -55,7 +55,7 @@ from warp_hair.bsdf_jacobian import (
 )
 from warp_hair.hair_bsdf import HairCoefficients, hair_coefficients, lobe_setup
 from warp_hair.lobes import bessel_i0e_with_log_slope, logistic_norm, longitudinal_norm
-from warp_hair.params import BETA_FLOOR, lobe_variances, logistic_scale
+from warp_hair.params import BETA_FLOOR
 
 wp.set_module_options({"enable_backward": False})
 
@@ -151,7 +151,8 @@ def edge_controls(rng, mode):
     controls["alpha"] = float(np.float32(rng.choice([-10.0, 10.0, rng.uniform(-10.0, 10.0)])))
     controls["eta"] = float(np.float32(rng.uniform(1.2, 2.0)))
     for name in ("beta_m", "beta_n"):
-        controls[name] = float(np.float32(rng.choice([1.01 * BETA_FLOOR, 1.2 * BETA_FLOOR, 0.99, 1.0, rng.uniform(BETA_FLOOR, 1.0)])))
+        choices = [1.01 * BETA_FLOOR, 1.2 * BETA_FLOOR, 0.99, 1.0, rng.uniform(BETA_FLOOR, 1.0)]
+        controls[name] = float(np.float32(rng.choice(choices)))
     return controls
 
 
@@ -224,43 +225,53 @@ def test_roughness_floor_has_zero_derivative():
     assert np.any(J[:, :, 5] != 0.0)
 
 
+def _moved(controls: dict, name: str, component, delta: float) -> wh.HairParams:
+    """The material with one control (one component of an RGB one) moved by delta."""
+    value = controls[name]
+    if component is None:
+        value = value + delta
+    else:
+        value = list(value)
+        value[component] += delta
+    return wh.HairParams(**{**controls, name: value})
+
+
+def _central(quantity, controls: dict, name: str, component=None, step: float = 1e-6):
+    """d quantity(material)/d control, a float64 central difference."""
+    up, down = _moved(controls, name, component, step), _moved(controls, name, component, -step)
+    return (np.asarray(quantity(up)) - np.asarray(quantity(down))) / (2.0 * step)
+
+
+def _log_slope(function, x: float, step: float = 1e-6) -> float:
+    """d ln function(x)/d ln x, a float64 central difference."""
+    return (math.log(function(x * math.exp(step))) - math.log(function(x * math.exp(-step)))) / (2.0 * step)
+
+
 def test_coefficient_derivatives_match_central_differences():
     """The host's float64 derivatives of the material mappings against central differences of params.py."""
     rng = np.random.default_rng(52)
-    step = 1e-6
     for mode in COLOUR_MODES:
         for _ in range(6):
             controls = random_controls(rng, mode)
             params = wh.HairParams(**controls)
             k = coefficient_derivatives(params)
-
-            def at(name, component, delta):
-                value = controls[name]
-                if component is None:
-                    changed = value + delta
-                else:
-                    changed = list(value)
-                    changed[component] += delta
-                return wh.HairParams(**{**controls, name: changed})
-
-            def slope(quantity, name, component=None):
-                return (quantity(at(name, component, step)) - quantity(at(name, component, -step))) / (2.0 * step)
-
-            entries = control_entries(controls)
-            for column, (name, component) in enumerate(entries[: len(entries) - 5]):
-                np.testing.assert_allclose(np.array(k.d_sigma_d_colour).reshape(3, 3)[:, column], slope(lambda p: p.sigma_a, name, component), rtol=1e-6, atol=1e-9)
-            np.testing.assert_allclose(np.array(k.d_sigma_d_beta_n), slope(lambda p: p.sigma_a, "beta_n"), rtol=1e-5, atol=1e-9)
-            v = params.lobe_variances
-            np.testing.assert_allclose(k.d_log_v_d_beta_m, slope(lambda p: math.log(p.lobe_variances[1]), "beta_m"), rtol=1e-5)
-            np.testing.assert_allclose(k.d_log_v_r_d_scale, slope(lambda p: math.log(p.lobe_variances[0]), "r_roughness_scale"), rtol=1e-5)
-            for p in range(4):
-                log_norm = lambda x: math.log(longitudinal_norm(v[p] * math.exp(x)))  # noqa: E731
-                expected = (log_norm(step) - log_norm(-step)) / (2.0 * step)
-                np.testing.assert_allclose(np.array(k.m_norm_log_slope)[p], expected, rtol=1e-5, atol=1e-9)
-            s = logistic_scale(params.beta_n)
-            np.testing.assert_allclose(k.d_log_s_d_beta_n, slope(lambda p: math.log(p.logistic_scale), "beta_n"), rtol=1e-5)
-            log_n_norm = lambda x: math.log(logistic_norm(s * math.exp(x)))  # noqa: E731
-            np.testing.assert_allclose(k.n_norm_log_slope, (log_n_norm(step) - log_n_norm(-step)) / (2.0 * step), rtol=1e-5, atol=1e-9)
+            colour = [entry for entry in control_entries(controls) if entry[0] not in bsdf_grad.SCALAR_CONTROLS]
+            d_colour = np.array(k.d_sigma_d_colour).reshape(3, 3)
+            for column, (name, component) in enumerate(colour):
+                expected = _central(lambda p: p.sigma_a, controls, name, component)
+                np.testing.assert_allclose(d_colour[:, column], expected, rtol=1e-6, atol=1e-9)
+            expected = _central(lambda p: p.sigma_a, controls, "beta_n")
+            np.testing.assert_allclose(np.array(k.d_sigma_d_beta_n), expected, rtol=1e-5, atol=1e-9)
+            expected = _central(lambda p: math.log(p.lobe_variances[1]), controls, "beta_m")
+            np.testing.assert_allclose(k.d_log_v_d_beta_m, expected, rtol=1e-5)
+            expected = _central(lambda p: math.log(p.lobe_variances[0]), controls, "r_roughness_scale")
+            np.testing.assert_allclose(k.d_log_v_r_d_scale, expected, rtol=1e-5)
+            expected = _central(lambda p: math.log(p.logistic_scale), controls, "beta_n")
+            np.testing.assert_allclose(k.d_log_s_d_beta_n, expected, rtol=1e-5)
+            expected = [_log_slope(longitudinal_norm, v) for v in params.lobe_variances]
+            np.testing.assert_allclose(np.array(k.m_norm_log_slope), expected, rtol=1e-5, atol=1e-9)
+            expected = _log_slope(logistic_norm, params.logistic_scale)
+            np.testing.assert_allclose(k.n_norm_log_slope, expected, rtol=1e-5, atol=1e-9)
 
 
 @wp.kernel

@@ -113,9 +113,9 @@ def coefficient_derivatives(params: HairParams) -> CoefficientDerivatives:
     k = CoefficientDerivatives()
     k.d_sigma_d_colour = wp.mat33(*d_colour.ravel())
     k.d_sigma_d_beta_n = wp.vec3(*d_beta_n)
-    k.d_log_v_d_beta_m = (
-        _slope(longitudinal_variance, params.beta_m) / longitudinal_variance(params.beta_m) if _live(params.beta_m) else 0.0
-    )
+    k.d_log_v_d_beta_m = 0.0
+    if _live(params.beta_m):
+        k.d_log_v_d_beta_m = _slope(longitudinal_variance, params.beta_m) / longitudinal_variance(params.beta_m)
     k.d_log_v_r_d_scale = 1.0 / params.r_roughness_scale
     # m_norm = 1 / (v (1 − e^(−y))), y = 2/v: ∂ln m_norm/∂ln v = −1 + y e^(−y) / (1 − e^(−y)); no overflow at small v.
     y = 2.0 / lobe_variances(params.beta_m, params.r_roughness_scale)
@@ -155,9 +155,10 @@ def lobe_setup_grad(L: LobeSetup, wo: wp.vec3, h: float):
     if cos_gamma_t > 0.0:  # |sin γ_t| < |h| ≤ 1 for η > 1; only float32 rounding reaches 1
         d_gamma_t = -sin_gamma_t * eta / (q2 * cos_gamma_t)
     d_cos_gamma_t = -sin_gamma_t * d_gamma_t
-    d_cos_t = sin_t * sin_t / (eta * cos_t)
-    length = 2.0 * cos_gamma_t / cos_t
-    d_length = 2.0 * (d_cos_gamma_t - cos_gamma_t * d_cos_t / cos_t) / cos_t
+    inv_cos_t = 1.0 / cos_t
+    d_cos_t = sin_t * sin_t * inv_cos_t / eta
+    length = 2.0 * cos_gamma_t * inv_cos_t
+    d_length = 2.0 * (d_cos_gamma_t - cos_gamma_t * d_cos_t * inv_cos_t) * inv_cos_t
     f = L.A[0, 0]
     df = fresnel_dielectric_d_eta(cos_o * cos_from_sin(h), eta)
 
@@ -218,7 +219,9 @@ def hair_value_pdf_lobes(L: LobeSetup, wi: wp.vec3):
     cos_i = cos_from_sin(sin_i)
     dphi = wp.atan2(wp.float64(wi[2]), wp.float64(wi[1])) - L.phi_o
     for p in range(4):
-        m, log_v, theta_o = longitudinal_scattering_with_slopes(sin_i, cos_i, L.sin_o[p], L.cos_o[p], L.c.inv_v[p], L.c.m_norm[p])
+        m, log_v, theta_o = longitudinal_scattering_with_slopes(
+            sin_i, cos_i, L.sin_o[p], L.cos_o[p], L.c.inv_v[p], L.c.m_norm[p]
+        )
         E.log_v[p] = log_v
         E.theta_o[p] = theta_o
         if p < 3:
@@ -238,7 +241,8 @@ def hair_value_jacobian(L: LobeSetup, G: LobeSetupGrad, k: CoefficientDerivative
     """J[c, j] = ∂S_c/∂θ_j toward the direction E was evaluated at (`hair_value_pdf_lobes`)."""
     d = E.d
     log_v = E.log_v + k.m_norm_log_slope
-    log_s = wp.vec4(E.log_s[0] + k.n_norm_log_slope, E.log_s[1] + k.n_norm_log_slope, E.log_s[2] + k.n_norm_log_slope, 0.0)
+    n_norm = k.n_norm_log_slope
+    log_s = wp.vec4(E.log_s[0] + n_norm, E.log_s[1] + n_norm, E.log_s[2] + n_norm, 0.0)
     # x_p = Δφ − Φ_p: ∂x_p/∂η = −∂Φ_p/∂η.
     d_eta = wp.vec4(-E.x[0] * G.dphi_d_eta[0], -E.x[1] * G.dphi_d_eta[1], -E.x[2] * G.dphi_d_eta[2], 0.0)
 
