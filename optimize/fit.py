@@ -55,7 +55,7 @@ class FitSettings:
     spp: int = 16  # at the end of the schedule
     loss: str = "l2"
     pool: int = 4  # compare k×k block averages (losses.py says why)
-    lr: float = 0.1
+    lr: float = 0.25
     seed: int = 0
     patience: int = 30
     init: dict = field(default_factory=dict)  # start values of fitted controls; default: each control's neutral guess
@@ -217,7 +217,8 @@ def fit(target: Target, settings: FitSettings | None = None, progress: bool = Tr
             bar.set_postfix_str(f"loss={float(loss.detach()):.3g} spp={spp} {_describe(_plain(values))}", refresh=False)
             bar.update()
 
-            ema = float(loss) if ema is None else SMOOTHING * ema + (1 - SMOOTHING) * float(loss)
+            value = float(loss.detach())
+            ema = value if ema is None else SMOOTHING * ema + (1 - SMOOTHING) * value
             if spp == final_stage_start and it >= 1 and history["spp"][-2] == spp:
                 if best is None or ema < best * (1 - PLATEAU_TOLERANCE):
                     best, since_best = ema, 0
