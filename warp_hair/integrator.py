@@ -68,6 +68,16 @@ def occluded(scene: SceneData, origin: wp.vec3, direction: wp.vec3):
 
 
 @wp.func
+def light_visible(scene: SceneData, on_card: bool, position: wp.vec3, to_light: wp.vec3, w_light: wp.vec3):
+    """Whether a light sample (world direction to_light, local w_light) is unoccluded, tested before the BSDF is
+    evaluated toward it: an occluded sample, often most of them inside an assembly, then costs no evaluation.
+    Below the card's surface its S is 0: no shadow ray is traced for those."""
+    if on_card and w_light[2] <= 0.0:
+        return False
+    return not occluded(scene, position, to_light)
+
+
+@wp.func
 def to_local(w: wp.vec3, x: wp.vec3, y: wp.vec3, z: wp.vec3):
     return wp.vec3(wp.dot(w, x), wp.dot(w, y), wp.dot(w, z))
 
@@ -231,27 +241,29 @@ def make_trace_path(differentiable: bool):
                 if k < scene.num_lights:
                     light = scene.lights[k]
                     w_light = to_local(light.to_light, x, y, z)
-                    if wp.static(differentiable):
-                        nee_value, pdf_bsdf, lobes_light = scatter_value_pdf_lobes(scene, on_card, setup, w_light)
-                    else:
-                        nee_value, pdf_bsdf = scatter_value_pdf(scene, on_card, setup, w_light)
-                    if pdf_bsdf > 0.0 and not occluded(scene, position, light.to_light):
-                        lit = True
-                        nee = wp.cw_mul(throughput, wp.cw_mul(nee_value, light.irradiance)) / select_pdf
+                    if light_visible(scene, on_card, position, light.to_light, w_light):
+                        if wp.static(differentiable):
+                            nee_value, pdf_bsdf, lobes_light = scatter_value_pdf_lobes(scene, on_card, setup, w_light)
+                        else:
+                            nee_value, pdf_bsdf = scatter_value_pdf(scene, on_card, setup, w_light)
+                        if pdf_bsdf > 0.0:
+                            lit = True
+                            nee = wp.cw_mul(throughput, wp.cw_mul(nee_value, light.irradiance)) / select_pdf
                 else:
                     u_env, rng = rand2(rng)
                     d_env, pdf_env = env_sample(scene.env, u_env)
                     if pdf_env > 0.0:
                         w_light = to_local(d_env, x, y, z)
-                        if wp.static(differentiable):
-                            nee_value, pdf_bsdf, lobes_light = scatter_value_pdf_lobes(scene, on_card, setup, w_light)
-                        else:
-                            nee_value, pdf_bsdf = scatter_value_pdf(scene, on_card, setup, w_light)
-                        if pdf_bsdf > 0.0 and not occluded(scene, position, d_env):
-                            light_pdf = select_pdf * pdf_env
-                            w = power_heuristic(light_pdf, pdf_bsdf) / light_pdf
-                            lit = True
-                            nee = w * wp.cw_mul(throughput, wp.cw_mul(nee_value, env_radiance(scene.env, d_env)))
+                        if light_visible(scene, on_card, position, d_env, w_light):
+                            if wp.static(differentiable):
+                                nee_value, pdf_bsdf, lobes_light = scatter_value_pdf_lobes(scene, on_card, setup, w_light)
+                            else:
+                                nee_value, pdf_bsdf = scatter_value_pdf(scene, on_card, setup, w_light)
+                            if pdf_bsdf > 0.0:
+                                light_pdf = select_pdf * pdf_env
+                                w = power_heuristic(light_pdf, pdf_bsdf) / light_pdf
+                                lit = True
+                                nee = w * wp.cw_mul(throughput, wp.cw_mul(nee_value, env_radiance(scene.env, d_env)))
                 if lit:
                     radiance += nee
                     if wp.static(differentiable):
