@@ -200,8 +200,9 @@ def lobe_sum(A: mat43, w: wp.vec4):
 @wp.struct
 class LobeEvaluation:
     """One evaluation of the lobes toward wi, with the log-derivatives of each D_p = M_p N_p in its own
-    parameters: what `hair_value_jacobian` combines into ∂S/∂θ. Kept apart from the combination so that a light
-    sample, evaluated before its shadow ray, is differentiated only if the light turns out to be visible."""
+    parameters: what `hair_value_jacobian` combines into ∂S/∂θ. Kept apart from the combination so that the
+    tracer pays for it only where a derivative is needed: a continuation once Russian roulette has let the path
+    go on, a light sample once it contributes."""
 
     d: wp.vec4  # D_p
     log_v: wp.vec4  # ∂ln M_p/∂ln v_p, less ∂ln m_norm_p/∂ln v_p
