@@ -31,6 +31,7 @@ from .lobes import TWO_PI
 wp.set_module_options({"enable_backward": False, "optimization_level": 3})
 
 INV_PI = wp.constant(0.31830988618379067)
+FLOAT32_MIN_NORMAL = wp.constant(1.17549435e-38)
 
 
 @wp.struct
@@ -135,6 +136,19 @@ def scatter_value_pdf_lobes(scene: SceneData, on_card: bool, setup: LobeSetup, w
 def row_combination(w: wp.vec3, G: value_jacobian_mat):
     """Σ_c w_c G[c]."""
     return w[0] * G[0] + w[1] * G[1] + w[2] * G[2]
+
+
+@wp.func
+def add_log_derivative(G: value_jacobian_mat, J: value_jacobian_mat, value: wp.vec3):
+    """G with J[c] / S_c added to each row c: ∂ log S_c/∂θ. Nothing where S_c = 0: every later contribution of the
+    path is 0 in channel c. One reciprocal per row, but a subnormal S_c, whose reciprocal overflows (and would
+    turn J's zeros into NaN), is divided into J directly."""
+    for c in range(3):
+        if value[c] >= FLOAT32_MIN_NORMAL:
+            G[c] = G[c] + J[c] * (1.0 / value[c])
+        elif value[c] > 0.0:
+            G[c] = G[c] + J[c] / value[c]
+    return G
 
 
 @wp.func
@@ -300,11 +314,7 @@ def make_trace_path(differentiable: bool):
             if wp.static(differentiable):
                 # After roulette: a path it ends has no later contribution to carry the vertex's derivative to.
                 if not on_card:
-                    # G[c] += ∂ log S_c(wi)/∂θ; nothing where S_c = 0 (every later contribution of the path is 0 in c).
-                    J = hair_value_jacobian(setup, d_setup, derivs, lobes)
-                    for c in range(3):
-                        if value[c] > 0.0:
-                            G[c] = G[c] + J[c] * (1.0 / value[c])
+                    G = add_log_derivative(G, hair_value_jacobian(setup, d_setup, derivs, lobes), value)
         return radiance, d_theta, rng
 
     # Distinct keys: two same-named functions with one signature in a module would be taken for one overload.
