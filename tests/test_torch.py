@@ -10,7 +10,7 @@ from test_render import swatch_scene
 
 from warp_hair.render import render
 from warp_hair.render_grad import render_grad
-from warp_hair.torch import default_grad_seed, render_torch
+from warp_hair.torch import default_grad_seed, render_torch, render_torch_pair
 
 LIGHTS = [
     {"type": "directional", "direction": [0.3, -0.4, -1.0], "irradiance": [3.0, 3.0, 3.0]},
@@ -55,6 +55,29 @@ def test_backward_equals_render_grad():
     scene_b = dataclasses.replace(scene, hair=scene.hair.replace(beta_n=beta_n.item()))
     expected = render_grad(scene_b, np.ones((12, 12, 3)), spp=8, seed=77)
     assert beta_n.grad.item() == np.float32(expected["beta_n"])
+
+
+def test_pair_meets_each_adjoint_with_the_other_images_jacobian():
+    scene = small_scene({"albedo": [0.7, 0.5, 0.3], "beta_m": 0.3, "beta_n": 0.35})
+    albedo = torch.tensor([0.6, 0.5, 0.4], requires_grad=True)
+    beta_m = torch.tensor(0.25, requires_grad=True)
+    pair = render_torch_pair(scene, {"albedo": albedo, "beta_m": beta_m}, spp=8, seed=5)
+    assert pair.shape == (2, 12, 12, 3)
+    substituted = dataclasses.replace(scene, hair=scene.hair.replace(albedo=albedo.detach().tolist(), beta_m=0.25))
+    seeds = (5, default_grad_seed(5))
+    for image, seed in zip(pair, seeds):
+        np.testing.assert_allclose(image.detach().numpy(), render(substituted, spp=8, seed=seed), rtol=1e-5, atol=1e-7)
+
+    # Different targets per image make the two adjoints differ, so a swap that was not done would show.
+    loss = 0.5 * ((pair[0] - 0.2) ** 2).sum() + 0.5 * ((pair[1] - 0.05) ** 2).sum()
+    loss.backward()
+    adjoints = [(pair[0] - 0.2).detach().numpy(), (pair[1] - 0.05).detach().numpy()]
+    crossed = [render_grad(substituted, adjoints[0], spp=8, seed=seeds[1]),
+               render_grad(substituted, adjoints[1], spp=8, seed=seeds[0])]
+    np.testing.assert_allclose(albedo.grad.numpy(), crossed[0]["albedo"] + crossed[1]["albedo"], rtol=1e-5)
+    np.testing.assert_allclose(beta_m.grad.item(), crossed[0]["beta_m"] + crossed[1]["beta_m"], rtol=1e-5)
+    uncrossed = sum(render_grad(substituted, a, spp=8, seed=seed)["beta_m"] for a, seed in zip(adjoints, seeds))
+    assert not np.isclose(beta_m.grad.item(), uncrossed, rtol=1e-3)
 
 
 def test_adam_recovers_albedo():

@@ -23,15 +23,16 @@ with S at each vertex evaluated at the direction actually used there (the contin
 the light direction for the NEE vertex itself). One forward pass accumulates it: a per-path running matrix
 G[c, k] = Σ_previous fiber vertices ∂ log S_c(wi_j)/∂θ_k (= J[c, k]/S_c, skipped where S_c = 0, where the
 contribution vanishes too), and each contribution adds Σ_c adjoint_c C_c (G[c, k] + ∂ log S_c(w_light)/∂θ_k)
-/ spp to its pixel. Memory does not grow with the path depth (no tape over the bounce loop). The BSDF Jacobian
+/ spp to its pixel (the tracer keeps the channels apart: render_jacobian.py returns the per-pixel Jacobian and
+this module contracts it with the adjoint). Memory does not grow with the path depth (no tape over the bounce loop). The BSDF Jacobian
 J = ∂S/∂θ is in closed form (`bsdf_jacobian`): the map from the controls to the model's coefficients and its
 derivatives are formed once per material on the host in float64 (`coefficient_derivatives`), and each vertex
 differentiates the same evaluation of the lobes that gave S (bsdf_grad's wp.grad of the same model is its
 independent check, tests/test_bsdf_jacobian.py). The card does not depend on θ.
 
 The tracer is integrator.make_trace_path(True): the forward renderer's own loop, with the gradient code
-compiled in under wp.static branches (the forward variant compiles them out). Per-pixel gradients (pixels × 8)
-are summed on the host in float64: the result depends on the seed only, not on the threads.
+compiled in under wp.static branches (the forward variant compiles them out). Per-pixel terms are summed on the host
+in float64: the result depends on the seed only, not on the threads.
 
 What the estimator does not include: derivatives through the sampling of the path (the directions are fixed,
 which is what makes it a "detached" estimator, valid because the pdfs cancel), and nothing of the geometry.
@@ -41,52 +42,10 @@ The roughness floor (β = 0.01) is a clamp: ∂/∂β there is 0.
 from __future__ import annotations
 
 import numpy as np
-import warp as wp
 
-from .bsdf_grad import SCALAR_CONTROLS, controls_vec
-from .bsdf_jacobian import CoefficientDerivatives, coefficient_derivatives
-from .camera import generate_ray
-from .integrator import SceneData, rand2, trace_path_grad
-from .parallel import launch_ranges
-from .render import PreparedScene
+from .bsdf_grad import SCALAR_CONTROLS
+from .render_jacobian import render_jacobian
 from .scene import Scene
-
-wp.set_module_options({"enable_backward": False, "optimization_level": 3})
-
-# Pixels per range handed to a thread: fiber pixels cost far more than background ones, and ranges smaller than
-# `render`'s balance the threads better at a negligible cost per launch.
-TILE_PIXELS = 256
-
-
-@wp.kernel
-def render_grad_kernel(
-    scene: SceneData,
-    derivs: CoefficientDerivatives,
-    spp: int,
-    seed: int,
-    adjoint: wp.array(dtype=wp.vec3),
-    image: wp.array(dtype=wp.vec3),
-    grad: wp.array(dtype=controls_vec),
-    first: int,
-):
-    pixel = wp.tid() + first
-    width = scene.camera.width_px
-    px = pixel % width
-    py = pixel / width
-    # The same random streams as render_kernel: with the same seed, the same paths.
-    rng = wp.rand_init(seed, pixel)
-    a = adjoint[pixel]
-    total = wp.vec3(0.0)
-    total_grad = controls_vec()
-    for s in range(spp):
-        jitter, rng = rand2(rng)
-        origin, direction = generate_ray(scene.camera, px, py, jitter)
-        radiance, d_theta, rng = trace_path_grad(scene, origin, direction, rng, derivs, a)
-        total += radiance
-        total_grad += d_theta
-    n = float(spp)
-    image[pixel] = total / n
-    grad[pixel] = total_grad / n
 
 
 def _check_adjoint(adjoint, shape) -> np.ndarray:
@@ -95,7 +54,7 @@ def _check_adjoint(adjoint, shape) -> np.ndarray:
         raise ValueError(f"adjoint must have the image's shape {shape} (H, W, 3), got {a.shape}")
     if not np.issubdtype(a.dtype, np.number) or np.iscomplexobj(a):
         raise ValueError(f"adjoint must be real numbers, got dtype {a.dtype}")
-    a = a.astype(np.float32)
+    a = a.astype(np.float64)
     if not np.isfinite(a).all():
         raise ValueError("adjoint has NaN or infinite entries")
     return a
@@ -113,6 +72,11 @@ def named_gradients(params, g: np.ndarray) -> dict:
     return named
 
 
+def contract(adjoint: np.ndarray, jacobian: np.ndarray) -> np.ndarray:
+    """(8,) float64: Σ_pixels Σ_c adjoint[y, x, c] jacobian[y, x, c, k]."""
+    return np.einsum("hwc,hwck->k", adjoint, jacobian.astype(np.float64))
+
+
 def render_grad(
     scene: Scene,
     adjoint,
@@ -128,39 +92,10 @@ def render_grad(
     `return_image`, returns (gradients, image): the image of the same paths (equal to `render`'s up to float
     rounding).
     """
-    grad, image = _gradient_pass(scene, adjoint, spp, seed, threads, device)
-    named = named_gradients(scene.hair, grad.sum(axis=(0, 1)))
+    width, height = scene.camera.resolution
+    a = _check_adjoint(adjoint, (height, width, 3))
+    jacobian, image, _ = render_jacobian(scene, spp=spp, seed=seed, threads=threads, device=device)
+    named = named_gradients(scene.hair, contract(a, jacobian))
     if return_image:
         return named, image
     return named
-
-
-def per_pixel_gradients(scene: Scene, adjoint, spp=None, seed=None, threads=None, device: str = "cpu") -> np.ndarray:
-    """(H, W, 8) float64: each pixel's Σ_c adjoint_c ∂image_c/∂θ, θ in bsdf_grad's order (what render_grad sums).
-
-    With the adjoint e_c everywhere this is row c of every pixel's Jacobian (render_jacobian.py).
-    """
-    return _gradient_pass(scene, adjoint, spp, seed, threads, device)[0]
-
-
-def _gradient_pass(scene, adjoint, spp, seed, threads, device):
-    """(per-pixel gradients (H, W, 8) float64, image (H, W, 3)) of one gradient pass."""
-    spp = scene.render.spp if spp is None else int(spp)
-    seed = scene.render.seed if seed is None else int(seed)
-    if spp < 1:
-        raise ValueError(f"spp must be at least 1, got {spp}")
-    prepared = PreparedScene(scene, device=device)
-    width, height = prepared.resolution
-    a = _check_adjoint(adjoint, (height, width, 3))
-    n = width * height
-    image = wp.zeros(n, dtype=wp.vec3, device=device)
-    grad = wp.zeros(n, dtype=controls_vec, device=device)
-    launch_ranges(
-        render_grad_kernel,
-        n,
-        [prepared.data, coefficient_derivatives(scene.hair), spp, seed, wp.array(a.reshape(n, 3), dtype=wp.vec3, device=device), image, grad],
-        threads=threads,
-        device=device,
-        chunk=TILE_PIXELS,
-    )
-    return grad.numpy().astype(np.float64).reshape(height, width, -1), image.numpy().reshape(height, width, 3)

@@ -1,29 +1,93 @@
-"""Per-pixel derivatives of a render with respect to the hair controls: ∂image[y, x, c]/∂θ_k.
+"""Per-pixel derivatives of a render with respect to the hair controls, ∂image[y, x, c]/∂θ_k, in one pass.
 
     jac, image, stderr = render_jacobian(scene, spp=32, seed=1)   # jac (H, W, 3, 8), θ as in bsdf_grad
 
-`render_grad` returns Σ_pixels adjoint · ∂image/∂θ; with the adjoint e_c at every pixel, its per-pixel terms are
-row c of each pixel's Jacobian. Three gradient passes (one per channel, the same seed, so the same paths) give
-the whole Jacobian: what Gauss–Newton curvature needs (optimize/uncertainty.py). The image and its per-pixel
-standard errors come from a forward render of those same paths.
+The gradient tracer (integrator.make_trace_path(True); render_grad.py explains the estimator) returns each
+path's radiance and its (3, 8) Jacobian together, so one pass over the same paths as `render(scene, spp, seed)`
+gives the image, its standard errors and the whole Jacobian, for what a forward render plus the derivatives
+cost. `render_grad` contracts the Jacobian with an adjoint; Gauss–Newton curvature (optimize/uncertainty.py)
+and the decorrelated image pairs of `warp_hair.torch.render_torch_pair` use it whole. Memory: 24 floats per
+pixel, whatever the path depth.
 """
 
 from __future__ import annotations
 
 import numpy as np
+import warp as wp
 
-from .render import render
-from .render_grad import per_pixel_gradients
+from .bsdf_jacobian import CoefficientDerivatives, coefficient_derivatives, value_jacobian_mat
+from .camera import generate_ray
+from .integrator import SceneData, rand2, standard_error, trace_path_grad
+from .parallel import launch_ranges
+from .render import PreparedScene
 from .scene import Scene
 
+wp.set_module_options({"enable_backward": False, "optimization_level": 3})
 
-def render_jacobian(scene: Scene, spp: int | None = None, seed: int | None = None, threads: int | None = None):
-    """(jacobian (H, W, 3, 8) float64, image (H, W, 3), stderr (H, W, 3)) of `scene` at its own controls."""
-    width, height = scene.camera.resolution
-    rows = []
-    for c in range(3):
-        adjoint = np.zeros((height, width, 3), dtype=np.float32)
-        adjoint[..., c] = 1.0
-        rows.append(per_pixel_gradients(scene, adjoint, spp=spp, seed=seed, threads=threads))
-    image, stderr = render(scene, spp=spp, seed=seed, threads=threads, return_stderr=True)
-    return np.stack(rows, axis=2), image, stderr
+# Pixels per range handed to a thread: fiber pixels cost far more than background ones, and ranges smaller than
+# `render`'s balance the threads better at a negligible cost per launch.
+TILE_PIXELS = 256
+
+
+@wp.kernel
+def render_jacobian_kernel(
+    scene: SceneData,
+    derivs: CoefficientDerivatives,
+    spp: int,
+    seed: int,
+    image: wp.array(dtype=wp.vec3),
+    stderr: wp.array(dtype=wp.vec3),
+    jacobian: wp.array(dtype=value_jacobian_mat),
+    first: int,
+):
+    pixel = wp.tid() + first
+    width = scene.camera.width_px
+    px = pixel % width
+    py = pixel / width
+    # The same random streams as render_kernel: with the same seed, the same paths.
+    rng = wp.rand_init(seed, pixel)
+    total = wp.vec3(0.0)
+    total_sq = wp.vec3(0.0)
+    total_jacobian = value_jacobian_mat()
+    for s in range(spp):
+        jitter, rng = rand2(rng)
+        origin, direction = generate_ray(scene.camera, px, py, jitter)
+        radiance, path_jacobian, rng = trace_path_grad(scene, origin, direction, rng, derivs)
+        total += radiance
+        total_sq += wp.cw_mul(radiance, radiance)
+        total_jacobian += path_jacobian
+    image[pixel] = total / float(spp)
+    stderr[pixel] = standard_error(total, total_sq, spp)
+    jacobian[pixel] = total_jacobian / float(spp)
+
+
+def render_jacobian(scene: Scene, spp: int | None = None, seed: int | None = None, threads: int | None = None,
+                    device: str = "cpu"):
+    """(jacobian (H, W, 3, 8) float32, image (H, W, 3), stderr (H, W, 3)) of `scene` at its own controls.
+
+    spp and seed default to the scene's [render] table; the image is `render(scene, spp, seed)`'s up to float
+    rounding (the same paths).
+    """
+    spp = scene.render.spp if spp is None else int(spp)
+    seed = scene.render.seed if seed is None else int(seed)
+    if spp < 1:
+        raise ValueError(f"spp must be at least 1, got {spp}")
+    prepared = PreparedScene(scene, device=device)
+    width, height = prepared.resolution
+    n = width * height
+    image = wp.zeros(n, dtype=wp.vec3, device=device)
+    stderr = wp.zeros(n, dtype=wp.vec3, device=device)
+    jacobian = wp.zeros(n, dtype=value_jacobian_mat, device=device)
+    launch_ranges(
+        render_jacobian_kernel,
+        n,
+        [prepared.data, coefficient_derivatives(scene.hair), spp, seed, image, stderr, jacobian],
+        threads=threads,
+        device=device,
+        chunk=TILE_PIXELS,
+    )
+    return (
+        jacobian.numpy().reshape(height, width, 3, -1),
+        image.numpy().reshape(height, width, 3),
+        stderr.numpy().reshape(height, width, 3),
+    )

@@ -45,6 +45,10 @@ So `grad_seed` defaults to (seed + 1_000_003) mod 2**32, never equal to `seed`; 
 reproduce a gradient, e.g. to compare with `render_grad(scene', adjoint, spp, seed=grad_seed)` (the numbers
 are the same, whatever `threads`).
 
+`render_torch_pair(scene, controls, spp, seed)` returns two independent renders (2, H, W, 3) for losses that
+add a term per image: its backward pass meets each image's adjoint with the other's Jacobian, which the same
+pass computed, so it needs no second tracing of the paths (what `optimize.fit` uses; see its docstring).
+
 Everything runs on Warp's CPU device; the image is returned on the device of the first control tensor (CPU if
 none), and gradients have each control's dtype and device. Double backward is not supported.
 """
@@ -58,7 +62,8 @@ import torch
 
 from .params import CONTROL_NAMES
 from .render import render
-from .render_grad import render_grad
+from .render_grad import contract, named_gradients
+from .render_jacobian import render_jacobian
 from .scene import Scene
 
 COLOUR_CONTROLS = {"albedo": ("albedo",), "sigma_a": ("sigma_a",), "melanin": ("eumelanin", "pheomelanin")}
@@ -123,36 +128,85 @@ def _to_python(name, tensor):
     return [float(v) for v in t.tolist()] if name in RGB_CONTROLS else float(t.item())
 
 
+def _scene_for(scene, names, tensors):
+    return scene_with_controls(scene, {name: _to_python(name, t) for name, t in zip(names, tensors)})
+
+
+def _control_gradients(ctx, theta_gradient):
+    """Per-control torch gradients from the 8 θ components, in each input's dtype and device."""
+    named = named_gradients(ctx.scene.hair, theta_gradient)
+    out = []
+    for name, need, (dtype, device) in zip(ctx.names, ctx.needs_input_grad[2:], ctx.meta):
+        if not need:
+            out.append(None)
+            continue
+        g = np.asarray(named[name], dtype=np.float64)
+        out.append(torch.as_tensor(g, dtype=dtype, device=device).reshape((3,) if name in RGB_CONTROLS else ()))
+    return (None, None) + tuple(out)
+
+
+def _as_image(image, tensors):
+    out_device = tensors[0].device if tensors else torch.device("cpu")
+    return torch.from_numpy(np.ascontiguousarray(image, dtype=np.float32)).to(out_device)
+
+
 class _RenderFunction(torch.autograd.Function):
     @staticmethod
     def forward(ctx, config, names, *tensors):
         scene, spp, seed, grad_seed, threads = config
-        values = {name: _to_python(name, t) for name, t in zip(names, tensors)}
-        scene2 = scene_with_controls(scene, values)
-        image = render(scene2, spp=spp, seed=seed, threads=threads, device="cpu")
-        ctx.scene = scene2
+        ctx.scene = _scene_for(scene, names, tensors)
         ctx.names = names
         ctx.spp, ctx.grad_seed, ctx.threads = spp, grad_seed, threads
         ctx.meta = [(t.dtype, t.device) for t in tensors]
-        out_device = tensors[0].device if tensors else torch.device("cpu")
-        return torch.from_numpy(np.ascontiguousarray(image, dtype=np.float32)).to(out_device)
+        return _as_image(render(ctx.scene, spp=spp, seed=seed, threads=threads, device="cpu"), tensors)
 
     @staticmethod
     @torch.autograd.function.once_differentiable
     def backward(ctx, grad_output):
-        needs = ctx.needs_input_grad[2:]
-        if not any(needs):
-            return (None, None) + (None,) * len(needs)
-        adjoint = grad_output.detach().to("cpu", torch.float32).numpy()
-        grads = render_grad(ctx.scene, adjoint, spp=ctx.spp, seed=ctx.grad_seed, threads=ctx.threads, device="cpu")
-        out = []
-        for name, need, (dtype, device) in zip(ctx.names, needs, ctx.meta):
-            if not need:
-                out.append(None)
-                continue
-            g = np.asarray(grads[name], dtype=np.float64)
-            out.append(torch.as_tensor(g, dtype=dtype, device=device).reshape((3,) if name in RGB_CONTROLS else ()))
-        return (None, None) + tuple(out)
+        if not any(ctx.needs_input_grad[2:]):
+            return (None, None) + (None,) * len(ctx.meta)
+        adjoint = grad_output.detach().to("cpu", torch.float64).numpy()
+        jacobian, _, _ = render_jacobian(ctx.scene, spp=ctx.spp, seed=ctx.grad_seed, threads=ctx.threads, device="cpu")
+        return _control_gradients(ctx, contract(adjoint, jacobian))
+
+
+class _PairFunction(torch.autograd.Function):
+    @staticmethod
+    def forward(ctx, config, names, *tensors):
+        scene, spp, seeds, threads = config
+        ctx.scene = _scene_for(scene, names, tensors)
+        ctx.names = names
+        ctx.meta = [(t.dtype, t.device) for t in tensors]
+        images, ctx.jacobians = [], []
+        for seed in seeds:
+            jacobian, image, _ = render_jacobian(ctx.scene, spp=spp, seed=seed, threads=threads, device="cpu")
+            images.append(image)
+            ctx.jacobians.append(jacobian)
+        return _as_image(np.stack(images), tensors)
+
+    @staticmethod
+    @torch.autograd.function.once_differentiable
+    def backward(ctx, grad_output):
+        if not any(ctx.needs_input_grad[2:]):
+            return (None, None) + (None,) * len(ctx.meta)
+        adjoint = grad_output.detach().to("cpu", torch.float64).numpy()
+        # Each image's adjoint meets the other image's Jacobian: independent paths, so an unbiased product.
+        first, second = ctx.jacobians
+        return _control_gradients(ctx, contract(adjoint[0], second) + contract(adjoint[1], first))
+
+
+def _checked_seed(name, seed):
+    seed = int(seed)
+    if not 0 <= seed < SEED_MODULUS:
+        raise ValueError(f"{name} must be in [0, 2**32), got {seed}")
+    return seed
+
+
+def _checked_spp(scene, spp):
+    spp = scene.render.spp if spp is None else int(spp)
+    if spp < 1:
+        raise ValueError(f"spp must be at least 1, got {spp}")
+    return spp
 
 
 def render_torch(scene: Scene, controls: dict, spp=None, seed=0, grad_seed=None, threads=None) -> torch.Tensor:
@@ -164,15 +218,27 @@ def render_torch(scene: Scene, controls: dict, spp=None, seed=0, grad_seed=None,
     independent random stream (see the module docstring for why).
     """
     checked = _check_controls(scene, controls)
-    spp = scene.render.spp if spp is None else int(spp)
-    if spp < 1:
-        raise ValueError(f"spp must be at least 1, got {spp}")
-    seed = int(seed)
-    if not 0 <= seed < SEED_MODULUS:
-        raise ValueError(f"seed must be in [0, 2**32), got {seed}")
-    grad_seed = default_grad_seed(seed) if grad_seed is None else int(grad_seed)
-    if not 0 <= grad_seed < SEED_MODULUS:
-        raise ValueError(f"grad_seed must be in [0, 2**32), got {grad_seed}")
-    names = tuple(checked)
+    spp = _checked_spp(scene, spp)
+    seed = _checked_seed("seed", seed)
+    grad_seed = default_grad_seed(seed) if grad_seed is None else _checked_seed("grad_seed", grad_seed)
     config = (scene, spp, seed, grad_seed, threads)
-    return _RenderFunction.apply(config, names, *checked.values())
+    return _RenderFunction.apply(config, tuple(checked), *checked.values())
+
+
+def render_torch_pair(scene: Scene, controls: dict, spp=None, seed=0, threads=None) -> torch.Tensor:
+    """Two independent renders (2, H, W, 3) of `scene` with `controls`, each at `spp`, in one pass each.
+
+    For losses that add a term per image, ℓ(pair[0]) + ℓ(pair[1]): the backward pass contracts each image's
+    adjoint with the *other* image's Jacobian, which its gradient pass computed along with the image
+    (`render_jacobian`). The adjoint and the Jacobian it meets then come from independent paths, as
+    `render_torch`'s separate gradient pass ensures, but nothing is traced twice: the pair costs two gradient
+    passes at spp and gives the gradient and the loss of 2·spp samples, where `render_torch` costs a forward
+    render and a gradient pass at spp for those of spp. (A loss that couples the two images, such as
+    (pair[0] − T)·(pair[1] − T), would pair each adjoint with its own paths: use `render_torch` for those.)
+    The seeds are `seed` and (seed + 1_000_003) mod 2**32.
+    """
+    checked = _check_controls(scene, controls)
+    spp = _checked_spp(scene, spp)
+    seed = _checked_seed("seed", seed)
+    config = (scene, spp, (seed, default_grad_seed(seed)), threads)
+    return _PairFunction.apply(config, tuple(checked), *checked.values())
