@@ -1,7 +1,7 @@
 """`warp-hair fit` and `warp-hair targets`: the fitting subcommands, added to the renderer's command line.
 
     warp-hair fit TARGET -o OUT_DIR [--fit albedo,beta_m,beta_n] [--iters N] [--spp N] [--loss l2]
-                  [--lr LR] [--init NAME=V ...] [--fix NAME=V ...] [--seed S] [--patience P] [--threads T]
+                  [--lr LR] [--init NAME=V ...] [--fix NAME=V ...] [--seed S] [--patience P] [--refine K] [--threads T]
     warp-hair targets make [NAME ...] [--threads T]
     warp-hair targets list
 
@@ -81,6 +81,8 @@ def add_fit(subparsers) -> None:
     parser.add_argument("--seed", type=int, default=defaults.seed, metavar="S", help="seed of the fit's random streams (default 0)")
     parser.add_argument("--patience", type=int, default=defaults.patience, metavar="P",
                         help=f"stop after P iterations without improvement at the final spp (default {defaults.patience})")
+    parser.add_argument("--refine", type=int, metavar="K",
+                        help="Gauss-Newton steps after Adam (default 6; 0 with --loss l1, which is not a sum of squares)")
     parser.add_argument("--threads", type=int, metavar="T", help="CPU threads (default: all cores)")
     parser.set_defaults(run=run_fit)
 
@@ -100,7 +102,7 @@ def run_fit(args: argparse.Namespace) -> None:
         _fix_controls(target, fixed)
     settings = FitSettings(controls=tuple(names), iters=args.iters, spp=args.spp, loss=args.loss, lr=args.lr,
                            seed=args.seed, patience=args.patience, init=parse_assignments(args.init, "--init"),
-                           threads=args.threads)
+                           threads=args.threads, refine=args.refine)
     sizes = ", ".join(f"{im.name} {im.image.shape[1]}x{im.image.shape[0]}" for im in target.images)
     print(f"fitting {', '.join(names)} of {target.name} ({sizes})")
     result = fit(target, settings)

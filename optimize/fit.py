@@ -4,10 +4,12 @@
     result = fit(load_target("targets/blonde_straight"))          # albedo, beta_m, beta_n from a neutral guess
     result.values, result.uncertainties, result.warnings
 
-Each iteration renders every image of the target at the current controls (`warp_hair.torch.render_torch`: a
-forward render, and a path-replay gradient pass with an independent seed), sums the image losses, and takes one
-torch.optim.Adam step on the controls' latents (`controls.py`: no step leaves a control's range). Fresh seeds
-every iteration, so the Monte Carlo noise averages out over the iterations instead of biasing every step alike.
+Each iteration renders every image of the target at the current controls as two independent renders of spp/2
+each (`warp_hair.torch.render_torch_pair`: one gradient pass per render gives its image and its Jacobian, and
+each render's adjoint meets the other's Jacobian, so the gradient is unbiased without `render_torch`'s separate
+forward render, which would cost a forward pass more per iteration), sums the image losses, and takes one torch.optim.Adam step on the controls' latents (`controls.py`: no step
+leaves a control's range). Fresh seeds every iteration, so the Monte Carlo noise averages out over the
+iterations instead of biasing every step alike.
 
 Schedules: the samples per pixel grow from spp/4 over the first quarter of the iterations to spp/2 and then
 spp (noisy, cheap steps while far away; precise ones near the optimum), and the learning rate stays at lr for
@@ -16,8 +18,10 @@ the iterates of a noisy descent reduces their spread further than a smaller step
 when the smoothed loss has not improved by 0.1% for `patience` iterations at the final spp; Ctrl-C stops it
 too, and the estimate so far is returned (stop_reason "interrupted").
 
-Then, at 4 × spp, the fitted images are rendered (for the final loss and the comparison picture) and, unless
-interrupted, each control's uncertainty and identifiability are estimated (`uncertainty.py`).
+Then a few Gauss–Newton (Levenberg–Marquardt) steps from that estimate (`refine.py`: Adam crawls along the
+valleys where controls trade off, Gauss–Newton crosses them), and from the loss linearised at the result, at
+4 × spp per render, the final images and loss and, unless interrupted, each control's uncertainty and
+identifiability (`uncertainty.py`). Ctrl-C during the refinement keeps its best step so far.
 """
 
 from __future__ import annotations
@@ -31,13 +35,14 @@ import torch
 from tqdm import tqdm
 
 from warp_hair.params import effective_beta
-from warp_hair.render import render
-from warp_hair.torch import render_torch, scene_with_controls
+from warp_hair.torch import render_torch_pair
 
 from .controls import DEFAULT_FIT, EXPOSURE, SPECS, as_values, parse_control_names
+from .linearize import linearize
 from .losses import LOSSES, image_loss
+from .refine import REFINABLE_LOSSES, refine
 from .target import Target
-from .uncertainty import gauss_newton
+from .uncertainty import estimate_uncertainty
 
 SPP_STAGES = ((0.25, 4), (0.5, 2), (1.0, 1))  # (fraction of the iterations, divisor of spp) in order
 FINAL_LR_FRACTION = 0.05
@@ -46,6 +51,7 @@ PLATEAU_TOLERANCE = 1e-3
 SMOOTHING = 0.9  # of the loss's exponential moving average, for the plateau test
 AVERAGED_FRACTION = 0.2
 FINAL_SPP_FACTOR = 4
+DEFAULT_REFINE_STEPS = 6
 
 
 @dataclass
@@ -61,6 +67,7 @@ class FitSettings:
     init: dict = field(default_factory=dict)  # start values of fitted controls; default: each control's neutral guess
     threads: int | None = None
     uncertainty: bool = True
+    refine: int | None = None  # Gauss–Newton steps after Adam (refine.py); None: 6, or 0 for the L1 loss
 
 
 @dataclass
@@ -70,7 +77,8 @@ class FitResult:
     uncertainties: dict | None  # the same shapes; None when not estimated
     loss: float  # at the fitted controls, from the final evaluation
     start: dict
-    history: dict  # "loss", "spp", "lr": one entry per iteration; "values": {control: per-iteration values}
+    history: dict  # "loss", "spp", "lr": one entry per iteration; "values": {control: per-iteration values};
+    # "refine": one {"values", "loss", "accepted"} per Gauss–Newton step
     iterations: int
     stop_reason: str  # "plateau", "iterations" or "interrupted"
     seconds: float
@@ -110,6 +118,12 @@ def check_settings(target: Target, settings: FitSettings) -> tuple:
             raise ValueError(f"{key} must be an integer >= {minimum}, got {value!r}")
     if not (isinstance(settings.lr, (int, float)) and math.isfinite(settings.lr) and settings.lr > 0):
         raise ValueError(f"lr must be a positive number, got {settings.lr!r}")
+    if settings.refine is not None:
+        if not isinstance(settings.refine, int) or settings.refine < 0:
+            raise ValueError(f"refine must be an integer >= 0, got {settings.refine!r}")
+        if settings.refine > 0 and settings.loss not in REFINABLE_LOSSES:
+            raise ValueError(f"refine: Gauss–Newton steps need a sum-of-squares loss ({', '.join(REFINABLE_LOSSES)}), "
+                             f"not {settings.loss!r}; use refine=0 with it")
     unknown = sorted(set(settings.init) - set(names))
     if unknown:
         raise ValueError(f"init gives control(s) {unknown} that are not fitted (fitted: {list(names)}); the scene files set the others")
@@ -144,10 +158,14 @@ class _Latents:
         }
 
     def values(self) -> dict:
+        return self.values_from(self.tensors)
+
+    def values_from(self, tensors: dict) -> dict:
+        """The controls of latents `tensors` (named as `self.tensors`)."""
         beta_n = self.fixed_beta_n
-        if "beta_n" in self.tensors:
-            beta_n = SPECS["beta_n"].from_latent(self.tensors["beta_n"], None)
-        return {name: SPECS[name].from_latent(z, beta_n) for name, z in self.tensors.items()}
+        if "beta_n" in tensors:
+            beta_n = SPECS["beta_n"].from_latent(tensors["beta_n"], None)
+        return {name: SPECS[name].from_latent(z, beta_n) for name, z in tensors.items()}
 
 
 def _plain(values: dict) -> dict:
@@ -160,13 +178,15 @@ def _mean_values(history_values: dict, window: int) -> dict:
 
 
 def _loss(target: Target, values: dict, spp: int, seeds, settings: FitSettings, targets, masks):
+    """The mean image loss over the target's images, each rendered as a decorrelated pair of spp/2 each."""
     hair = {name: v for name, v in values.items() if name != EXPOSURE}
     gain = values.get(EXPOSURE, 1.0)
     total = 0.0
     for k, image in enumerate(target.images):
-        rendered = render_torch(image.scene, hair, spp=spp, seed=seeds[k], threads=settings.threads)
-        total = total + image_loss(rendered * gain, targets[k], settings.loss, masks[k], settings.pool)
-    return total / len(target.images)
+        pair = render_torch_pair(image.scene, hair, spp=max(1, spp // 2), seed=seeds[k], threads=settings.threads)
+        for rendered in pair:
+            total = total + image_loss(rendered * gain, targets[k], settings.loss, masks[k], settings.pool)
+    return total / (2 * len(target.images))
 
 
 def _describe(values: dict) -> str:
@@ -236,35 +256,58 @@ def fit(target: Target, settings: FitSettings | None = None, progress: bool = Tr
         estimate = {name: _as_control(name, start[name]) for name in names}
     else:
         estimate = _mean_values(history["values"], max(1, int(AVERAGED_FRACTION * done)))
-    return _finish(target, settings, names, start, estimate, history, done, stop_reason, begun)
+    return _finish(target, settings, names, start, estimate, history, done, stop_reason, begun, progress)
 
 
-def _finish(target, settings, names, start, estimate, history, done, stop_reason, begun) -> FitResult:
-    """The final renders and (unless interrupted) the uncertainties, at FINAL_SPP_FACTOR × spp."""
+def _finish(target, settings, names, start, estimate, history, done, stop_reason, begun, progress) -> FitResult:
+    """Gauss–Newton refinement (unless interrupted), then the final renders and the uncertainties from the
+    loss linearised at the result, all at FINAL_SPP_FACTOR × spp per render."""
     final_spp = settings.spp * FINAL_SPP_FACTOR
     seed = iteration_seed(settings.seed, 2**31, 0)
-    hair = {name: v for name, v in estimate.items() if name != EXPOSURE}
-    gain = float(estimate.get(EXPOSURE, 1.0))
-    images, losses = [], []
-    for k, image in enumerate(target.images):
-        scene = scene_with_controls(image.scene, hair)
-        rendered = gain * render(scene, spp=final_spp, seed=seed + 500 + k, threads=settings.threads)
-        images.append(rendered)
-        mask = None if image.mask is None else torch.from_numpy(image.mask)
-        losses.append(float(image_loss(torch.from_numpy(rendered), torch.from_numpy(image.image), settings.loss, mask, settings.pool)))
+    steps = 0 if stop_reason == "interrupted" else _refine_steps(settings)
+    history["refine"] = []
+    if steps:
+        latents = _Latents({name: as_values(name, v) for name, v in estimate.items()}, target.hair.beta_n)
+        bar = tqdm(total=steps, desc="Gauss-Newton", unit="step", disable=not progress)
+
+        def on_step(record):
+            history["refine"].append(record)
+            bar.set_postfix_str(f"loss={record['loss']:.3g} {'kept' if record['accepted'] else 'undone'} "
+                                f"{_describe(record['values'])}", refresh=False)
+            bar.update()
+
+        lin = None
+        try:
+            estimate, lin, _ = refine(target, latents, settings, final_spp, seed, steps, on_step)
+        except KeyboardInterrupt:
+            stop_reason = "interrupted"
+            estimate = _plain(latents.values())
+        finally:
+            bar.close()
+    if not steps or lin is None:
+        lin = linearize(target, estimate, settings, final_spp, seed, threads=settings.threads)
+    losses = [image_loss(torch.from_numpy(fitted), torch.from_numpy(image.image), settings.loss,
+                         None if image.mask is None else torch.from_numpy(image.mask), settings.pool)
+              for fitted, image in zip(lin.images, target.images)]
     result = FitResult(
         target=target.name,
         values=estimate,
         uncertainties=None,
-        loss=float(np.mean(losses)),
+        loss=float(np.mean([float(v) for v in losses])),
         start={name: _as_control(name, v) for name, v in start.items()},
         history=history,
         iterations=done,
         stop_reason=stop_reason,
         seconds=0.0,
-        images=images,
+        images=lin.images,
     )
     if settings.uncertainty and stop_reason != "interrupted":
-        gauss_newton(target, result, settings, final_spp, seed + 1000)
+        estimate_uncertainty(result, lin)
     result.seconds = time.perf_counter() - begun
     return result
+
+
+def _refine_steps(settings: FitSettings) -> int:
+    if settings.refine is not None:
+        return settings.refine
+    return DEFAULT_REFINE_STEPS if settings.loss in REFINABLE_LOSSES else 0

@@ -35,6 +35,8 @@ def write_params(path: Path, result: FitResult, truth: dict) -> None:
         "start": result.start,
         "loss": result.loss,
         "iterations": result.iterations,
+        "gauss_newton_steps": [{"loss": r["loss"], "misfit": r["misfit"], "kept": r["accepted"]}
+                               for r in result.history.get("refine", [])],
         "stop_reason": result.stop_reason,
         "seconds": round(result.seconds, 1),
         "warnings": result.warnings,
@@ -68,7 +70,8 @@ def format_table(result: FitResult, truth: dict) -> str:
 
 
 def plot_convergence(path: Path, result: FitResult, truth: dict) -> None:
-    """The loss and every fitted control against the iteration; true values dashed."""
+    """The loss and every fitted control against the iteration; true values dashed. Gauss–Newton steps follow
+    the Adam iterations as dots (hollow: undone)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -79,6 +82,11 @@ def plot_convergence(path: Path, result: FitResult, truth: dict) -> None:
     its = np.arange(1, result.iterations + 1)
     ax = axes[0]
     ax.semilogy(its, result.history["loss"], color="0.3", lw=0.8)
+    refine = result.history.get("refine", [])
+    steps = result.iterations + 1 + np.arange(len(refine))
+    kept = [r["accepted"] for r in refine]
+    for x, r in zip(steps, refine):
+        ax.plot(x, r["loss"], "o", ms=3, color="0.3", mfc="0.3" if r["accepted"] else "none")
     ax.set_title(f"loss ({result.stop_reason})")
     ax.set_xlabel("iteration")
     for ax, name in zip(axes[1:], names):
@@ -87,6 +95,8 @@ def plot_convergence(path: Path, result: FitResult, truth: dict) -> None:
         true = np.atleast_1d(truth[name]) if name in truth else None
         for k in range(values.shape[1]):
             ax.plot(its, values[:, k], color=colours[k], lw=1.0)
+            for x, r, keep in zip(steps, refine, kept):
+                ax.plot(x, np.atleast_1d(r["values"][name])[k], "o", ms=3, color=colours[k], mfc=colours[k] if keep else "none")
             if true is not None:
                 ax.axhline(true[k], color=colours[k], ls="--", lw=1.0)
         spec = SPECS[name]

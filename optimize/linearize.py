@@ -1,0 +1,140 @@
+"""The fit's loss near given controls, linearised: its pooled, weighted residuals and their Jacobian.
+
+With r the stacked residuals gain·I − T of the loss (after its k×k pooling, over the counted pixels and channels
+of every image, weighted as the loss weighs them: per image by 1/sqrt(mean T²) for L2, per pixel by 1/(T + ε)
+for relative L2) and A = ∂r/∂x their Jacobian by the fitted control components x, the loss is
+≈ ‖r + A δx‖² / N near x. Gauss–Newton refinement (`refine.py`) and the uncertainties (`uncertainty.py`) both
+start from there.
+
+Each image is rendered twice with independent seeds by `render_jacobian` (one pass gives an image and its
+per-pixel Jacobian), so the linearisation holds two independent estimates (r₁, A₁) and (r₂, A₂). Products of
+a residual and a Jacobian then take them from different passes (`gradient`): from one pass, their Monte Carlo
+errors would correlate and bias the product, as in the fit's own gradients. The L1 loss is treated as L2 here.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from warp_hair.render_jacobian import render_jacobian
+from warp_hair.torch import default_grad_seed, scene_with_controls
+
+from .controls import EXPOSURE
+from .losses import REL_EPSILON, block_mean
+
+# θ columns of render_jacobian (warp_hair.bsdf_grad's ordering).
+COLUMNS = {"beta_m": [3], "beta_n": [4], "alpha": [5], "eta": [6], "r_roughness_scale": [7],
+           "albedo": [0, 1, 2], "sigma_a": [0, 1, 2], "eumelanin": [0], "pheomelanin": [1]}
+
+
+@dataclass
+class Linearization:
+    values: dict  # the controls it was taken at
+    residuals: np.ndarray  # (2, N): the two passes' weighted, pooled residuals
+    variances: np.ndarray  # (2, N): their Monte Carlo variances (from each pixel's own samples)
+    jacobians: np.ndarray  # (2, N, p): ∂residual/∂x, x the fitted control components in order
+    images: list  # per target image, the mean of its two renders (H, W, 3), gain applied
+    loss_weights: np.ndarray  # (N,): the loss is Σ loss_weights · r² (a mean per image, then over the images)
+
+    @property
+    def loss(self) -> float:
+        """The fit's loss at `values` (the mean of the two passes'), our render noise included."""
+        return float(0.5 * (self.loss_weights @ (self.residuals**2).sum(axis=0)))
+
+    @property
+    def misfit(self) -> float:
+        """The loss without our render noise: Σ w r₁ r₂ of independent passes is unbiased for Σ w E[r]², while
+        Σ w r² adds our Monte Carlo variance, which grows with the radiance (a brighter albedo renders noisier,
+        and on a noisy target that alone can outweigh a better fit)."""
+        return float(self.loss_weights @ (self.residuals[0] * self.residuals[1]))
+
+    @property
+    def gradient(self) -> np.ndarray:
+        """½ ∂loss/∂x = ∂(½ Σ w r²)/∂x, each pass's residual met with the other pass's Jacobian (unbiased)."""
+        (r1, r2), (a1, a2), w = self.residuals, self.jacobians, self.loss_weights
+        return 0.5 * (a1.T @ (w * r2) + a2.T @ (w * r1))
+
+    @property
+    def mean_residual(self) -> np.ndarray:
+        return self.residuals.mean(axis=0)
+
+    @property
+    def mean_variance(self) -> np.ndarray:
+        """The Monte Carlo variance of mean_residual."""
+        return self.variances.sum(axis=0) / 4.0
+
+    @property
+    def mean_jacobian(self) -> np.ndarray:
+        return self.jacobians.mean(axis=0)
+
+
+def _hair(values: dict) -> dict:
+    return {name: v for name, v in values.items() if name != EXPOSURE}
+
+
+def linearize(target, values: dict, settings, spp: int, seed: int, threads=None) -> Linearization:
+    """Render every image of `target` twice at `values` (spp each) and linearise the loss there."""
+    gain = float(values.get(EXPOSURE, 1.0))
+    rs, vs, js = [[], []], [[], []], [[], []]
+    images, weights = [], []
+    for k, image in enumerate(target.images):
+        scene = scene_with_controls(image.scene, _hair(values))
+        reference, _ = _reduce(image, image.image, None, settings.pool)
+        weight = _weight(reference, settings.loss)
+        pair = []
+        for half, pass_seed in enumerate((seed + k, default_grad_seed(seed + k))):
+            jac, rendered, stderr = render_jacobian(scene, spp=spp, seed=pass_seed, threads=threads)
+            rendered = gain * rendered
+            columns = [rendered[..., None] if name == EXPOSURE else gain * jac[..., COLUMNS[name]] for name in values]
+            a, _ = _reduce(image, np.concatenate(columns, axis=-1).astype(np.float64), None, settings.pool)
+            r, var = _reduce(image, rendered - image.image, (gain * stderr) ** 2, settings.pool)
+            rs[half].append(r * weight)
+            vs[half].append(var * weight**2)
+            js[half].append(a * weight[:, None])
+            pair.append(rendered)
+        images.append(0.5 * (pair[0] + pair[1]))
+        weights.append(np.full(reference.size, 1.0 / (reference.size * len(target.images))))
+    return Linearization(
+        values=dict(values),
+        residuals=np.stack([np.concatenate(r) for r in rs]),
+        variances=np.stack([np.concatenate(v) for v in vs]),
+        jacobians=np.stack([np.concatenate(j) for j in js]),
+        images=images,
+        loss_weights=np.concatenate(weights),
+    )
+
+
+def _weight(reference: np.ndarray, loss: str) -> np.ndarray:
+    """Per pooled residual, the loss's weight (losses.py): 1/sqrt(mean T²) for L2 and L1, 1/(T + ε mean T) for
+    relative L2, T the pooled target."""
+    if loss == "rel_l2":
+        return 1.0 / (reference + REL_EPSILON * reference.mean())
+    return np.full(reference.shape, 1.0 / max(float(np.sqrt(np.mean(reference * reference))), 1e-15))
+
+
+def _pooled(x: np.ndarray, weight: np.ndarray, pool: int) -> tuple:
+    """Block means of (H, W, ...) over k×k blocks with pixel weights, flattened; and the blocks' weight sums."""
+    shape = x.shape
+    flat = torch.from_numpy(np.ascontiguousarray(x.reshape(shape[0], shape[1], -1), dtype=np.float64))
+    means, totals = block_mean(flat, torch.from_numpy(weight.astype(np.float64)), pool)
+    return means.numpy(), totals.numpy()
+
+
+def _reduce(image, x, var, pool):
+    """Pool (H, W, ...) like the loss does (masked pixels left out) and flatten; var is pooled as a variance."""
+    weight = np.ones(x.shape[:2]) if image.mask is None else image.mask.astype(np.float64)
+    if pool > 1:
+        means, totals = _pooled(x, weight, pool)
+        keep = totals > 0
+        out = means[keep].reshape(-1, *x.shape[3:]) if x.ndim > 3 else means[keep].reshape(-1)
+        if var is None:
+            return out, None
+        # The variance of a block mean of independent pixels: Σ var / n².
+        v, _ = _pooled(var, weight, pool)
+        return out, (v[keep] / totals[keep][:, None]).reshape(-1)
+    keep = weight > 0
+    out = x[keep].reshape(-1, *x.shape[3:]) if x.ndim > 3 else x[keep].reshape(-1)
+    return out, None if var is None else var[keep].reshape(-1)
