@@ -7,6 +7,11 @@ Mitsuba's `prb` differentiating its hair BSDF.
 The loss is 0.5‖image − target‖² with a fixed synthetic target (0.9 × a primal render at spp/8, made before
 any timing), so its adjoint is image − target. One gradient evaluation is what an optimiser step pays: a primal
 render for the adjoint (seed A) plus `render_grad` (seed B; a different seed keeps the two estimates uncorrelated).
+The paired evaluation is what `optimize.fit` pays per image and iteration (`warp_hair.torch.render_torch_pair`):
+two independent gradient passes of spp/2 samples, each giving its image and per-pixel Jacobian; each image's
+adjoint meets the other pass's Jacobian, so no path is traced twice and the two factors stay independent.
+With --repeat N ≥ 2 each run uses other seeds, and the spread of the gradients over the runs is printed, so
+that the two estimators' noise can be compared along with their cost.
 `render_grad` differentiates every control at once (albedo or sigma_a, beta_m, beta_n, alpha, eta,
 r_roughness_scale): there is no cheaper call for fewer controls.
 
@@ -35,7 +40,8 @@ import numpy as np
 
 from warp_hair.parallel import default_threads
 from warp_hair.render import render
-from warp_hair.render_grad import render_grad
+from warp_hair.render_grad import contract, named_gradients, render_grad
+from warp_hair.render_jacobian import render_jacobian
 from warp_hair.scene import load_scene
 
 HERE = Path(__file__).resolve().parent
@@ -66,12 +72,23 @@ def synthetic_target(scene, spp, threads):
     return 0.9 * render(scene, spp=target_spp(spp), seed=SEED_TARGET, threads=threads)
 
 
-def gradient_evaluation(scene, target, spp, threads):
-    """One gradient of 0.5‖image − target‖²: the primal for the adjoint, then the gradient pass."""
-    image = render(scene, spp=spp, seed=SEED_PRIMAL, threads=threads)
+def gradient_evaluation(scene, target, spp, threads, run=0):
+    """One gradient of 0.5‖image − target‖²: the primal for the adjoint, then the gradient pass (path replay)."""
+    image = render(scene, spp=spp, seed=SEED_PRIMAL + 10 * run, threads=threads)
     adjoint = image - target
-    grads = render_grad(scene, adjoint, spp=spp, seed=SEED_GRAD, threads=threads)
+    grads = render_grad(scene, adjoint, spp=spp, seed=SEED_GRAD + 10 * run, threads=threads)
     return 0.5 * float(np.sum(adjoint.astype(np.float64) ** 2)), grads
+
+
+def paired_gradient_evaluation(scene, target, spp, threads, run=0):
+    """The same loss's gradient from two independent gradient passes of spp/2 each (what `optimize.fit` does):
+    each pass gives its image and per-pixel Jacobian, and each image's adjoint meets the other's Jacobian. The
+    loss is the mean of the two images' losses; the samples traced are spp per pixel, as in the forward render."""
+    passes = [render_jacobian(scene, spp=max(1, spp // 2), seed=seed + 10 * run, threads=threads)
+              for seed in (SEED_PRIMAL, SEED_GRAD)]
+    adjoints = [image.astype(np.float64) - target for _, image, _ in passes]
+    g = 0.5 * (contract(adjoints[0], passes[1][0]) + contract(adjoints[1], passes[0][0]))
+    return 0.25 * float(sum(np.sum(a**2) for a in adjoints)), named_gradients(scene.hair, g)
 
 
 def timed(fn, *args):
@@ -84,6 +101,23 @@ def timed(fn, *args):
 def fastest(repeat, fn, *args):
     """`timed(fn, *args)` of the fastest of `repeat` runs."""
     return min((timed(fn, *args) for _ in range(repeat)), key=lambda run: run[0])
+
+
+def fastest_with_spread(repeat, fn, *args):
+    """(wall, CPU, result) of the fastest of `repeat` runs of fn(*args, run), each run with its own seeds, and the
+    standard deviation over the runs of each control's gradient (None for a single run)."""
+    runs = [timed(fn, *args, k) for k in range(repeat)]
+    best = min(runs, key=lambda run: run[0])
+    if repeat < 2:
+        return best, None
+    grads = [run[2][1] for run in runs]
+    return best, {name: np.std([np.asarray(g[name], dtype=np.float64) for g in grads], axis=0, ddof=1)
+                  for name in grads[0]}
+
+
+def format_gradients(grads):
+    return ", ".join(f"{k} {np.array2string(np.asarray(v), precision=4) if np.ndim(v) else format(float(v), '.4g')}"
+                     for k, v in grads.items())
 
 
 def warm_up(scene, threads):
@@ -172,14 +206,22 @@ def main(argv=None):
     warm_up(scene, threads)
     target = synthetic_target(scene, args.spp, threads)
     forward, forward_cpu, _ = fastest(args.repeat, render, scene, args.spp, SEED_PRIMAL, threads)
-    gradient, gradient_cpu, (loss, grads) = fastest(args.repeat, gradient_evaluation, scene, target, args.spp, threads)
+    (gradient, gradient_cpu, (loss, grads)), spread = fastest_with_spread(
+        args.repeat, gradient_evaluation, scene, target, args.spp, threads)
+    (paired, paired_cpu, (paired_loss, paired_grads)), paired_spread = fastest_with_spread(
+        args.repeat, paired_gradient_evaluation, scene, target, args.spp, threads)
     print(f"warp-hair forward render: {forward:.2f} s (CPU {forward_cpu:.2f} s)")
     print(f"warp-hair gradient evaluation (primal + render_grad, all controls at once): {gradient:.2f} s "
           f"= {gradient / forward:.2f} x forward (render_grad alone ~ {gradient / forward - 1:.2f} x); "
           f"CPU {gradient_cpu:.2f} s = {gradient_cpu / forward_cpu:.2f} x")
-    print(f"  loss {loss:.4f}; gradients: " + ", ".join(
-        f"{k} {np.array2string(np.asarray(v), precision=4) if np.ndim(v) else format(v, '.4g')}"
-        for k, v in grads.items()))
+    print(f"  loss {loss:.4f}; gradients: {format_gradients(grads)}")
+    if spread is not None:
+        print(f"  std over {args.repeat} runs with other seeds: {format_gradients(spread)}")
+    print(f"warp-hair paired gradient evaluation (two render_jacobian passes of spp/2, crossed; what the fit uses): "
+          f"{paired:.2f} s = {paired / forward:.2f} x forward; CPU {paired_cpu:.2f} s = {paired_cpu / forward_cpu:.2f} x")
+    print(f"  loss {paired_loss:.4f}; gradients: {format_gradients(paired_grads)}")
+    if paired_spread is not None:
+        print(f"  std over {args.repeat} runs with other seeds: {format_gradients(paired_spread)}")
 
     for depth in MEMORY_DEPTHS:
         m = peak_memory(depth, args.memory_spp, threads)
@@ -201,7 +243,7 @@ def main(argv=None):
     if skipped:
         print(f"  not differentiable in Mitsuba: {', '.join(skipped)}")
     print(f"time ratio warp-hair / Mitsuba (gradient evaluation): {gradient / mi_seconds:.2f} "
-          f"(CPU {gradient_cpu / mi_cpu:.2f})")
+          f"(CPU {gradient_cpu / mi_cpu:.2f}); paired: {paired / mi_seconds:.2f} (CPU {paired_cpu / mi_cpu:.2f})")
 
 
 if __name__ == "__main__":
