@@ -339,6 +339,14 @@ def standard_error(total: wp.vec3, total_sq: wp.vec3, spp: int):
     )
 
 
+@wp.func
+def pixel_start(scene: SceneData, pixel: int, seed: int):
+    """(column, row, random stream) of a pixel. One stream per pixel: the image does not depend on how pixels are
+    split among threads, and the gradient pass with the same seed traces the same paths."""
+    width = scene.camera.width_px
+    return pixel % width, pixel / width, wp.rand_init(seed, pixel)
+
+
 @wp.kernel
 def render_kernel(
     scene: SceneData,
@@ -349,11 +357,7 @@ def render_kernel(
     first: int,
 ):
     pixel = wp.tid() + first
-    width = scene.camera.width_px
-    px = pixel % width
-    py = pixel / width
-    # One RNG stream per pixel: the image does not depend on how pixels are split among threads.
-    rng = wp.rand_init(seed, pixel)
+    px, py, rng = pixel_start(scene, pixel, seed)
     total = wp.vec3(0.0)
     total_sq = wp.vec3(0.0)
     for s in range(spp):

@@ -86,6 +86,15 @@ def render_metadata(scene: Scene, spp: int, seed: int) -> dict:
     }
 
 
+def sampling(scene: Scene, spp=None, seed=None) -> tuple:
+    """(spp, seed): the given ones, else the scene's [render] table's; spp must be at least 1."""
+    spp = scene.render.spp if spp is None else int(spp)
+    seed = scene.render.seed if seed is None else int(seed)
+    if spp < 1:
+        raise ValueError(f"spp must be at least 1, got {spp}")
+    return spp, seed
+
+
 def render(
     scene: Scene,
     spp: int | None = None,
@@ -101,10 +110,7 @@ def render(
     With `return_stderr`, returns (image, stderr): the standard error of each pixel's mean, estimated from
     the spread of its own samples.
     """
-    spp = scene.render.spp if spp is None else int(spp)
-    seed = scene.render.seed if seed is None else int(seed)
-    if spp < 1:
-        raise ValueError(f"spp must be at least 1, got {spp}")
+    spp, seed = sampling(scene, spp, seed)
     prepared = PreparedScene(scene, device=device)
     width, height = prepared.resolution
     image = wp.zeros(width * height, dtype=wp.vec3, device=device)

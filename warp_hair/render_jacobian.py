@@ -17,9 +17,9 @@ import warp as wp
 
 from .bsdf_jacobian import CoefficientDerivatives, coefficient_derivatives, value_jacobian_mat
 from .camera import generate_ray
-from .integrator import SceneData, rand2, standard_error, trace_path_grad
+from .integrator import SceneData, pixel_start, rand2, standard_error, trace_path_grad
 from .parallel import launch_ranges
-from .render import PreparedScene
+from .render import PreparedScene, sampling
 from .scene import Scene
 
 wp.set_module_options({"enable_backward": False, "optimization_level": 3})
@@ -41,11 +41,7 @@ def render_jacobian_kernel(
     first: int,
 ):
     pixel = wp.tid() + first
-    width = scene.camera.width_px
-    px = pixel % width
-    py = pixel / width
-    # The same random streams as render_kernel: with the same seed, the same paths.
-    rng = wp.rand_init(seed, pixel)
+    px, py, rng = pixel_start(scene, pixel, seed)
     total = wp.vec3(0.0)
     total_sq = wp.vec3(0.0)
     total_jacobian = value_jacobian_mat()
@@ -68,10 +64,7 @@ def render_jacobian(scene: Scene, spp: int | None = None, seed: int | None = Non
     spp and seed default to the scene's [render] table; the image is `render(scene, spp, seed)`'s up to float
     rounding (the same paths).
     """
-    spp = scene.render.spp if spp is None else int(spp)
-    seed = scene.render.seed if seed is None else int(seed)
-    if spp < 1:
-        raise ValueError(f"spp must be at least 1, got {spp}")
+    spp, seed = sampling(scene, spp, seed)
     prepared = PreparedScene(scene, device=device)
     width, height = prepared.resolution
     n = width * height

@@ -145,6 +145,21 @@ def _control_gradients(ctx, theta_gradient):
     return (None, None) + tuple(out)
 
 
+def _begin(ctx, scene, names, tensors):
+    """Keep what backward needs of the inputs; the scene with the controls substituted."""
+    ctx.scene = _scene_for(scene, names, tensors)
+    ctx.names = names
+    ctx.meta = [(t.dtype, t.device) for t in tensors]
+    return ctx.scene
+
+
+def _adjoint(ctx, grad_output):
+    """grad_output as float64 NumPy, or None when no control needs a gradient."""
+    if not any(ctx.needs_input_grad[2:]):
+        return None
+    return grad_output.detach().to("cpu", torch.float64).numpy()
+
+
 def _as_image(image, tensors):
     out_device = tensors[0].device if tensors else torch.device("cpu")
     return torch.from_numpy(np.ascontiguousarray(image, dtype=np.float32)).to(out_device)
@@ -154,18 +169,16 @@ class _RenderFunction(torch.autograd.Function):
     @staticmethod
     def forward(ctx, config, names, *tensors):
         scene, spp, seed, grad_seed, threads = config
-        ctx.scene = _scene_for(scene, names, tensors)
-        ctx.names = names
+        scene = _begin(ctx, scene, names, tensors)
         ctx.spp, ctx.grad_seed, ctx.threads = spp, grad_seed, threads
-        ctx.meta = [(t.dtype, t.device) for t in tensors]
-        return _as_image(render(ctx.scene, spp=spp, seed=seed, threads=threads, device="cpu"), tensors)
+        return _as_image(render(scene, spp=spp, seed=seed, threads=threads, device="cpu"), tensors)
 
     @staticmethod
     @torch.autograd.function.once_differentiable
     def backward(ctx, grad_output):
-        if not any(ctx.needs_input_grad[2:]):
+        adjoint = _adjoint(ctx, grad_output)
+        if adjoint is None:
             return (None, None) + (None,) * len(ctx.meta)
-        adjoint = grad_output.detach().to("cpu", torch.float64).numpy()
         jacobian, _, _ = render_jacobian(ctx.scene, spp=ctx.spp, seed=ctx.grad_seed, threads=ctx.threads, device="cpu")
         return _control_gradients(ctx, contract(adjoint, jacobian))
 
@@ -174,12 +187,10 @@ class _PairFunction(torch.autograd.Function):
     @staticmethod
     def forward(ctx, config, names, *tensors):
         scene, spp, seeds, threads = config
-        ctx.scene = _scene_for(scene, names, tensors)
-        ctx.names = names
-        ctx.meta = [(t.dtype, t.device) for t in tensors]
+        scene = _begin(ctx, scene, names, tensors)
         images, ctx.jacobians = [], []
         for seed in seeds:
-            jacobian, image, _ = render_jacobian(ctx.scene, spp=spp, seed=seed, threads=threads, device="cpu")
+            jacobian, image, _ = render_jacobian(scene, spp=spp, seed=seed, threads=threads, device="cpu")
             images.append(image)
             ctx.jacobians.append(jacobian)
         return _as_image(np.stack(images), tensors)
@@ -187,9 +198,9 @@ class _PairFunction(torch.autograd.Function):
     @staticmethod
     @torch.autograd.function.once_differentiable
     def backward(ctx, grad_output):
-        if not any(ctx.needs_input_grad[2:]):
+        adjoint = _adjoint(ctx, grad_output)
+        if adjoint is None:
             return (None, None) + (None,) * len(ctx.meta)
-        adjoint = grad_output.detach().to("cpu", torch.float64).numpy()
         # Each image's adjoint meets the other image's Jacobian: independent paths, so an unbiased product.
         first, second = ctx.jacobians
         return _control_gradients(ctx, contract(adjoint[0], second) + contract(adjoint[1], first))
