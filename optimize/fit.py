@@ -51,7 +51,7 @@ PLATEAU_TOLERANCE = 1e-3
 SMOOTHING = 0.9  # of the loss's exponential moving average, for the plateau test
 AVERAGED_FRACTION = 0.2
 FINAL_SPP_FACTOR = 4
-DEFAULT_REFINE_STEPS = 6
+DEFAULT_REFINE_STEPS = 8
 
 
 @dataclass
@@ -61,13 +61,13 @@ class FitSettings:
     spp: int = 16  # at the end of the schedule
     loss: str = "l2"
     pool: int = 4  # compare k×k block averages (losses.py says why)
-    lr: float = 0.25
+    lr: float = 0.1
     seed: int = 0
     patience: int = 30
     init: dict = field(default_factory=dict)  # start values of fitted controls; default: each control's neutral guess
     threads: int | None = None
     uncertainty: bool = True
-    refine: int | None = None  # Gauss–Newton steps after Adam (refine.py); None: 6, or 0 for the L1 loss
+    refine: int | None = None  # Gauss–Newton steps after Adam (refine.py); None: 8, or 0 for the L1 loss
 
 
 @dataclass
@@ -159,6 +159,12 @@ class _Latents:
 
     def values(self) -> dict:
         return self.values_from(self.tensors)
+
+    def set_values(self, values: dict) -> None:
+        """Move the latents to the given control values (floats, or lists of 3)."""
+        fresh = _Latents({name: as_values(name, v) for name, v in values.items()}, self.fixed_beta_n)
+        for name, t in fresh.tensors.items():
+            self.tensors[name].data.copy_(t.detach())
 
     def values_from(self, tensors: dict) -> dict:
         """The controls of latents `tensors` (named as `self.tensors`)."""
@@ -268,6 +274,7 @@ def _finish(target, settings, names, start, estimate, history, done, stop_reason
     history["refine"] = []
     if steps:
         latents = _Latents({name: as_values(name, v) for name, v in estimate.items()}, target.hair.beta_n)
+        start_refine = estimate
         bar = tqdm(total=steps, desc="Gauss-Newton", unit="step", disable=not progress)
 
         def on_step(record):
@@ -278,7 +285,7 @@ def _finish(target, settings, names, start, estimate, history, done, stop_reason
 
         lin = None
         try:
-            estimate, lin, _ = refine(target, latents, settings, final_spp, seed, steps, on_step)
+            estimate, lin, _ = refine(target, start_refine, settings, final_spp, seed, steps, on_step, latents.set_values)
         except KeyboardInterrupt:
             stop_reason = "interrupted"
             estimate = _plain(latents.values())

@@ -6,88 +6,97 @@ steps cross slowly: measured before this stage existed, blonde_straight's fit en
 fur_patch's 0.17 off in albedo and β_n, while the Gauss–Newton standard errors there were under 0.002. The loss
 is a sum of squared residuals (`linearize.py`), so the Gauss–Newton step of the latents z solves
 
-    (Aᵀ A + λ diag(Aᵀ A)) δz = −Aᵀ r,     A = ∂r/∂x · ∂x/∂z,
+    (Aᵀ A + λ diag(Aᵀ A)) δx = −Aᵀ r,     A = ∂r/∂x,
 
-in the same unconstrained latents Adam moves (every step stays inside every control's range), with Aᵀ r from
+in the controls themselves (not Adam's latents: in log σ_a a high albedo's image is so curved that a step from
+0.87 overshot to 0.63), shortened where it would go more than half way to a bound, with Aᵀ r from
 independent passes and A, r weighted as the loss weighs them. A step is kept when it lowers the loss as
 estimated by the trapezoid rule on the slopes along it, ½ (∇ℓ(z) + ∇ℓ(z + δz))·δz (exact for a quadratic).
 Gradients are unbiased and their noise is modest; loss values are not: each carries our render's Monte Carlo
 variance, which grows with the radiance, so that comparing losses (even with common random numbers) undid
 steps on fur_patch that landed on the truth, and the noise-free `misfit` of independent passes scattered by as
 much as the steps changed it. λ then shrinks, else it grows and the step is retried from the same
-linearisation (all steps render with the same seeds). L2 and relative L2 are sums of squares as they stand; the L1
+linearisation.
+
+Every linearisation renders with fresh seeds, so each step's end point carries that render's own noise (on
+blonde_straight at 64 spp per render, about ±0.03 in red albedo: with common seeds every step converged to
+the same noisy point, 0.05 off). The result is the mean of the kept points after the first, the later half of
+them, which scatter around the optimum as Adam's last iterates do. L2 and relative L2 are sums of squares as they stand; the L1
 loss is not, and is not refined.
 """
 
 from __future__ import annotations
 
 import numpy as np
-import torch
-
+from .controls import SPECS
 from .linearize import Linearization, linearize
 
 LAMBDA_START = 1e-3
 LAMBDA_DOWN, LAMBDA_UP = 1 / 3, 5.0
 LAMBDA_MAX = 1e4  # a step this damped moves nothing: stop
+SEED_STRIDE = 7919  # each linearisation renders with its own seeds
 REFINABLE_LOSSES = ("l2", "rel_l2")
 
 
-def _flat(latents) -> torch.Tensor:
-    return torch.cat([t.detach().reshape(-1) for t in latents.tensors.values()])
+def _flat(values: dict) -> np.ndarray:
+    return np.concatenate([np.atleast_1d(np.asarray(v, dtype=np.float64)) for v in values.values()])
 
 
-def _split(latents, z: torch.Tensor) -> dict:
+def _unflat(names, x: np.ndarray) -> dict:
     out, k = {}, 0
-    for name, t in latents.tensors.items():
-        out[name] = z[k:k + t.numel()].reshape(t.shape)
-        k += t.numel()
+    for name in names:
+        size = SPECS[name].size
+        out[name] = [float(v) for v in x[k:k + size]] if size == 3 else float(x[k])
+        k += size
     return out
 
 
-def _plain(values: dict) -> dict:
-    return {name: (v.detach().tolist() if v.dim() else float(v.detach())) for name, v in values.items()}
+def _bounds(names) -> tuple:
+    lo = np.concatenate([[SPECS[name].lo] * SPECS[name].size for name in names])
+    hi = np.concatenate([[SPECS[name].hi] * SPECS[name].size for name in names])
+    return lo, hi
 
 
-def refine(target, latents, settings, spp: int, seed: int, steps: int, on_step=None):
+def inside(x: np.ndarray, step: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """The step shortened, if it must be, so that no component goes more than half its way to a bound of its
+    open interval: a step that would leave a control's range is a linear model trusted too far."""
+    room = np.where(step < 0, x - lo, hi - x)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        limits = np.where(np.abs(step) > 0.5 * room, 0.5 * room / np.abs(step), 1.0)
+    return step * float(np.min(limits, initial=1.0))
+
+
+def refine(target, start: dict, settings, spp: int, seed: int, steps: int, on_step=None, on_keep=None):
     """(values, Linearization at them, [per-step {"values", "loss", "misfit", "change", "accepted"}]).
 
-    `latents` is the fit's (its tensors and `values_from`); each kept step is stored in it, so that after a
-    KeyboardInterrupt it holds the best values so far. `on_step(record)` is called after each step.
+    start: the controls to refine from ({name: float or list of 3}). `on_keep(values)` is called with each kept
+    step (the fit moves its latents there, so that a KeyboardInterrupt leaves it at the last kept step), and
+    `on_step(record)` after every step.
     """
-    z = _flat(latents).to(torch.float64)
-    names = list(latents.tensors)
+    names = list(start)
+    lo, hi = _bounds(names)
+    x = _flat(start)
 
-    def controls(z_flat):
-        values = latents.values_from(_split(latents, z_flat))
-        return torch.cat([values[name].reshape(-1) for name in names])
+    def linearized(x_at, k) -> Linearization:
+        return linearize(target, _unflat(names, x_at), settings, spp, seed + SEED_STRIDE * k, threads=settings.threads)
 
-    def linearized(z_flat) -> Linearization:
-        return linearize(target, _plain(latents.values_from(_split(latents, z_flat))), settings, spp, seed,
-                         threads=settings.threads)
-
-    def slope(lin_at, z_at):
-        """(∂x/∂z, ½ ∂loss/∂z) at z_at."""
-        dx_dz = torch.autograd.functional.jacobian(controls, z_at).numpy()
-        return dx_dz, dx_dz.T @ lin_at.gradient
-
-    lin = linearized(z)
-    dx_dz, g = slope(lin, z)
-    records = []
+    lin = linearized(x, 0)
+    kept, records = [], []
     damping = LAMBDA_START
-    for _ in range(steps):
-        a = (lin.mean_jacobian @ dx_dz) * np.sqrt(lin.loss_weights)[:, None]
+    for k in range(1, steps + 1):
+        a = lin.mean_jacobian * np.sqrt(lin.loss_weights)[:, None]
         h = a.T @ a
-        step = -np.linalg.solve(h + damping * np.diag(np.diag(h)) + 1e-12 * np.eye(len(g)), g)
-        z_new = z + torch.from_numpy(step)
-        lin_new = linearized(z_new)
-        dx_dz_new, g_new = slope(lin_new, z_new)
+        step = inside(x, -np.linalg.solve(h + damping * np.diag(np.diag(h)) + 1e-12 * np.eye(len(x)), lin.gradient), lo, hi)
+        lin_new = linearized(x + step, k)
         # The change of ½·loss along the step by the trapezoid rule on its slopes at both ends: exact for a
         # quadratic, and built from unbiased gradients instead of noisy loss values.
-        change = 0.5 * float(g @ step + g_new @ step)
+        change = 0.5 * float(lin.gradient @ step + lin_new.gradient @ step)
         accepted = bool(np.isfinite(change) and change < 0)
         if accepted:
-            z, lin, dx_dz, g = z_new, lin_new, dx_dz_new, g_new
-            _store(latents, z)
+            x, lin = x + step, lin_new
+            kept.append(x)
+            if on_keep is not None:
+                on_keep(lin.values)
             damping = max(damping * LAMBDA_DOWN, 1e-9)
         else:
             damping *= LAMBDA_UP
@@ -97,9 +106,12 @@ def refine(target, latents, settings, spp: int, seed: int, steps: int, on_step=N
             on_step(records[-1])
         if damping > LAMBDA_MAX:
             break
+    if len(kept) >= 2:
+        # Each linearisation's own render noise moves its step's end point; the kept points after the first
+        # scatter around the optimum, and their mean scatters less.
+        later = kept[1:]
+        x = np.mean(later[-((len(later) + 1) // 2):], axis=0)
+        lin = linearized(x, steps + 1)
+        if on_keep is not None:
+            on_keep(lin.values)
     return lin.values, lin, records
-
-
-def _store(latents, z):
-    for name, t in _split(latents, z).items():
-        latents.tensors[name].data.copy_(t)
