@@ -3,6 +3,7 @@
 import json
 import math
 import shutil
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -11,9 +12,13 @@ import torch
 from optimize.cli import main
 from optimize.controls import SPECS, parse_control_names
 from optimize.fit import FitSettings, check_settings, spp_at
+from optimize.linearize import linearize
+from optimize.refine import inside
 from optimize.losses import image_loss
 from optimize.target import SHIPPED_TARGETS, load_target, make_target, shipped_targets
 from warp_hair.io import read_exr, write_exr
+from warp_hair.render import render
+from warp_hair.torch import default_grad_seed, scene_with_controls
 
 SCENE = """
 [camera]
@@ -193,6 +198,41 @@ def test_fit_settings_are_checked(tmp_path):
         check_settings(target, FitSettings(init={"eta": 1.5}))
     with pytest.raises(ValueError, match="spp must be an integer >= 1"):
         check_settings(target, FitSettings(spp=0))
+    with pytest.raises(ValueError, match="Gauss–Newton steps need a sum-of-squares loss"):
+        check_settings(target, FitSettings(loss="l1", refine=2))
+    with pytest.raises(ValueError, match="refine must be an integer >= 0"):
+        check_settings(target, FitSettings(refine=-1))
+
+
+def test_linearisation_reproduces_the_loss_and_its_gradient_crosses_the_passes():
+    """The linearised loss is the fit's image loss of its two renders, and its gradient meets each render's
+    residual with the other render's Jacobian (the two passes' products differ, so a product within one pass
+    would show)."""
+    target = load_target(Path(__file__).resolve().parent.parent / "targets" / "black_straight")
+    truth = {name: target.truth.to_dict()[name] for name in ("albedo", "beta_m", "beta_n")}
+    for loss in ("l2", "rel_l2"):
+        settings = FitSettings(loss=loss)
+        lin = linearize(target, truth, settings, spp=2, seed=3)
+        losses = []
+        for k, image in enumerate(target.images):
+            scene = scene_with_controls(image.scene, truth)
+            for seed in (3 + k, default_grad_seed(3 + k)):
+                losses.append(float(image_loss(torch.from_numpy(render(scene, spp=2, seed=seed)),
+                                               torch.from_numpy(image.image), loss, None, settings.pool)))
+        assert lin.loss == pytest.approx(np.mean(losses), rel=1e-5)
+        (r1, r2), (a1, a2), w = lin.residuals, lin.jacobians, lin.loss_weights
+        assert w.sum() == pytest.approx(1.0)
+        np.testing.assert_allclose(lin.gradient, 0.5 * (a1.T @ (w * r2) + a2.T @ (w * r1)))
+        assert not np.allclose(a1.T @ (w * r1), a1.T @ (w * r2), rtol=1e-2)
+
+
+def test_refine_steps_stay_inside_the_ranges():
+    lo, hi = np.array([0.0, 0.01]), np.array([1.0, 1.0])
+    x = np.array([0.9, 0.05])
+    np.testing.assert_allclose(inside(x, np.array([0.02, -0.01]), lo, hi), [0.02, -0.01])  # short steps stay
+    step = inside(x, np.array([0.3, -0.01]), lo, hi)  # albedo would pass 1: halfway to it, the same direction
+    np.testing.assert_allclose(step, np.array([0.3, -0.01]) * (0.05 / 0.3))
+    assert np.all(x + step > lo) and np.all(x + step < hi)
 
 
 @pytest.mark.parametrize(
