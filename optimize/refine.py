@@ -3,15 +3,15 @@
 Adam's steps are sized by its learning rate, not by the loss's curvature, and where two controls trade off
 (albedo against β_n through the albedo inversion) the loss has a long shallow valley that its last, small
 steps cross slowly: measured before this stage existed, blonde_straight's fit ended 0.038 off in red albedo and
-fur_patch's 0.17 off in albedo and β_n, while the Gauss–Newton standard errors there were under 0.002. The loss
-is a sum of squared residuals (`linearize.py`), so the Gauss–Newton step of the latents z solves
+fur_patch's 0.17 off in albedo and β_n, while the Gauss–Newton standard errors there were under 0.01. The loss
+is a sum of squared residuals (`linearize.py`), so the Gauss–Newton step solves
 
     (Aᵀ A + λ diag(Aᵀ A)) δx = −Aᵀ r,     A = ∂r/∂x,
 
 in the controls themselves (not Adam's latents: in log σ_a a high albedo's image is so curved that a step from
 0.87 overshot to 0.63), shortened where it would go more than half way to a bound, with Aᵀ r from
 independent passes and A, r weighted as the loss weighs them. A step is kept when it lowers the loss as
-estimated by the trapezoid rule on the slopes along it, ½ (∇ℓ(z) + ∇ℓ(z + δz))·δz (exact for a quadratic).
+estimated by the trapezoid rule on the slopes along it, ½ (∇ℓ(x) + ∇ℓ(x + δx))·δx (exact for a quadratic).
 Gradients are unbiased and their noise is modest; loss values are not: each carries our render's Monte Carlo
 variance, which grows with the radiance, so that comparing losses (even with common random numbers) undid
 steps on fur_patch that landed on the truth, and the noise-free `misfit` of independent passes scattered by as
@@ -21,13 +21,14 @@ linearisation.
 Every linearisation renders with fresh seeds, so each step's end point carries that render's own noise (on
 blonde_straight at 64 spp per render, about ±0.03 in red albedo: with common seeds every step converged to
 the same noisy point, 0.05 off). The result is the mean of the kept points after the first, the later half of
-them, which scatter around the optimum as Adam's last iterates do. L2 and relative L2 are sums of squares as they stand; the L1
-loss is not, and is not refined.
+them, which scatter around the optimum as Adam's last iterates do. L2 and relative L2 are sums of squares as
+they stand; the L1 loss is not, and is not refined.
 """
 
 from __future__ import annotations
 
 import numpy as np
+
 from .controls import SPECS
 from .linearize import Linearization, linearize
 
