@@ -40,7 +40,7 @@ import numpy as np
 
 from warp_hair.parallel import default_threads
 from warp_hair.render import render
-from warp_hair.render_grad import contract, named_gradients, render_grad
+from warp_hair.render_grad import contract_crossed, named_gradients, render_grad
 from warp_hair.render_jacobian import render_jacobian
 from warp_hair.scene import load_scene
 
@@ -87,7 +87,7 @@ def paired_gradient_evaluation(scene, target, spp, threads, run=0):
     passes = [render_jacobian(scene, spp=max(1, spp // 2), seed=seed + 10 * run, threads=threads)
               for seed in (SEED_PRIMAL, SEED_GRAD)]
     adjoints = [image.astype(np.float64) - target for _, image, _ in passes]
-    g = 0.5 * (contract(adjoints[0], passes[1][0]) + contract(adjoints[1], passes[0][0]))
+    g = 0.5 * contract_crossed(adjoints, [jacobian for jacobian, _, _ in passes])
     return 0.25 * float(sum(np.sum(a**2) for a in adjoints)), named_gradients(scene.hair, g)
 
 

@@ -60,7 +60,8 @@ def add_fit(subparsers) -> None:
         "fit",
         help="fit hair controls to a target's images",
         description="Fit hair controls to the images of a target by gradient descent on path-traced renders "
-        "(Adam over unconstrained latents, fresh seeds every iteration, growing spp, cosine learning-rate decay). "
+        "(Adam over unconstrained latents, fresh seeds every iteration, growing spp, cosine learning-rate decay), "
+        "then Gauss-Newton steps on the linearised loss. "
         "Writes params.json, convergence.png and comparison.png to OUT_DIR and prints fitted vs true controls "
         "when the target has truth.json. Ctrl-C stops early and saves the estimate so far.",
     )

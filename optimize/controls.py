@@ -111,6 +111,16 @@ def parse_control_names(names, colour_input: str) -> tuple:
     return tuple(names)
 
 
+def by_control(names, flat) -> dict:
+    """Split a flat vector of control components (in `names` order) into {name: float, or list of 3}."""
+    out, k = {}, 0
+    for name in names:
+        size = SPECS[name].size
+        out[name] = [float(v) for v in flat[k:k + size]] if size == 3 else float(flat[k])
+        k += size
+    return out
+
+
 def as_values(name: str, value) -> list[float]:
     """A control's value as a list of its size (a single number for an RGB control means grey)."""
     spec = SPECS[name]

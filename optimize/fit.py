@@ -158,20 +158,10 @@ class _Latents:
         }
 
     def values(self) -> dict:
-        return self.values_from(self.tensors)
-
-    def set_values(self, values: dict) -> None:
-        """Move the latents to the given control values (floats, or lists of 3)."""
-        fresh = _Latents({name: as_values(name, v) for name, v in values.items()}, self.fixed_beta_n)
-        for name, t in fresh.tensors.items():
-            self.tensors[name].data.copy_(t.detach())
-
-    def values_from(self, tensors: dict) -> dict:
-        """The controls of latents `tensors` (named as `self.tensors`)."""
         beta_n = self.fixed_beta_n
-        if "beta_n" in tensors:
-            beta_n = SPECS["beta_n"].from_latent(tensors["beta_n"], None)
-        return {name: SPECS[name].from_latent(z, beta_n) for name, z in tensors.items()}
+        if "beta_n" in self.tensors:
+            beta_n = SPECS["beta_n"].from_latent(self.tensors["beta_n"], None)
+        return {name: SPECS[name].from_latent(z, beta_n) for name, z in self.tensors.items()}
 
 
 def _plain(values: dict) -> dict:
@@ -273,8 +263,7 @@ def _finish(target, settings, names, start, estimate, history, done, stop_reason
     steps = 0 if stop_reason == "interrupted" else _refine_steps(settings)
     history["refine"] = []
     if steps:
-        latents = _Latents({name: as_values(name, v) for name, v in estimate.items()}, target.hair.beta_n)
-        start_refine = estimate
+        last_kept = {"values": estimate}  # what a KeyboardInterrupt during the refinement returns
         bar = tqdm(total=steps, desc="Gauss-Newton", unit="step", disable=not progress)
 
         def on_step(record):
@@ -285,10 +274,11 @@ def _finish(target, settings, names, start, estimate, history, done, stop_reason
 
         lin = None
         try:
-            estimate, lin, _ = refine(target, start_refine, settings, final_spp, seed, steps, on_step, latents.set_values)
+            estimate, lin, _ = refine(target, estimate, settings, final_spp, seed, steps, on_step,
+                                      lambda values: last_kept.update(values=values))
         except KeyboardInterrupt:
             stop_reason = "interrupted"
-            estimate = _plain(latents.values())
+            estimate = last_kept["values"]
         finally:
             bar.close()
     if not steps or lin is None:

@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .controls import SPECS
+from .controls import SPECS, by_control
 from .linearize import Linearization, linearize
 
 LAMBDA_START = 1e-3
@@ -41,15 +41,6 @@ REFINABLE_LOSSES = ("l2", "rel_l2")
 
 def _flat(values: dict) -> np.ndarray:
     return np.concatenate([np.atleast_1d(np.asarray(v, dtype=np.float64)) for v in values.values()])
-
-
-def _unflat(names, x: np.ndarray) -> dict:
-    out, k = {}, 0
-    for name in names:
-        size = SPECS[name].size
-        out[name] = [float(v) for v in x[k:k + size]] if size == 3 else float(x[k])
-        k += size
-    return out
 
 
 def _bounds(names) -> tuple:
@@ -71,7 +62,7 @@ def refine(target, start: dict, settings, spp: int, seed: int, steps: int, on_st
     """(values, Linearization at them, [per-step {"values", "loss", "misfit", "change", "accepted"}]).
 
     start: the controls to refine from ({name: float or list of 3}). `on_keep(values)` is called with each kept
-    step (the fit moves its latents there, so that a KeyboardInterrupt leaves it at the last kept step), and
+    step (the fit keeps it, to return after a KeyboardInterrupt), and
     `on_step(record)` after every step.
     """
     names = list(start)
@@ -79,7 +70,7 @@ def refine(target, start: dict, settings, spp: int, seed: int, steps: int, on_st
     x = _flat(start)
 
     def linearized(x_at, k) -> Linearization:
-        return linearize(target, _unflat(names, x_at), settings, spp, seed + SEED_STRIDE * k, threads=settings.threads)
+        return linearize(target, by_control(names, x_at), settings, spp, seed + SEED_STRIDE * k, threads=settings.threads)
 
     lin = linearized(x, 0)
     kept, records = [], []

@@ -20,7 +20,7 @@ import itertools
 
 import numpy as np
 
-from .controls import SPECS
+from .controls import SPECS, by_control
 from .linearize import Linearization
 
 CORRELATION_WARNING = 0.95
@@ -45,7 +45,7 @@ def estimate_uncertainty(result, lin: Linearization) -> None:
     s2 = max(float(r @ r - mc_variance.sum()), 0.1 * float(r @ r)) / max(n - p, 1)
     cov = s2 * np.linalg.pinv(A.T @ A)
     sigma = np.sqrt(np.maximum(np.diag(cov), 0.0))
-    result.uncertainties = _by_control(names, sigma)
+    result.uncertainties = by_control(names, sigma)
     with np.errstate(invalid="ignore", divide="ignore"):
         rho = cov / np.outer(sigma, sigma)
     owners = [label.split("[")[0] for label in labels]
@@ -60,11 +60,3 @@ def estimate_uncertainty(result, lin: Linearization) -> None:
                 "(a back-lit one shows transmission) or fix one of them."
             )
 
-
-def _by_control(names, flat) -> dict:
-    out, k = {}, 0
-    for name in names:
-        size = SPECS[name].size
-        out[name] = [float(v) for v in flat[k:k + size]] if size == 3 else float(flat[k])
-        k += size
-    return out

@@ -13,8 +13,8 @@ from optimize.cli import main
 from optimize.controls import SPECS, parse_control_names
 from optimize.fit import FitSettings, check_settings, spp_at
 from optimize.linearize import linearize
-from optimize.refine import inside
 from optimize.losses import image_loss
+from optimize.refine import inside
 from optimize.target import SHIPPED_TARGETS, load_target, make_target, shipped_targets
 from warp_hair.io import read_exr, write_exr
 from warp_hair.render import render

@@ -77,6 +77,12 @@ def contract(adjoint: np.ndarray, jacobian: np.ndarray) -> np.ndarray:
     return np.einsum("hwc,hwck->k", adjoint, jacobian.astype(np.float64))
 
 
+def contract_crossed(adjoints, jacobians) -> np.ndarray:
+    """(8,): each of two independent renders' adjoints met with the other render's Jacobian, summed. Independent
+    paths on the two sides keep the product unbiased (render_torch_pair, the fit's gradients)."""
+    return contract(adjoints[0], jacobians[1]) + contract(adjoints[1], jacobians[0])
+
+
 def render_grad(
     scene: Scene,
     adjoint,

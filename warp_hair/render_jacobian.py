@@ -12,7 +12,6 @@ pixel, whatever the path depth.
 
 from __future__ import annotations
 
-import numpy as np
 import warp as wp
 
 from .bsdf_jacobian import CoefficientDerivatives, coefficient_derivatives, value_jacobian_mat

@@ -61,8 +61,8 @@ import numpy as np
 import torch
 
 from .params import CONTROL_NAMES
-from .render import render
-from .render_grad import contract, named_gradients
+from .render import render, sampling
+from .render_grad import contract, contract_crossed, named_gradients
 from .render_jacobian import render_jacobian
 from .scene import Scene
 
@@ -201,9 +201,7 @@ class _PairFunction(torch.autograd.Function):
         adjoint = _adjoint(ctx, grad_output)
         if adjoint is None:
             return (None, None) + (None,) * len(ctx.meta)
-        # Each image's adjoint meets the other image's Jacobian: independent paths, so an unbiased product.
-        first, second = ctx.jacobians
-        return _control_gradients(ctx, contract(adjoint[0], second) + contract(adjoint[1], first))
+        return _control_gradients(ctx, contract_crossed(adjoint, ctx.jacobians))
 
 
 def _checked_seed(name, seed):
@@ -211,13 +209,6 @@ def _checked_seed(name, seed):
     if not 0 <= seed < SEED_MODULUS:
         raise ValueError(f"{name} must be in [0, 2**32), got {seed}")
     return seed
-
-
-def _checked_spp(scene, spp):
-    spp = scene.render.spp if spp is None else int(spp)
-    if spp < 1:
-        raise ValueError(f"spp must be at least 1, got {spp}")
-    return spp
 
 
 def render_torch(scene: Scene, controls: dict, spp=None, seed=0, grad_seed=None, threads=None) -> torch.Tensor:
@@ -229,7 +220,7 @@ def render_torch(scene: Scene, controls: dict, spp=None, seed=0, grad_seed=None,
     independent random stream (see the module docstring for why).
     """
     checked = _check_controls(scene, controls)
-    spp = _checked_spp(scene, spp)
+    spp, _ = sampling(scene, spp)
     seed = _checked_seed("seed", seed)
     grad_seed = default_grad_seed(seed) if grad_seed is None else _checked_seed("grad_seed", grad_seed)
     config = (scene, spp, seed, grad_seed, threads)
@@ -249,7 +240,7 @@ def render_torch_pair(scene: Scene, controls: dict, spp=None, seed=0, threads=No
     The seeds are `seed` and (seed + 1_000_003) mod 2**32.
     """
     checked = _check_controls(scene, controls)
-    spp = _checked_spp(scene, spp)
+    spp, _ = sampling(scene, spp)
     seed = _checked_seed("seed", seed)
     config = (scene, spp, (seed, default_grad_seed(seed)), threads)
     return _PairFunction.apply(config, tuple(checked), *checked.values())
