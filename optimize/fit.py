@@ -123,7 +123,7 @@ def check_settings(target: Target, settings: FitSettings) -> tuple:
             raise ValueError(f"refine must be an integer >= 0, got {settings.refine!r}")
         if settings.refine > 0 and settings.loss not in REFINABLE_LOSSES:
             raise ValueError(f"refine: Gauss–Newton steps need a sum-of-squares loss ({', '.join(REFINABLE_LOSSES)}), "
-                             f"not {settings.loss!r}; use refine=0 with it")
+                             f"not {settings.loss!r}; use refine=0 (--refine 0) with it")
     unknown = sorted(set(settings.init) - set(names))
     if unknown:
         raise ValueError(f"init gives control(s) {unknown} that are not fitted (fitted: {list(names)}); the scene files set the others")
