@@ -67,7 +67,7 @@ class FitSettings:
     init: dict = field(default_factory=dict)  # start values of fitted controls; default: each control's neutral guess
     threads: int | None = None
     uncertainty: bool = True
-    refine: int | None = None  # Gauss–Newton steps after Adam (refine.py); None: 8, or 0 for the L1 loss
+    refine: int | None = None  # at least this many Gauss–Newton steps after Adam (refine.py); None: 8, or 0 for L1
 
 
 @dataclass
@@ -268,13 +268,15 @@ def _finish(target, settings, names, start, estimate, history, done, stop_reason
 
         def on_step(record):
             history["refine"].append(record)
+            if bar.n >= bar.total:  # a noisy target's refinement goes on past the steps asked for
+                bar.total = bar.n + 1
             bar.set_postfix_str(f"loss={record['loss']:.3g} {'kept' if record['accepted'] else 'undone'} "
                                 f"{_describe(record['values'])}", refresh=False)
             bar.update()
 
-        lin = None
+        lin, averaged = None, 1
         try:
-            estimate, lin, _ = refine(target, estimate, settings, final_spp, seed, steps, on_step,
+            estimate, lin, averaged = refine(target, estimate, settings, final_spp, seed, steps, on_step,
                                       lambda values: last_kept.update(values=values))
         except KeyboardInterrupt:
             stop_reason = "interrupted"
@@ -282,7 +284,7 @@ def _finish(target, settings, names, start, estimate, history, done, stop_reason
         finally:
             bar.close()
     if not steps or lin is None:
-        lin = linearize(target, estimate, settings, final_spp, seed, threads=settings.threads)
+        lin, averaged = linearize(target, estimate, settings, final_spp, seed, threads=settings.threads), None
     losses = [image_loss(torch.from_numpy(fitted), torch.from_numpy(image.image), settings.loss,
                          None if image.mask is None else torch.from_numpy(image.mask), settings.pool)
               for fitted, image in zip(lin.images, target.images)]
@@ -299,7 +301,7 @@ def _finish(target, settings, names, start, estimate, history, done, stop_reason
         images=lin.images,
     )
     if settings.uncertainty and stop_reason != "interrupted":
-        estimate_uncertainty(result, lin)
+        estimate_uncertainty(result, lin, averaged)
     result.seconds = time.perf_counter() - begun
     return result
 

@@ -6,9 +6,10 @@ steps cross slowly: measured before this stage existed, blonde_straight's fit en
 fur_patch's 0.17 off in albedo and β_n, while the Gauss–Newton standard errors there were under 0.01. The loss
 is a sum of squared residuals (`linearize.py`), so the Gauss–Newton step solves
 
-    (Aᵀ A + λ diag(Aᵀ A)) δx = −Aᵀ r,     A = ∂r/∂x,
+    (H + λ diag(H)) δx = −Aᵀ r,     H ≈ Aᵀ A,  A = ∂r/∂x,
 
-in the controls themselves (not Adam's latents: in log σ_a a high albedo's image is so curved that a step from
+H from independent passes' Jacobians (`Linearization.curvature`, unbiased) and averaged over the
+linearisations so far, in the controls themselves (not Adam's latents: in log σ_a a high albedo's image is so curved that a step from
 0.87 overshot to 0.63), shortened where it would go more than half way to a bound, with Aᵀ r from
 independent passes and A, r weighted as the loss weighs them. A step is kept when it lowers the loss as
 estimated by the trapezoid rule on the slopes along it, ½ (∇ℓ(x) + ∇ℓ(x + δx))·δx (exact for a quadratic).
@@ -20,12 +21,15 @@ linearisation.
 
 Every linearisation renders with fresh seeds, so each step's end point carries that render's own noise (on
 blonde_straight at 64 spp per render, about ±0.03 in red albedo: with common seeds every step converged to
-the same noisy point, 0.05 off). The result is the mean of the kept points after the first, the later half of
-them, which scatter around the optimum as Adam's last iterates do. L2 and relative L2 are sums of squares as
+the same noisy point, 0.05 off). The result is the mean of the kept points after the first, which scatter around
+the optimum as Adam's last iterates do, and the refinement goes on past the steps asked for until that mean's
+Monte Carlo error (from each step's `step_covariance`) is within the target's own statistical uncertainty. L2 and relative L2 are sums of squares as
 they stand; the L1 loss is not, and is not refined.
 """
 
 from __future__ import annotations
+
+import dataclasses
 
 import numpy as np
 
@@ -35,6 +39,7 @@ from .linearize import Linearization, linearize
 LAMBDA_START = 1e-3
 LAMBDA_DOWN, LAMBDA_UP = 1 / 3, 5.0
 LAMBDA_MAX = 1e4  # a step this damped moves nothing: stop
+MAX_STEPS_FACTOR = 4  # at most this many times the steps asked for, however noisy the target
 SEED_STRIDE = 7919  # each linearisation renders with its own seeds
 REFINABLE_LOSSES = ("l2", "rel_l2")
 
@@ -59,11 +64,13 @@ def inside(x: np.ndarray, step: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> n
 
 
 def refine(target, start: dict, settings, spp: int, seed: int, steps: int, on_step=None, on_keep=None):
-    """(values, Linearization at them, [per-step {"values", "loss", "misfit", "change", "accepted"}]).
+    """(values, Linearization at them, how many step end points `values` is the mean of).
 
-    start: the controls to refine from ({name: float or list of 3}). `on_keep(values)` is called with each kept
-    step (the fit keeps it, to return after a KeyboardInterrupt), and
-    `on_step(record)` after every step.
+    At least `steps` steps, then more (up to MAX_STEPS_FACTOR × steps) until the mean of the kept end points is
+    no less precise for our render noise than the target allows (`precise_enough`). start: the controls to refine
+    from ({name: float or list of 3}). `on_keep(values)` is called with each kept step (the fit keeps it, to
+    return after a KeyboardInterrupt), and `on_step(record)` after every step with
+    {"values", "loss", "misfit", "change", "accepted"}.
     """
     names = list(start)
     lo, hi = _bounds(names)
@@ -73,13 +80,18 @@ def refine(target, start: dict, settings, spp: int, seed: int, steps: int, on_st
         return linearize(target, by_control(names, x_at), settings, spp, seed + SEED_STRIDE * k, threads=settings.threads)
 
     lin = linearized(x, 0)
-    kept, records = [], []
+    curvatures = [lin.curvature]  # of every linearisation so far: their mean is the one used
+    kept = []
     damping = LAMBDA_START
-    for k in range(1, steps + 1):
-        a = lin.mean_jacobian * np.sqrt(lin.loss_weights)[:, None]
-        h = a.T @ a
+    for k in range(1, MAX_STEPS_FACTOR * steps + 1):
+        # The curvature changes little over the few steps the refinement spans, while each linearisation's
+        # estimate of it is noisy: where it comes out too small, a step overshoots (on fur_patch, single
+        # estimates sent the steps oscillating ever wider around the optimum). Their running mean does not.
+        h = np.mean(curvatures, axis=0)
         step = inside(x, -np.linalg.solve(h + damping * np.diag(np.diag(h)) + 1e-12 * np.eye(len(x)), lin.gradient), lo, hi)
         lin_new = linearized(x + step, k)
+        curvatures.append(lin_new.curvature)
+        lin_new = dataclasses.replace(lin_new, curvature=np.mean(curvatures, axis=0))
         # The change of ½·loss along the step by the trapezoid rule on its slopes at both ends: exact for a
         # quadratic, and built from unbiased gradients instead of noisy loss values.
         change = 0.5 * float(lin.gradient @ step + lin_new.gradient @ step)
@@ -92,18 +104,28 @@ def refine(target, start: dict, settings, spp: int, seed: int, steps: int, on_st
             damping = max(damping * LAMBDA_DOWN, 1e-9)
         else:
             damping *= LAMBDA_UP
-        records.append({"values": lin_new.values, "loss": lin_new.loss, "misfit": lin_new.misfit,
-                        "change": 2.0 * change, "accepted": accepted})
         if on_step is not None:
-            on_step(records[-1])
-        if damping > LAMBDA_MAX:
+            on_step({"values": lin_new.values, "loss": lin_new.loss, "misfit": lin_new.misfit,
+                     "change": 2.0 * change, "accepted": accepted})
+        if damping > LAMBDA_MAX or (k >= steps and precise_enough(lin, len(kept) - 1)):
             break
+    averaged = 1
     if len(kept) >= 2:
         # Each linearisation's own render noise moves its step's end point; the kept points after the first
         # scatter around the optimum, and their mean scatters less.
-        later = kept[1:]
-        x = np.mean(later[-((len(later) + 1) // 2):], axis=0)
-        lin = linearized(x, steps + 1)
+        averaged = len(kept) - 1
+        x = np.mean(kept[1:], axis=0)
+        lin = linearized(x, MAX_STEPS_FACTOR * steps + 1)
+        curvatures.append(lin.curvature)
         if on_keep is not None:
             on_keep(lin.values)
-    return lin.values, lin, records
+    return lin.values, dataclasses.replace(lin, curvature=np.mean(curvatures, axis=0)), averaged
+
+
+def precise_enough(lin: Linearization, averaged: int) -> bool:
+    """Whether the mean of `averaged` step end points, each moved by render noise like a step from `lin`, has a
+    Monte Carlo error no larger than the target's own statistical uncertainty, in every control: then our noise
+    adds at most a factor √2 to the estimate's error. Noisier targets (a bright fur's long paths) need more steps."""
+    if averaged < 2:
+        return False
+    return bool(np.all(np.diag(lin.step_covariance) / averaged <= np.diag(lin.statistical_covariance)))

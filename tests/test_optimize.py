@@ -12,7 +12,7 @@ import torch
 from optimize.cli import main
 from optimize.controls import SPECS, parse_control_names
 from optimize.fit import FitSettings, check_settings, spp_at
-from optimize.linearize import linearize
+from optimize.linearize import Linearization, linearize
 from optimize.losses import image_loss
 from optimize.refine import inside
 from optimize.target import SHIPPED_TARGETS, load_target, make_target, shipped_targets
@@ -224,6 +224,41 @@ def test_linearisation_reproduces_the_loss_and_its_gradient_crosses_the_passes()
         assert w.sum() == pytest.approx(1.0)
         np.testing.assert_allclose(lin.gradient, 0.5 * (a1.T @ (w * r2) + a2.T @ (w * r1)))
         assert not np.allclose(a1.T @ (w * r1), a1.T @ (w * r2), rtol=1e-2)
+
+
+def _noisy_linearization(rng, jacobian, offset, noise, jacobian_noise, n_images=1):
+    """Two passes of a linear model r = J·offset + noise whose Jacobian is estimated with noise, as a render's is."""
+    n = jacobian.shape[0]
+    residuals = jacobian @ offset + noise * rng.standard_normal((2, n))
+    jacobians = jacobian + jacobian_noise * rng.standard_normal((2, *jacobian.shape))
+    return Linearization(values={}, residuals=residuals, variances=np.full((2, n), noise**2), jacobians=jacobians,
+                         images=[], loss_weights=np.full(n, 1.0 / n))
+
+
+def test_curvature_is_unbiased_where_the_jacobian_is_mostly_noise():
+    """A column whose per-residual noise is 3x its signal (fur_patch's β_n): the product of a pass's Jacobian with
+    itself is inflated about 10-fold on that diagonal, the crossed product of independent passes is not."""
+    rng = np.random.default_rng(5)
+    n = 20000
+    jacobian = np.stack([np.full(n, 1.0), rng.choice([-0.1, 0.1], n) + 0.05], axis=1)
+    lin = _noisy_linearization(rng, jacobian, np.zeros(2), 0.01, np.array([0.05, 0.3]))
+    exact = jacobian.T @ jacobian / n
+    one_pass = lin.jacobians[0].T @ lin.jacobians[0] / n
+    assert one_pass[1, 1] > 5 * exact[1, 1]
+    np.testing.assert_allclose(lin.curvature, exact, rtol=0.15, atol=2e-3)
+
+
+def test_step_covariance_predicts_the_scatter_of_gauss_newton_steps():
+    rng = np.random.default_rng(6)
+    n = 4000
+    jacobian = rng.standard_normal((n, 3)) * np.array([1.0, 0.5, 0.2])
+    steps, predicted = [], []
+    for _ in range(300):
+        lin = _noisy_linearization(rng, jacobian, np.array([0.01, -0.02, 0.03]), 0.2, 0.02)
+        steps.append(-np.linalg.solve(lin.curvature, lin.gradient))
+        predicted.append(lin.step_covariance)
+    np.testing.assert_allclose(np.mean(steps, axis=0), [-0.01, 0.02, -0.03], atol=3e-3)
+    np.testing.assert_allclose(np.diag(np.cov(np.array(steps).T)), np.diag(np.mean(predicted, axis=0)), rtol=0.25)
 
 
 def test_refine_steps_stay_inside_the_ranges():

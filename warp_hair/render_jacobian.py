@@ -18,14 +18,10 @@ from .bsdf_jacobian import CoefficientDerivatives, coefficient_derivatives, valu
 from .camera import generate_ray
 from .integrator import SceneData, pixel_start, rand2, standard_error, trace_path_grad
 from .parallel import launch_ranges
-from .render import PreparedScene, sampling
+from .render import TILE_PIXELS, PreparedScene, sampling
 from .scene import Scene
 
 wp.set_module_options({"enable_backward": False, "optimization_level": 3})
-
-# Pixels per range handed to a thread: fiber pixels cost far more than background ones, and ranges smaller than
-# `render`'s balance the threads better at a negligible cost per launch.
-TILE_PIXELS = 256
 
 
 @wp.kernel
