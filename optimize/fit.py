@@ -274,9 +274,9 @@ def _finish(target, settings, names, start, estimate, history, done, stop_reason
                                 f"{_describe(record['values'])}", refresh=False)
             bar.update()
 
-        lin, averaged = None, 1
+        lin, mc_covariance = None, None
         try:
-            estimate, lin, averaged = refine(target, estimate, settings, final_spp, seed, steps, on_step,
+            estimate, lin, mc_covariance = refine(target, estimate, settings, final_spp, seed, steps, on_step,
                                       lambda values: last_kept.update(values=values))
         except KeyboardInterrupt:
             stop_reason = "interrupted"
@@ -284,7 +284,7 @@ def _finish(target, settings, names, start, estimate, history, done, stop_reason
         finally:
             bar.close()
     if not steps or lin is None:
-        lin, averaged = linearize(target, estimate, settings, final_spp, seed, threads=settings.threads), None
+        lin, mc_covariance = linearize(target, estimate, settings, final_spp, seed, threads=settings.threads), None
     losses = [image_loss(torch.from_numpy(fitted), torch.from_numpy(image.image), settings.loss,
                          None if image.mask is None else torch.from_numpy(image.mask), settings.pool)
               for fitted, image in zip(lin.images, target.images)]
@@ -301,7 +301,7 @@ def _finish(target, settings, names, start, estimate, history, done, stop_reason
         images=lin.images,
     )
     if settings.uncertainty and stop_reason != "interrupted":
-        estimate_uncertainty(result, lin, averaged)
+        estimate_uncertainty(result, lin, mc_covariance)
     result.seconds = time.perf_counter() - begun
     return result
 

@@ -39,10 +39,13 @@ class Linearization:
     images: list  # per target image, the mean of its two renders (H, W, 3), gain applied
     loss_weights: np.ndarray  # (N,): the loss is Σ loss_weights · r² (a mean per image, then over the images)
     curvature: np.ndarray | None = None  # (p, p) Gauss–Newton matrix; default: `crossed_curvature` of the passes
+    scatter: float | None = None  # s² of `statistical_covariance`; default: this linearisation's `scatter_estimate`
 
     def __post_init__(self):
         if self.curvature is None:
             self.curvature = crossed_curvature(self.jacobians, self.loss_weights)
+        if self.scatter is None:
+            self.scatter = self.scatter_estimate
 
     @property
     def loss(self) -> float:
@@ -64,21 +67,28 @@ class Linearization:
 
     @property
     def step_covariance(self) -> np.ndarray:
-        """The covariance, from our render noise, of where a Gauss–Newton step from here lands: H⁻¹ Aᵀ W V W A H⁻¹
-        with V the Monte Carlo variances of the mean residual (the Jacobian's own noise counted only through H)."""
+        """The covariance, from our render noise in the residuals, of where a Gauss–Newton step from here lands:
+        H⁻¹ Aᵀ W V W A H⁻¹, V the Monte Carlo variances of the mean residual. It leaves out the Jacobian's own
+        noise (no per-pixel variance of it is kept), so it is a lower bound where that noise is large."""
         w, a = self.loss_weights, self.mean_jacobian
         h_inv = np.linalg.pinv(self.curvature)
         middle = a.T @ ((w * w * self.mean_variance)[:, None] * a)
         return h_inv @ middle @ h_inv
 
     @property
-    def statistical_covariance(self) -> np.ndarray:
-        """s² H⁻¹, s² = Σ w (r² − Var_MC) / (N − p): how far the target's own scatter around the model (its noise,
-        any misfit) leaves the optimum uncertain, our render noise Var_MC removed (`uncertainty.py`)."""
+    def scatter_estimate(self) -> float:
+        """Σ w (r² − Var_MC) / (N − p): the target's own scatter around the model (its noise, any misfit), our
+        render noise Var_MC removed; unbiased, and so negative at times where the target is far less noisy."""
         w, r = self.loss_weights, self.mean_residual
         n, p = self.jacobians.shape[1:]
-        misfit = float(w @ (r * r))
-        s2 = max(misfit - float(w @ self.mean_variance), 0.1 * misfit) / max(n - p, 1)
+        return float(w @ (r * r - self.mean_variance)) / max(n - p, 1)
+
+    @property
+    def statistical_covariance(self) -> np.ndarray:
+        """s² H⁻¹ with s² = `scatter`, no less than a tenth of the whole residual variance (`uncertainty.py`)."""
+        w, r = self.loss_weights, self.mean_residual
+        n, p = self.jacobians.shape[1:]
+        s2 = max(self.scatter, 0.1 * float(w @ (r * r)) / max(n - p, 1))
         return s2 * np.linalg.pinv(self.curvature)
 
     @property

@@ -9,8 +9,8 @@ is a sum of squared residuals (`linearize.py`), so the Gauss–Newton step solve
     (H + λ diag(H)) δx = −Aᵀ r,     H ≈ Aᵀ A,  A = ∂r/∂x,
 
 H from independent passes' Jacobians (`Linearization.curvature`, unbiased) and averaged over the
-linearisations so far, in the controls themselves (not Adam's latents: in log σ_a a high albedo's image is so curved that a step from
-0.87 overshot to 0.63), shortened where it would go more than half way to a bound, with Aᵀ r from
+linearisations so far, in the controls themselves (not Adam's latents: in log σ_a a high albedo's image is so
+curved that a step from 0.87 overshot to 0.63), shortened where it would go more than half way to a bound, with Aᵀ r from
 independent passes and A, r weighted as the loss weighs them. A step is kept when it lowers the loss as
 estimated by the trapezoid rule on the slopes along it, ½ (∇ℓ(x) + ∇ℓ(x + δx))·δx (exact for a quadratic).
 Gradients are unbiased and their noise is modest; loss values are not: each carries our render's Monte Carlo
@@ -23,8 +23,8 @@ Every linearisation renders with fresh seeds, so each step's end point carries t
 blonde_straight at 64 spp per render, about ±0.03 in red albedo: with common seeds every step converged to
 the same noisy point, 0.05 off). The result is the mean of the kept points after the first, which scatter around
 the optimum as Adam's last iterates do, and the refinement goes on past the steps asked for until that mean's
-Monte Carlo error (from each step's `step_covariance`) is within the target's own statistical uncertainty. L2 and relative L2 are sums of squares as
-they stand; the L1 loss is not, and is not refined.
+Monte Carlo error (`mean_covariance`) is within the target's own statistical uncertainty. L2 and relative L2
+are sums of squares as they stand; the L1 loss is not, and is not refined.
 """
 
 from __future__ import annotations
@@ -41,6 +41,7 @@ LAMBDA_DOWN, LAMBDA_UP = 1 / 3, 5.0
 LAMBDA_MAX = 1e4  # a step this damped moves nothing: stop
 MAX_STEPS_FACTOR = 4  # at most this many times the steps asked for, however noisy the target
 SEED_STRIDE = 7919  # each linearisation renders with its own seeds
+EMPIRICAL_POINTS = 4  # end points needed before their own scatter is trusted to tell their noise
 REFINABLE_LOSSES = ("l2", "rel_l2")
 
 
@@ -64,13 +65,14 @@ def inside(x: np.ndarray, step: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> n
 
 
 def refine(target, start: dict, settings, spp: int, seed: int, steps: int, on_step=None, on_keep=None):
-    """(values, Linearization at them, how many step end points `values` is the mean of).
+    """(values, Linearization at them, the Monte Carlo covariance of `values` or None).
 
     At least `steps` steps, then more (up to MAX_STEPS_FACTOR × steps) until the mean of the kept end points is
     no less precise for our render noise than the target allows (`precise_enough`). start: the controls to refine
     from ({name: float or list of 3}). `on_keep(values)` is called with each kept step (the fit keeps it, to
     return after a KeyboardInterrupt), and `on_step(record)` after every step with
-    {"values", "loss", "misfit", "change", "accepted"}.
+    {"values", "loss", "misfit", "change", "accepted"}. The returned linearisation carries the curvature and the
+    target's scatter averaged over the refinement.
     """
     names = list(start)
     lo, hi = _bounds(names)
@@ -81,7 +83,7 @@ def refine(target, start: dict, settings, spp: int, seed: int, steps: int, on_st
 
     lin = linearized(x, 0)
     curvatures = [lin.curvature]  # of every linearisation so far: their mean is the one used
-    kept = []
+    kept, scatters = [], []  # the kept end points and their linearisations' scatter estimates
     damping = LAMBDA_START
     for k in range(1, MAX_STEPS_FACTOR * steps + 1):
         # The curvature changes little over the few steps the refinement spans, while each linearisation's
@@ -99,6 +101,7 @@ def refine(target, start: dict, settings, spp: int, seed: int, steps: int, on_st
         if accepted:
             x, lin = x + step, lin_new
             kept.append(x)
+            scatters.append(lin.scatter_estimate)
             if on_keep is not None:
                 on_keep(lin.values)
             damping = max(damping * LAMBDA_DOWN, 1e-9)
@@ -107,25 +110,41 @@ def refine(target, start: dict, settings, spp: int, seed: int, steps: int, on_st
         if on_step is not None:
             on_step({"values": lin_new.values, "loss": lin_new.loss, "misfit": lin_new.misfit,
                      "change": 2.0 * change, "accepted": accepted})
-        if damping > LAMBDA_MAX or (k >= steps and precise_enough(lin, len(kept) - 1)):
+        if damping > LAMBDA_MAX:
             break
-    averaged = 1
-    if len(kept) >= 2:
-        # Each linearisation's own render noise moves its step's end point; the kept points after the first
-        # scatter around the optimum, and their mean scatters less.
-        averaged = len(kept) - 1
-        x = np.mean(kept[1:], axis=0)
-        lin = linearized(x, MAX_STEPS_FACTOR * steps + 1)
-        curvatures.append(lin.curvature)
-        if on_keep is not None:
-            on_keep(lin.values)
-    return lin.values, dataclasses.replace(lin, curvature=np.mean(curvatures, axis=0)), averaged
+        if k >= steps and len(kept) >= 3:
+            # One linearisation's scatter estimate is noisy where our render is much noisier than the target.
+            lin = dataclasses.replace(lin, scatter=float(np.mean(scatters[1:])))
+            if precise_enough(lin, kept[1:]):
+                break
+    if len(kept) < 2:
+        return lin.values, lin, None
+    # Each linearisation's own render noise moves its step's end point; the kept points after the first
+    # scatter around the optimum, and their mean scatters less.
+    later = kept[1:]
+    final = linearized(np.mean(later, axis=0), MAX_STEPS_FACTOR * steps + 1)
+    curvatures.append(final.curvature)
+    final = dataclasses.replace(final, curvature=np.mean(curvatures, axis=0),
+                                scatter=float(np.mean(scatters[1:] + [final.scatter_estimate])))
+    if on_keep is not None:
+        on_keep(final.values)
+    return final.values, final, mean_covariance(later, final)
 
 
-def precise_enough(lin: Linearization, averaged: int) -> bool:
-    """Whether the mean of `averaged` step end points, each moved by render noise like a step from `lin`, has a
-    Monte Carlo error no larger than the target's own statistical uncertainty, in every control: then our noise
-    adds at most a factor √2 to the estimate's error. Noisier targets (a bright fur's long paths) need more steps."""
-    if averaged < 2:
-        return False
-    return bool(np.all(np.diag(lin.step_covariance) / averaged <= np.diag(lin.statistical_covariance)))
+def mean_covariance(points: list, lin: Linearization) -> np.ndarray:
+    """The Monte Carlo covariance of the mean of m step end points that scatter by their renders' noise:
+    `step_covariance` / m, scaled up by how much more the points themselves scatter (once there are enough of them
+    to tell), since `step_covariance` leaves the Jacobian's noise out."""
+    m = len(points)
+    model = lin.step_covariance / m
+    if m >= EMPIRICAL_POINTS:
+        observed = np.var(np.array(points), axis=0, ddof=1) / m
+        model = model * max(1.0, float(np.mean(observed / np.maximum(np.diag(model), 1e-30))))
+    return model
+
+
+def precise_enough(lin: Linearization, points: list) -> bool:
+    """Whether the mean of `points` has a Monte Carlo error no larger than the target's own statistical
+    uncertainty in every control: then our noise adds at most a factor √2 to the estimate's error. Noisier
+    targets (a bright fur's long paths) need more steps."""
+    return bool(np.all(np.diag(mean_covariance(points, lin)) <= np.diag(lin.statistical_covariance)))

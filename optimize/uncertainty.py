@@ -4,14 +4,14 @@ From the loss linearised at the estimate (`linearize.py`: weighted residuals r, 
 control components, loss weights w, N residuals, p components), the classical covariance of nonlinear least
 squares, plus the Monte Carlo error of the estimate itself:
 
-    Cov(x) ≈ s² H⁻¹ + Cov_MC / m,     H = Σ w aᵢaⱼ (`Linearization.curvature`),
+    Cov(x) ≈ s² H⁻¹ + Cov_MC,     H = Σ w aᵢaⱼ (`Linearization.curvature`),
     s² = Σ w (r² − Var_MC) / (N − p),
 
 s² measures what the target scatters by around the model (its own noise and any misfit): Var_MC, the Monte
-Carlo variance of our own render of each residual, is removed from it. The estimate is the mean of m
-Gauss–Newton end points (`refine.py`), each moved by its linearisation's render noise (`step_covariance`);
-after Adam alone (m unknown) that term is left out. Before both terms were counted this way, auburn_curly
-reported ±0.001 for errors of 0.019.
+Carlo variance of our own render of each residual, is removed from it (averaged over the refinement's
+linearisations, as H is). The estimate is the mean of m Gauss–Newton end points, each moved by its
+linearisation's render noise; Cov_MC is that mean's covariance (`refine.mean_covariance`). After Adam alone it
+is left out. Before both terms were counted this way, auburn_curly reported ±0.001 for errors of 0.019.
 
 Identifiability: two components whose estimates correlate by |ρ| > 0.95 trade off against each other in these
 images (albedo and β_n can, through the albedo inversion, under a single front light); a control the images do
@@ -37,9 +37,9 @@ def component_labels(names) -> list[str]:
     return labels
 
 
-def estimate_uncertainty(result, lin: Linearization, averaged: int | None = None) -> None:
+def estimate_uncertainty(result, lin: Linearization, mc_covariance: np.ndarray | None = None) -> None:
     """Fill result.uncertainties, result.correlations and identifiability warnings (see the module docstring).
-    averaged: how many Gauss–Newton end points the estimate is the mean of; None leaves our Monte Carlo error out."""
+    mc_covariance: the estimate's own Monte Carlo covariance (`refine`); None leaves it out."""
     names = list(lin.values)
     A = lin.mean_jacobian
     p = A.shape[1]
@@ -48,8 +48,8 @@ def estimate_uncertainty(result, lin: Linearization, averaged: int | None = None
     for label in np.array(labels)[flat]:
         result.warnings.append(f"{label} does not change the rendered images at all: it cannot be fitted from this target")
     cov = lin.statistical_covariance
-    if averaged:
-        cov = cov + lin.step_covariance / averaged
+    if mc_covariance is not None:
+        cov = cov + mc_covariance
     sigma = np.sqrt(np.maximum(np.diag(cov), 0.0))
     result.uncertainties = by_control(names, sigma)
     with np.errstate(invalid="ignore", divide="ignore"):
