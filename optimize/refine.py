@@ -39,7 +39,7 @@ from .linearize import Linearization, linearize
 LAMBDA_START = 1e-3
 LAMBDA_DOWN, LAMBDA_UP = 1 / 3, 5.0
 LAMBDA_MAX = 1e4  # a step this damped moves nothing: stop
-MAX_STEPS_FACTOR = 4  # at most this many times the steps asked for, however noisy the target
+MAX_STEPS_FACTOR = 2  # at most this many times the steps asked for, however noisy the target (time)
 SEED_STRIDE = 7919  # each linearisation renders with its own seeds
 EMPIRICAL_POINTS = 4  # end points needed before their own scatter is trusted to tell their noise
 REFINABLE_LOSSES = ("l2", "rel_l2")

@@ -14,7 +14,7 @@ from optimize.controls import SPECS, parse_control_names
 from optimize.fit import FitSettings, check_settings, spp_at
 from optimize.linearize import Linearization, linearize
 from optimize.losses import image_loss
-from optimize.refine import inside
+from optimize.refine import inside, mean_covariance
 from optimize.target import SHIPPED_TARGETS, load_target, make_target, shipped_targets
 from warp_hair.io import read_exr, write_exr
 from warp_hair.render import render
@@ -259,6 +259,22 @@ def test_step_covariance_predicts_the_scatter_of_gauss_newton_steps():
         predicted.append(lin.step_covariance)
     np.testing.assert_allclose(np.mean(steps, axis=0), [-0.01, 0.02, -0.03], atol=3e-3)
     np.testing.assert_allclose(np.diag(np.cov(np.array(steps).T)), np.diag(np.mean(predicted, axis=0)), rtol=0.25)
+
+
+def test_mean_covariance_counts_the_scatter_the_model_leaves_out():
+    """The mean of m end points has the model's covariance / m, scaled up when the points scatter more than the
+    model says (the Jacobian's noise, which `step_covariance` leaves out), never down."""
+    rng = np.random.default_rng(7)
+    n = 4000
+    jacobian = rng.standard_normal((n, 2))
+    lin = _noisy_linearization(rng, jacobian, np.zeros(2), 0.2, 0.0)
+    sigma = np.sqrt(np.diag(lin.step_covariance))
+    for factor, expected in ((3.0, 9.0), (0.5, 1.0)):
+        points = list(factor * sigma * rng.standard_normal((400, 2)))
+        scale = np.diag(mean_covariance(points, lin)) / (np.diag(lin.step_covariance) / 400)
+        np.testing.assert_allclose(scale, expected, rtol=0.15)
+    few = list(3.0 * sigma * rng.standard_normal((3, 2)))  # too few to tell: the model alone
+    np.testing.assert_allclose(mean_covariance(few, lin), lin.step_covariance / 3)
 
 
 def test_refine_steps_stay_inside_the_ranges():
