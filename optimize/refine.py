@@ -9,7 +9,7 @@ is a sum of squared residuals (`linearize.py`), so the Gauss–Newton step solve
     (H + λ diag(H)) δx = −Aᵀ r,     H ≈ Aᵀ A,  A = ∂r/∂x,
 
 H from independent passes' Jacobians (`Linearization.curvature`, unbiased) and averaged over the
-linearisations so far, in the controls themselves (not Adam's latents: in log σ_a a high albedo's image is so
+last few linearisations, in the controls themselves (not Adam's latents: in log σ_a a high albedo's image is so
 curved that a step from 0.87 overshot to 0.63), shortened where it would go more than half way to a bound, with Aᵀ r from
 independent passes and A, r weighted as the loss weighs them. A step is kept when it lowers the loss as
 estimated by the trapezoid rule on the slopes along it, ½ (∇ℓ(x) + ∇ℓ(x + δx))·δx (exact for a quadratic).
@@ -21,8 +21,8 @@ linearisation.
 
 Every linearisation renders with fresh seeds, so each step's end point carries that render's own noise (on
 blonde_straight at 64 spp per render, about ±0.03 in red albedo: with common seeds every step converged to
-the same noisy point, 0.05 off). The result is the mean of the kept points after the first, which scatter around
-the optimum as Adam's last iterates do, and the refinement goes on past the steps asked for until that mean's
+the same noisy point, 0.05 off). The result is the mean of the later half of the kept points after the first, which
+scatter around the optimum as Adam's last iterates do, and the refinement goes on past the steps asked for until that mean's
 Monte Carlo error (`mean_covariance`) is within the target's own statistical uncertainty. L2 and relative L2
 are sums of squares as they stand; the L1 loss is not, and is not refined.
 """
@@ -41,6 +41,7 @@ LAMBDA_DOWN, LAMBDA_UP = 1 / 3, 5.0
 LAMBDA_MAX = 1e4  # a step this damped moves nothing: stop
 MAX_STEPS_FACTOR = 2  # at most this many times the steps asked for, however noisy the target (time)
 SEED_STRIDE = 7919  # each linearisation renders with its own seeds
+CURVATURE_WINDOW = 4  # linearisations whose curvatures are averaged
 EMPIRICAL_POINTS = 4  # end points needed before their own scatter is trusted to tell their noise
 REFINABLE_LOSSES = ("l2", "rel_l2")
 
@@ -86,14 +87,15 @@ def refine(target, start: dict, settings, spp: int, seed: int, steps: int, on_st
     kept, scatters = [], []  # the kept end points and their linearisations' scatter estimates
     damping = LAMBDA_START
     for k in range(1, MAX_STEPS_FACTOR * steps + 1):
-        # The curvature changes little over the few steps the refinement spans, while each linearisation's
-        # estimate of it is noisy: where it comes out too small, a step overshoots (on fur_patch, single
-        # estimates sent the steps oscillating ever wider around the optimum). Their running mean does not.
-        h = np.mean(curvatures, axis=0)
+        # Each linearisation's estimate of the curvature is noisy: where it comes out too small, a step
+        # overshoots (on fur_patch, single estimates sent the steps oscillating ever wider around the optimum).
+        # The mean of the last few is steadier, and unlike a mean over all of them it forgets the start's
+        # curvature (auburn_curly's from β_m 0.23, far higher than at the true 0.30, kept its steps short).
+        h = np.mean(curvatures[-CURVATURE_WINDOW:], axis=0)
         step = inside(x, -np.linalg.solve(h + damping * np.diag(np.diag(h)) + 1e-12 * np.eye(len(x)), lin.gradient), lo, hi)
         lin_new = linearized(x + step, k)
         curvatures.append(lin_new.curvature)
-        lin_new = dataclasses.replace(lin_new, curvature=np.mean(curvatures, axis=0))
+        lin_new = dataclasses.replace(lin_new, curvature=np.mean(curvatures[-CURVATURE_WINDOW:], axis=0))
         # The change of ½·loss along the step by the trapezoid rule on its slopes at both ends: exact for a
         # quadratic, and built from unbiased gradients instead of noisy loss values.
         change = 0.5 * float(lin.gradient @ step + lin_new.gradient @ step)
@@ -112,23 +114,29 @@ def refine(target, start: dict, settings, spp: int, seed: int, steps: int, on_st
                      "change": 2.0 * change, "accepted": accepted})
         if damping > LAMBDA_MAX:
             break
-        if k >= steps and len(kept) >= 3:
+        if k >= steps and len(kept) >= 5:
             # One linearisation's scatter estimate is noisy where our render is much noisier than the target.
-            lin = dataclasses.replace(lin, scatter=float(np.mean(scatters[1:])))
-            if precise_enough(lin, kept[1:]):
+            lin = dataclasses.replace(lin, scatter=float(np.mean(_later(scatters))))
+            if precise_enough(lin, _later(kept)):
                 break
     if len(kept) < 2:
         return lin.values, lin, None
-    # Each linearisation's own render noise moves its step's end point; the kept points after the first
-    # scatter around the optimum, and their mean scatters less.
-    later = kept[1:]
+    # Each linearisation's own render noise moves its step's end point; the later kept points scatter around
+    # the optimum, and their mean scatters less.
+    later = _later(kept)
     final = linearized(np.mean(later, axis=0), MAX_STEPS_FACTOR * steps + 1)
     curvatures.append(final.curvature)
-    final = dataclasses.replace(final, curvature=np.mean(curvatures, axis=0),
-                                scatter=float(np.mean(scatters[1:] + [final.scatter_estimate])))
+    final = dataclasses.replace(final, curvature=np.mean(curvatures[-CURVATURE_WINDOW:], axis=0),
+                                scatter=float(np.mean(_later(scatters) + [final.scatter_estimate])))
     if on_keep is not None:
         on_keep(final.values)
     return final.values, final, mean_covariance(later, final)
+
+
+def _later(kept: list) -> list:
+    """The later half of the kept steps after the first: the earlier ones may still be on their way in."""
+    after_first = kept[1:]
+    return after_first[-((len(after_first) + 1) // 2):]
 
 
 def mean_covariance(points: list, lin: Linearization) -> np.ndarray:
