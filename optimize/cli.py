@@ -83,8 +83,8 @@ def add_fit(subparsers) -> None:
     parser.add_argument("--patience", type=int, default=defaults.patience, metavar="P",
                         help=f"stop after P iterations without improvement at the final spp (default {defaults.patience})")
     parser.add_argument("--refine", type=int, metavar="K",
-                        help="at least K Gauss-Newton steps after Adam, more (up to 2K) while the render noise of their mean "
-                        "exceeds the target's own uncertainty (default 8; 0 with --loss l1, not a sum of squares)")
+                        help="Gauss-Newton steps after Adam (default 16, or more for a target rendered at more samples "
+                        "per pixel than 16 steps render; 0 with --loss l1, which is not a sum of squares)")
     parser.add_argument("--threads", type=int, metavar="T", help="CPU threads (default: all cores)")
     parser.set_defaults(run=run_fit)
 

@@ -51,7 +51,7 @@ PLATEAU_TOLERANCE = 1e-3
 SMOOTHING = 0.9  # of the loss's exponential moving average, for the plateau test
 AVERAGED_FRACTION = 0.2
 FINAL_SPP_FACTOR = 4
-DEFAULT_REFINE_STEPS = 8
+DEFAULT_REFINE_STEPS = 16
 
 
 @dataclass
@@ -67,7 +67,7 @@ class FitSettings:
     init: dict = field(default_factory=dict)  # start values of fitted controls; default: each control's neutral guess
     threads: int | None = None
     uncertainty: bool = True
-    refine: int | None = None  # at least this many Gauss–Newton steps after Adam (refine.py); None: 8, or 0 for L1
+    refine: int | None = None  # Gauss–Newton steps after Adam (refine.py); None: `_refine_steps`, 0 for L1
 
 
 @dataclass
@@ -260,7 +260,7 @@ def _finish(target, settings, names, start, estimate, history, done, stop_reason
     loss linearised at the result, all at FINAL_SPP_FACTOR × spp per render."""
     final_spp = settings.spp * FINAL_SPP_FACTOR
     seed = iteration_seed(settings.seed, 2**31, 0)
-    steps = 0 if stop_reason == "interrupted" else _refine_steps(settings)
+    steps = 0 if stop_reason == "interrupted" else _refine_steps(settings, target)
     history["refine"] = []
     if steps:
         last_kept = {"values": estimate}  # what a KeyboardInterrupt during the refinement returns
@@ -268,8 +268,6 @@ def _finish(target, settings, names, start, estimate, history, done, stop_reason
 
         def on_step(record):
             history["refine"].append(record)
-            if bar.n >= bar.total:  # a noisy target's refinement goes on past the steps asked for
-                bar.total = bar.n + 1
             bar.set_postfix_str(f"loss={record['loss']:.3g} {'kept' if record['accepted'] else 'undone'} "
                                 f"{_describe(record['values'])}", refresh=False)
             bar.update()
@@ -306,7 +304,15 @@ def _finish(target, settings, names, start, estimate, history, done, stop_reason
     return result
 
 
-def _refine_steps(settings: FitSettings) -> int:
+def _refine_steps(settings: FitSettings, target: Target) -> int:
+    """settings.refine; by default at least DEFAULT_REFINE_STEPS, and enough that the refinement's renders add up
+    to the samples per pixel the target was rendered with (its scenes' [render] spp): the estimate's Monte Carlo
+    error then compares with the target's own noise, and a target rendered at more samples to be less noisy
+    (fur_patch) gets more steps."""
     if settings.refine is not None:
         return settings.refine
-    return DEFAULT_REFINE_STEPS if settings.loss in REFINABLE_LOSSES else 0
+    if settings.loss not in REFINABLE_LOSSES:
+        return 0
+    per_step = 2 * settings.spp * FINAL_SPP_FACTOR  # two passes per linearisation
+    target_spp = max(image.scene.render.spp for image in target.images)
+    return max(DEFAULT_REFINE_STEPS, math.ceil(target_spp / per_step))

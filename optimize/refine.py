@@ -21,10 +21,9 @@ linearisation.
 
 Every linearisation renders with fresh seeds, so each step's end point carries that render's own noise (on
 blonde_straight at 64 spp per render, about ±0.03 in red albedo: with common seeds every step converged to
-the same noisy point, 0.05 off). The result is the mean of the later half of the kept points after the first, which
-scatter around the optimum as Adam's last iterates do, and the refinement goes on past the steps asked for until that mean's
-Monte Carlo error (`mean_covariance`) is within the target's own statistical uncertainty. L2 and relative L2
-are sums of squares as they stand; the L1 loss is not, and is not refined.
+the same noisy point, 0.05 off). The result is the mean of the later half of the kept points after the
+first, which scatter around the optimum as Adam's last iterates do; `mean_covariance` is its Monte Carlo error.
+L2 and relative L2 are sums of squares as they stand; the L1 loss is not, and is not refined.
 """
 
 from __future__ import annotations
@@ -39,7 +38,6 @@ from .linearize import Linearization, linearize
 LAMBDA_START = 1e-3
 LAMBDA_DOWN, LAMBDA_UP = 1 / 3, 5.0
 LAMBDA_MAX = 1e4  # a step this damped moves nothing: stop
-MAX_STEPS_FACTOR = 2  # at most this many times the steps asked for, however noisy the target (time)
 SEED_STRIDE = 7919  # each linearisation renders with its own seeds
 CURVATURE_WINDOW = 4  # linearisations whose curvatures are averaged
 EMPIRICAL_POINTS = 4  # end points needed before their own scatter is trusted to tell their noise
@@ -66,14 +64,12 @@ def inside(x: np.ndarray, step: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> n
 
 
 def refine(target, start: dict, settings, spp: int, seed: int, steps: int, on_step=None, on_keep=None):
-    """(values, Linearization at them, the Monte Carlo covariance of `values` or None).
+    """(values, Linearization at them, the Monte Carlo covariance of `values` or None) after `steps` steps.
 
-    At least `steps` steps, then more (up to MAX_STEPS_FACTOR × steps) until the mean of the kept end points is
-    no less precise for our render noise than the target allows (`precise_enough`). start: the controls to refine
-    from ({name: float or list of 3}). `on_keep(values)` is called with each kept step (the fit keeps it, to
-    return after a KeyboardInterrupt), and `on_step(record)` after every step with
+    start: the controls to refine from ({name: float or list of 3}). `on_keep(values)` is called with each kept
+    step (the fit keeps it, to return after a KeyboardInterrupt), and `on_step(record)` after every step with
     {"values", "loss", "misfit", "change", "accepted"}. The returned linearisation carries the curvature and the
-    target's scatter averaged over the refinement.
+    target's scatter averaged over the last linearisations.
     """
     names = list(start)
     lo, hi = _bounds(names)
@@ -86,7 +82,7 @@ def refine(target, start: dict, settings, spp: int, seed: int, steps: int, on_st
     curvatures = [lin.curvature]  # of every linearisation so far: their mean is the one used
     kept, scatters = [], []  # the kept end points and their linearisations' scatter estimates
     damping = LAMBDA_START
-    for k in range(1, MAX_STEPS_FACTOR * steps + 1):
+    for k in range(1, steps + 1):
         # Each linearisation's estimate of the curvature is noisy: where it comes out too small, a step
         # overshoots (on fur_patch, single estimates sent the steps oscillating ever wider around the optimum).
         # The mean of the last few is steadier, and unlike a mean over all of them it forgets the start's
@@ -114,18 +110,14 @@ def refine(target, start: dict, settings, spp: int, seed: int, steps: int, on_st
                      "change": 2.0 * change, "accepted": accepted})
         if damping > LAMBDA_MAX:
             break
-        if k >= steps and len(kept) >= 5:
-            # One linearisation's scatter estimate is noisy where our render is much noisier than the target.
-            lin = dataclasses.replace(lin, scatter=float(np.mean(_later(scatters))))
-            if precise_enough(lin, _later(kept)):
-                break
     if len(kept) < 2:
         return lin.values, lin, None
     # Each linearisation's own render noise moves its step's end point; the later kept points scatter around
     # the optimum, and their mean scatters less.
     later = _later(kept)
-    final = linearized(np.mean(later, axis=0), MAX_STEPS_FACTOR * steps + 1)
+    final = linearized(np.mean(later, axis=0), steps + 1)
     curvatures.append(final.curvature)
+    # One linearisation's scatter estimate is noisy where our render is much noisier than the target.
     final = dataclasses.replace(final, curvature=np.mean(curvatures[-CURVATURE_WINDOW:], axis=0),
                                 scatter=float(np.mean(_later(scatters) + [final.scatter_estimate])))
     if on_keep is not None:
@@ -149,10 +141,3 @@ def mean_covariance(points: list, lin: Linearization) -> np.ndarray:
         observed = np.var(np.array(points), axis=0, ddof=1) / m
         model = model * max(1.0, float(np.mean(observed / np.maximum(np.diag(model), 1e-30))))
     return model
-
-
-def precise_enough(lin: Linearization, points: list) -> bool:
-    """Whether the mean of `points` has a Monte Carlo error no larger than the target's own statistical
-    uncertainty in every control: then our noise adds at most a factor √2 to the estimate's error. Noisier
-    targets (a bright fur's long paths) need more steps."""
-    return bool(np.all(np.diag(mean_covariance(points, lin)) <= np.diag(lin.statistical_covariance)))
