@@ -3,8 +3,7 @@
 Adam's steps are sized by its learning rate, not by the loss's curvature, and where two controls trade off
 (albedo against β_n through the albedo inversion) the loss has a long shallow valley that its last, small
 steps cross slowly: measured before this stage existed, blonde_straight's fit ended 0.038 off in red albedo and
-fur_patch's 0.17 off in albedo and β_n, while the Gauss–Newton standard errors there were under 0.01. The loss
-is a sum of squared residuals (`linearize.py`), so the Gauss–Newton step solves
+the first fur_patch's 0.17 off in albedo and β_n. The loss is a sum of squared residuals (`linearize.py`), so the Gauss–Newton step solves
 
     (H + λ diag(H)) δx = −Aᵀ r,     H ≈ Aᵀ A,  A = ∂r/∂x,
 
