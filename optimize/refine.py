@@ -77,8 +77,13 @@ def refine(target, start: dict, settings, spp: int, seed: int, steps: int, on_st
     def linearized(x_at, k) -> Linearization:
         return linearize(target, by_control(names, x_at), settings, spp, seed + SEED_STRIDE * k, threads=settings.threads)
 
-    lin = linearized(x, 0)
-    curvatures = [lin.curvature]  # of every linearisation so far: their mean is the one used
+    def with_window_curvature(lin_at: Linearization) -> Linearization:
+        """lin_at, its curvature the mean of the last CURVATURE_WINDOW linearisations' (its own included)."""
+        curvatures.append(lin_at.curvature)
+        return dataclasses.replace(lin_at, curvature=np.mean(curvatures[-CURVATURE_WINDOW:], axis=0))
+
+    curvatures = []  # each linearisation's own estimate, in order
+    lin = with_window_curvature(linearized(x, 0))
     kept, scatters = [], []  # the kept end points and their linearisations' scatter estimates
     damping = LAMBDA_START
     for k in range(1, steps + 1):
@@ -88,9 +93,7 @@ def refine(target, start: dict, settings, spp: int, seed: int, steps: int, on_st
         # curvature (auburn_curly's from β_m 0.23, far higher than at the true 0.30, kept its steps short).
         h = np.mean(curvatures[-CURVATURE_WINDOW:], axis=0)
         step = inside(x, -np.linalg.solve(h + damping * np.diag(np.diag(h)) + 1e-12 * np.eye(len(x)), lin.gradient), lo, hi)
-        lin_new = linearized(x + step, k)
-        curvatures.append(lin_new.curvature)
-        lin_new = dataclasses.replace(lin_new, curvature=np.mean(curvatures[-CURVATURE_WINDOW:], axis=0))
+        lin_new = with_window_curvature(linearized(x + step, k))
         # The change of ½·loss along the step by the trapezoid rule on its slopes at both ends: exact for a
         # quadratic, and built from unbiased gradients instead of noisy loss values.
         change = 0.5 * float(lin.gradient @ step + lin_new.gradient @ step)
@@ -114,11 +117,9 @@ def refine(target, start: dict, settings, spp: int, seed: int, steps: int, on_st
     # Each linearisation's own render noise moves its step's end point; the later kept points scatter around
     # the optimum, and their mean scatters less.
     later = _later(kept)
-    final = linearized(np.mean(later, axis=0), steps + 1)
-    curvatures.append(final.curvature)
+    final = with_window_curvature(linearized(np.mean(later, axis=0), steps + 1))
     # One linearisation's scatter estimate is noisy where our render is much noisier than the target.
-    final = dataclasses.replace(final, curvature=np.mean(curvatures[-CURVATURE_WINDOW:], axis=0),
-                                scatter=float(np.mean(_later(scatters) + [final.scatter_estimate])))
+    final = dataclasses.replace(final, scatter=float(np.mean(_later(scatters) + [final.scatter_estimate])))
     if on_keep is not None:
         on_keep(final.values)
     return final.values, final, mean_covariance(later, final)
