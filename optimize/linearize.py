@@ -10,6 +10,14 @@ Each image is rendered twice with independent seeds by `render_jacobian` (one pa
 per-pixel Jacobian), so the linearisation holds two independent estimates (r₁, A₁) and (r₂, A₂). Products of
 a residual and a Jacobian then take them from different passes (`gradient`): from one pass, their Monte Carlo
 errors would correlate and bias the product, as in the fit's own gradients. The L1 loss is treated as L2 here.
+
+A Jacobian estimated from one render is noisy where a control's effect is faint next to the noise (fur_patch's
+β_n: four fifths of its column's per-pixel energy is noise at 64 spp), and that noise times our residuals' noise
+moves every Gauss–Newton step. Near a fit's end the refinement's points lie so close together that their
+Jacobians estimate the same matrix, so a linearisation may take earlier renders' Jacobians (`earlier_jacobians`), which are
+independent of its residuals: each residual pass then meets the mean of every Jacobian but its own. Measured on
+fur_patch at the true controls over 16 linearisations at 64 spp, the steps' scatter in red albedo fell from
+±0.061 (one crossed pair) to ±0.036 (those of the 15 others added), the scatter of a noise-free Jacobian.
 """
 
 from __future__ import annotations
@@ -38,12 +46,13 @@ class Linearization:
     jacobians: np.ndarray  # (2, N, p): ∂residual/∂x, x the fitted control components in order
     images: list  # per target image, the mean of its two renders (H, W, 3), gain applied
     loss_weights: np.ndarray  # (N,): the loss is Σ loss_weights · r² (a mean per image, then over the images)
-    curvature: np.ndarray | None = None  # (p, p) Gauss–Newton matrix; default: `crossed_curvature` of the passes
+    earlier_jacobians: np.ndarray | None = None  # (n, N, p): of earlier, independent renders near `values`
+    curvature: np.ndarray | None = None  # (p, p) Gauss–Newton matrix; default: `crossed_curvature` of all Jacobians
     scatter: float | None = None  # s² of `statistical_covariance`; default: this linearisation's `scatter_estimate`
 
     def __post_init__(self):
         if self.curvature is None:
-            self.curvature = crossed_curvature(self.jacobians, self.loss_weights)
+            self.curvature = crossed_curvature(self.all_jacobians, self.loss_weights)
         if self.scatter is None:
             self.scatter = self.scatter_estimate
 
@@ -60,10 +69,19 @@ class Linearization:
         return float(self.loss_weights @ (self.residuals[0] * self.residuals[1]))
 
     @property
+    def all_jacobians(self) -> np.ndarray:
+        """(n, N, p): the earlier Jacobians, then the two passes'."""
+        if self.earlier_jacobians is None:
+            return self.jacobians
+        return np.concatenate([self.earlier_jacobians, self.jacobians])
+
+    @property
     def gradient(self) -> np.ndarray:
-        """½ ∂loss/∂x = ∂(½ Σ w r²)/∂x, each pass's residual met with the other pass's Jacobian (unbiased)."""
-        (r1, r2), (a1, a2), w = self.residuals, self.jacobians, self.loss_weights
-        return 0.5 * (a1.T @ (w * r2) + a2.T @ (w * r1))
+        """½ ∂loss/∂x = ∂(½ Σ w r²)/∂x, each pass's residual met with the mean of every Jacobian but its own pass's
+        (unbiased; without earlier ones, the other pass's)."""
+        w, jacobians = self.loss_weights, self.all_jacobians
+        total, n = jacobians.sum(axis=0), len(jacobians)
+        return 0.5 * sum(((total - a) / (n - 1)).T @ (w * r) for a, r in zip(self.jacobians, self.residuals))
 
     @property
     def step_covariance(self) -> np.ndarray:
@@ -102,21 +120,24 @@ class Linearization:
 
     @property
     def mean_jacobian(self) -> np.ndarray:
-        return self.jacobians.mean(axis=0)
+        return self.all_jacobians.mean(axis=0)
 
 
 def crossed_curvature(jacobians: np.ndarray, weights: np.ndarray) -> np.ndarray:
-    """The Gauss–Newton matrix Σ w aᵢ aⱼ (½ the loss's Hessian without residual curvature), unbiased: from one
-    pass's Jacobian against the other's. A Jacobian's product with itself adds its own Monte Carlo variance to
-    the diagonal, and where a column is mostly noise that dominates: on fur_patch it overstated β_n's curvature
-    up to 15-fold, so steps along β_n were that much too short and its uncertainty that much too small. When
-    noise leaves the crossed matrix not positive definite, the mean pass's is used instead."""
-    a1, a2 = jacobians
-    crossed = a1.T @ (weights[:, None] * a2)
+    """The Gauss–Newton matrix Σ w aᵢ aⱼ (½ the loss's Hessian without residual curvature) from n ≥ 2 independent
+    estimates of the Jacobian, unbiased: the mean over every pair of distinct ones. A Jacobian's product with
+    itself adds its own Monte Carlo variance to the diagonal, and where a column is mostly noise that dominates:
+    on fur_patch it overstated β_n's curvature up to 15-fold, so steps along β_n were that much too short and
+    its uncertainty that much too small. When noise leaves the crossed matrix not positive definite, the mean
+    Jacobian's product with itself is used instead."""
+    n = len(jacobians)
+    total = jacobians.sum(axis=0)
+    squares = np.einsum("kni,n,knj->ij", jacobians, weights, jacobians)
+    crossed = (total.T @ (weights[:, None] * total) - squares) / (n * (n - 1))
     crossed = 0.5 * (crossed + crossed.T)
     if np.all(np.linalg.eigvalsh(crossed) > 0):
         return crossed
-    a = 0.5 * (a1 + a2) * np.sqrt(weights)[:, None]
+    a = (total / n) * np.sqrt(weights)[:, None]
     return a.T @ a
 
 

@@ -7,12 +7,13 @@ the first fur_patch's 0.17 off in albedo and β_n. The loss is a sum of squared 
 
     (H + λ diag(H)) δx = −Aᵀ r,     H ≈ Aᵀ A,  A = ∂r/∂x,
 
-H from independent passes' Jacobians (`Linearization.curvature`, unbiased) and averaged over the
-last few linearisations, in the controls themselves (not Adam's latents: in log σ_a a high albedo's image is so
-curved that a step from 0.87 overshot to 0.63), shortened where it would go more than half way to a bound, with Aᵀ r from
-independent passes and A, r weighted as the loss weighs them. A step is kept when it lowers the loss as
-estimated by the trapezoid rule on the slopes along it, ½ (∇ℓ(x) + ∇ℓ(x + δx))·δx (exact for a quadratic).
-Gradients are unbiased and their noise is modest; loss values are not: each carries our render's Monte Carlo
+A and H from the Jacobians of the last JACOBIAN_WINDOW linearisations (`Linearization.earlier_jacobians`:
+each residual pass meets the mean of the Jacobians but its own, and H is unbiased), A and r weighted as the loss
+weighs them; in the controls themselves (not Adam's latents: in log σ_a a high albedo's image is so curved that
+a step from 0.87 overshot to 0.63), and shortened where it would go more than half way to a bound. A step is
+kept when it lowers the loss as estimated by the trapezoid rule on the slopes along it,
+½ (∇ℓ(x) + ∇ℓ(x + δx))·δx (exact for a quadratic). Gradients are unbiased and their noise is modest; loss
+values are not: each carries our render's Monte Carlo
 variance, which grows with the radiance, so that comparing losses (even with common random numbers) undid
 steps on fur_patch that landed on the truth, and the noise-free `misfit` of independent passes scattered by as
 much as the steps changed it. λ then shrinks, else it grows and the step is retried from the same
@@ -38,7 +39,7 @@ LAMBDA_START = 1e-3
 LAMBDA_DOWN, LAMBDA_UP = 1 / 3, 5.0
 LAMBDA_MAX = 1e4  # a step this damped moves nothing: stop
 SEED_STRIDE = 7919  # each linearisation renders with its own seeds
-CURVATURE_WINDOW = 4  # linearisations whose curvatures are averaged
+JACOBIAN_WINDOW = 8  # linearisations whose Jacobians are pooled
 EMPIRICAL_POINTS = 4  # end points needed before their own scatter is trusted to tell their noise
 REFINABLE_LOSSES = ("l2", "rel_l2")
 
@@ -67,8 +68,8 @@ def refine(target, start: dict, settings, spp: int, seed: int, steps: int, on_st
 
     start: the controls to refine from ({name: float or list of 3}). `on_keep(values)` is called with each kept
     step (the fit keeps it, to return after a KeyboardInterrupt), and `on_step(record)` after every step with
-    {"values", "loss", "misfit", "change", "accepted"}. The returned linearisation carries the curvature and the
-    target's scatter averaged over the last linearisations.
+    {"values", "loss", "misfit", "change", "accepted"}. The returned linearisation carries the last
+    linearisations' Jacobians and the target's scatter averaged over the later ones.
     """
     names = list(start)
     lo, hi = _bounds(names)
@@ -77,23 +78,27 @@ def refine(target, start: dict, settings, spp: int, seed: int, steps: int, on_st
     def linearized(x_at, k) -> Linearization:
         return linearize(target, by_control(names, x_at), settings, spp, seed + SEED_STRIDE * k, threads=settings.threads)
 
-    def with_window_curvature(lin_at: Linearization) -> Linearization:
-        """lin_at, its curvature the mean of the last CURVATURE_WINDOW linearisations' (its own included)."""
-        curvatures.append(lin_at.curvature)
-        return dataclasses.replace(lin_at, curvature=np.mean(curvatures[-CURVATURE_WINDOW:], axis=0))
+    def with_earlier(lin_at: Linearization) -> Linearization:
+        """lin_at with the Jacobians of the JACOBIAN_WINDOW − 1 linearisations before it."""
+        earlier = jacobians[-(JACOBIAN_WINDOW - 1):]
+        jacobians.append(lin_at.jacobians)
+        if not earlier:
+            return lin_at
+        return dataclasses.replace(lin_at, earlier_jacobians=np.concatenate(earlier), curvature=None)
 
-    curvatures = []  # each linearisation's own estimate, in order
-    lin = with_window_curvature(linearized(x, 0))
+    # One linearisation's Jacobian is noisy, and so then are the curvature (where it comes out too small, a step
+    # overshoots: on fur_patch, single estimates sent the steps oscillating ever wider around the optimum) and
+    # the gradient. Those of the last few linearisations together are steadier, and unlike all of them they
+    # forget the start's (auburn_curly's curvature from β_m 0.23, far higher than at the true 0.30, kept its
+    # steps short).
+    jacobians = []  # each linearisation's pair, in order
+    lin = with_earlier(linearized(x, 0))
     kept, scatters = [], []  # the kept end points and their linearisations' scatter estimates
     damping = LAMBDA_START
     for k in range(1, steps + 1):
-        # Each linearisation's estimate of the curvature is noisy: where it comes out too small, a step
-        # overshoots (on fur_patch, single estimates sent the steps oscillating ever wider around the optimum).
-        # The mean of the last few is steadier, and unlike a mean over all of them it forgets the start's
-        # curvature (auburn_curly's from β_m 0.23, far higher than at the true 0.30, kept its steps short).
-        h = np.mean(curvatures[-CURVATURE_WINDOW:], axis=0)
+        h = lin.curvature
         step = inside(x, -np.linalg.solve(h + damping * np.diag(np.diag(h)) + 1e-12 * np.eye(len(x)), lin.gradient), lo, hi)
-        lin_new = with_window_curvature(linearized(x + step, k))
+        lin_new = with_earlier(linearized(x + step, k))
         # The change of ½·loss along the step by the trapezoid rule on its slopes at both ends: exact for a
         # quadratic, and built from unbiased gradients instead of noisy loss values.
         change = 0.5 * float(lin.gradient @ step + lin_new.gradient @ step)
@@ -117,7 +122,7 @@ def refine(target, start: dict, settings, spp: int, seed: int, steps: int, on_st
     # Each linearisation's own render noise moves its step's end point; the later kept points scatter around
     # the optimum, and their mean scatters less.
     later = _later(kept)
-    final = with_window_curvature(linearized(np.mean(later, axis=0), steps + 1))
+    final = with_earlier(linearized(np.mean(later, axis=0), steps + 1))
     # One linearisation's scatter estimate is noisy where our render is much noisier than the target.
     final = dataclasses.replace(final, scatter=float(np.mean(_later(scatters) + [final.scatter_estimate])))
     if on_keep is not None:

@@ -9,7 +9,7 @@ squares, plus the Monte Carlo error of the estimate itself:
 
 s² measures what the target scatters by around the model (its own noise and any misfit): Var_MC, the Monte
 Carlo variance of our own render of each residual, is removed from it (s² is averaged over the refinement's
-later linearisations, H over its last four). The estimate is the mean of m Gauss–Newton end points, each
+later linearisations, H taken from the Jacobians of its last eight). The estimate is the mean of m Gauss–Newton end points, each
 moved by its linearisation's render noise; Cov_MC is that mean's covariance (`refine.mean_covariance`). After
 Adam alone it is left out. Before both terms were counted this way, auburn_curly reported ±0.001 for errors of 0.019.
 
