@@ -61,8 +61,9 @@ def estimate_uncertainty(result, lin: Linearization, mc_covariance: np.ndarray |
         result.correlations[f"{labels[i]}/{labels[j]}"] = float(rho[i, j])
         if abs(rho[i, j]) > CORRELATION_WARNING:
             result.warnings.append(
-                f"{labels[i]} and {labels[j]} are not separately identifiable from these images (correlation "
-                f"{rho[i, j]:+.3f}): a change of one is compensated by the other. Add an image under another light "
-                "(a back-lit one shows transmission) or fix one of them."
+                f"{labels[i]} and {labels[j]} trade off in these images (correlation {rho[i, j]:+.3f}): a change of "
+                f"one is largely compensated by the other, and their uncertainties (±{sigma[i]:.2g}, "
+                f"±{sigma[j]:.2g}) lie mostly along that trade-off. To tell them apart, add an image under another "
+                "light (a back-lit one shows transmission) or fix one of them."
             )
 

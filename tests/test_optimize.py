@@ -4,6 +4,7 @@ import dataclasses
 import json
 import math
 import shutil
+import types
 from pathlib import Path
 
 import numpy as np
@@ -16,6 +17,7 @@ from optimize.fit import FitSettings, check_settings, spp_at
 from optimize.linearize import Linearization, linearize
 from optimize.losses import image_loss
 from optimize.refine import inside, mean_covariance
+from optimize.uncertainty import estimate_uncertainty
 from optimize.target import SHIPPED_TARGETS, load_target, make_target, shipped_targets
 from warp_hair.io import read_exr, write_exr
 from warp_hair.render import render
@@ -301,6 +303,28 @@ def test_mean_covariance_counts_the_scatter_the_model_leaves_out():
         np.testing.assert_allclose(scale, expected, rtol=0.15)
     few = list(3.0 * sigma * rng.standard_normal((3, 2)))  # too few to tell: the model alone
     np.testing.assert_allclose(mean_covariance(few, lin), lin.step_covariance / 3)
+
+
+def test_a_trade_off_between_two_controls_is_named_with_its_uncertainties():
+    """Two columns nearly proportional (a change of one redone by the other) correlate their estimates beyond
+    0.95 and draw a warning naming both with their σ; independent columns draw none."""
+    rng = np.random.default_rng(9)
+    n = 4000
+    base = rng.standard_normal(n)
+    for second, warned in ((base + 0.1 * rng.standard_normal(n), True), (rng.standard_normal(n), False)):
+        lin = _noisy_linearization(rng, np.stack([base, second], axis=1), np.zeros(2), 0.2, 0.0)
+        lin = dataclasses.replace(lin, values={"beta_m": 0.3, "beta_n": 0.4})
+        result = types.SimpleNamespace(warnings=[], correlations={}, uncertainties=None)
+        estimate_uncertainty(result, lin)
+        rho = result.correlations["beta_m/beta_n"]
+        assert (abs(rho) > 0.95) == warned
+        if warned:
+            (message,) = result.warnings
+            sigma = result.uncertainties
+            assert message.startswith(f"beta_m and beta_n trade off in these images (correlation {rho:+.3f})")
+            assert f"(±{sigma['beta_m']:.2g}, ±{sigma['beta_n']:.2g})" in message
+        else:
+            assert result.warnings == []
 
 
 def test_refine_steps_stay_inside_the_ranges():
