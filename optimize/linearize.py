@@ -33,6 +33,8 @@ from warp_hair.torch import default_grad_seed, scene_with_controls
 from .controls import EXPOSURE
 from .losses import REL_EPSILON, block_mean
 
+CHANNELS = 3  # consecutive residuals of one pixel (or pooled block): R, G, B
+
 # θ columns of render_jacobian (warp_hair.bsdf_grad's ordering).
 COLUMNS = {"beta_m": [3], "beta_n": [4], "alpha": [5], "eta": [6], "r_roughness_scale": [7],
            "albedo": [0, 1, 2], "sigma_a": [0, 1, 2], "eumelanin": [0], "pheomelanin": [1]}
@@ -51,6 +53,8 @@ class Linearization:
     scatter: float | None = None  # s² of `statistical_covariance`; default: this linearisation's `scatter_estimate`
 
     def __post_init__(self):
+        if self.residuals.shape[1] % CHANNELS:
+            raise ValueError(f"residuals come {CHANNELS} to a pixel, one per channel; got {self.residuals.shape[1]}")
         if self.curvature is None:
             self.curvature = crossed_curvature(self.all_jacobians, self.loss_weights)
         if self.scatter is None:
@@ -84,14 +88,24 @@ class Linearization:
         return 0.5 * sum(((total - a) / (n - 1)).T @ (w * r) for a, r in zip(self.jacobians, self.residuals))
 
     @property
+    def noise_covariance(self) -> np.ndarray:
+        """(p, p): the covariance of the gradient Aᵀ W r̄ from our render noise in the mean residual r̄,
+        Aᵀ W C W A. A pixel's channels come from the same paths, so C is block diagonal, one 3×3 block per pixel
+        (or pooled block), not diagonal: the Monte Carlo variances V alone understated this covariance along β_m
+        2-fold on fur_patch. It is estimated from the passes' half difference d = (r₁ − r₂)/2, which has r̄'s
+        noise covariance and none of the target's scatter: Σ over pixels of (Σ_c w a d)(Σ_c w a d)ᵀ."""
+        w, a = self.loss_weights, self.mean_jacobian
+        half_difference = 0.5 * (self.residuals[0] - self.residuals[1])
+        per_pixel = ((w * half_difference)[:, None] * a).reshape(-1, CHANNELS, a.shape[1]).sum(axis=1)
+        return per_pixel.T @ per_pixel
+
+    @property
     def step_covariance(self) -> np.ndarray:
         """The covariance, from our render noise in the residuals, of where a Gauss–Newton step from here lands:
-        H⁻¹ Aᵀ W V W A H⁻¹, V the Monte Carlo variances of the mean residual. It leaves out the Jacobian's own
-        noise (no per-pixel variance of it is kept), so it is a lower bound where that noise is large."""
-        w, a = self.loss_weights, self.mean_jacobian
+        H⁻¹ `noise_covariance` H⁻¹. It leaves out the Jacobian's own noise, so it is a lower bound where that
+        noise is large."""
         h_inv = np.linalg.pinv(self.curvature)
-        middle = a.T @ ((w * w * self.mean_variance)[:, None] * a)
-        return h_inv @ middle @ h_inv
+        return h_inv @ self.noise_covariance @ h_inv
 
     @property
     def scatter_estimate(self) -> float:
@@ -103,11 +117,15 @@ class Linearization:
 
     @property
     def statistical_covariance(self) -> np.ndarray:
-        """s² H⁻¹ with s² = `scatter`, no less than a tenth of the whole residual variance (`uncertainty.py`)."""
+        """The covariance the target's scatter gives the fit, taken to correlate across a pixel's channels as our
+        render's noise does: `step_covariance` scaled by the ratio of s² (`scatter`, no less than a tenth of the
+        whole residual variance) to what s² would be were the target's scatter our own noise (`uncertainty.py`).
+        Where channels are independent and equally noisy, that is the classical s² H⁻¹."""
         w, r = self.loss_weights, self.mean_residual
         n, p = self.jacobians.shape[1:]
         s2 = max(self.scatter, 0.1 * float(w @ (r * r)) / max(n - p, 1))
-        return s2 * np.linalg.pinv(self.curvature)
+        ours = float(w @ self.mean_variance) / max(n - p, 1)
+        return s2 / max(ours, 1e-300) * self.step_covariance
 
     @property
     def mean_residual(self) -> np.ndarray:

@@ -9,9 +9,12 @@ squares, plus the Monte Carlo error of the estimate itself:
 
 s² measures what the target scatters by around the model (its own noise and any misfit): Var_MC, the Monte
 Carlo variance of our own render of each residual, is removed from it (s² is averaged over the refinement's
-later linearisations, H taken from the Jacobians of its last eight). The estimate is the mean of m Gauss–Newton end points, each
-moved by its linearisation's render noise; Cov_MC is that mean's covariance (`refine.mean_covariance`). After
-Adam alone it is left out. Before both terms were counted this way, auburn_curly reported ±0.001 for errors of 0.019.
+later linearisations, H taken from the Jacobians of its last eight). s² H⁻¹ treats the residuals as
+independent, but a pixel's three channels share their paths; the statistical term is therefore taken to
+correlate within a pixel as our render's noise does, measured from the difference of its two passes
+(`Linearization.statistical_covariance`). The estimate is the mean of m Gauss–Newton end points, each moved by
+its linearisation's render noise; Cov_MC is that mean's covariance (`refine.mean_covariance`). After Adam alone
+it is left out. Before both terms were counted this way, auburn_curly reported ±0.001 for errors of 0.019.
 
 Identifiability: two components whose estimates correlate by |ρ| > 0.95 trade off against each other in these
 images (albedo and β_n can, through the albedo inversion, under a single front light); a control the images do

@@ -229,10 +229,14 @@ def test_linearisation_reproduces_the_loss_and_its_gradient_crosses_the_passes()
         assert not np.allclose(a1.T @ (w * r1), a1.T @ (w * r2), rtol=1e-2)
 
 
-def _noisy_linearization(rng, jacobian, offset, noise, jacobian_noise, n_images=1):
-    """Two passes of a linear model r = J·offset + noise whose Jacobian is estimated with noise, as a render's is."""
+def _noisy_linearization(rng, jacobian, offset, noise, jacobian_noise, channel_correlation=0.0):
+    """Two passes of a linear model r = J·offset + noise whose Jacobian is estimated with noise, as a render's is;
+    residuals come three to a pixel, their noise correlated within it as `channel_correlation` says."""
     n = jacobian.shape[0]
-    residuals = jacobian @ offset + noise * rng.standard_normal((2, n))
+    shared = np.repeat(rng.standard_normal((2, n // 3)), 3, axis=1)
+    own = rng.standard_normal((2, n))
+    rho = channel_correlation
+    residuals = jacobian @ offset + noise * (np.sqrt(1 - rho) * own + np.sqrt(rho) * shared)
     jacobians = jacobian + jacobian_noise * rng.standard_normal((2, *jacobian.shape))
     return Linearization(values={}, residuals=residuals, variances=np.full((2, n), noise**2), jacobians=jacobians,
                          images=[], loss_weights=np.full(n, 1.0 / n))
@@ -242,7 +246,7 @@ def test_curvature_is_unbiased_where_the_jacobian_is_mostly_noise():
     """A column whose per-residual noise is 3x its signal (fur_patch's β_n): the product of a pass's Jacobian with
     itself is inflated about 10-fold on that diagonal, the crossed product of independent passes is not."""
     rng = np.random.default_rng(5)
-    n = 20000
+    n = 19998
     jacobian = np.stack([np.full(n, 1.0), rng.choice([-0.1, 0.1], n) + 0.05], axis=1)
     lin = _noisy_linearization(rng, jacobian, np.zeros(2), 0.01, np.array([0.05, 0.3]))
     exact = jacobian.T @ jacobian / n
@@ -257,7 +261,7 @@ def test_earlier_jacobians_take_the_jacobian_noise_out_of_the_steps():
     noise-free Jacobian's would. With 30 earlier renders' Jacobians pooled in, they scatter nearly as the noise-free one's,
     still around the truth, and the pooled curvature is unbiased."""
     rng = np.random.default_rng(8)
-    n, noise, jacobian_noise = 4000, 0.2, np.array([0.05, 0.2])
+    n, noise, jacobian_noise = 3999, 0.2, np.array([0.05, 0.2])
     jacobian = rng.standard_normal((n, 2)) * np.array([1.0, 0.1])
     exact = jacobian.T @ jacobian / n
     offset = np.array([0.01, -0.02])
@@ -278,7 +282,7 @@ def test_earlier_jacobians_take_the_jacobian_noise_out_of_the_steps():
 
 def test_step_covariance_predicts_the_scatter_of_gauss_newton_steps():
     rng = np.random.default_rng(6)
-    n = 4000
+    n = 3999
     jacobian = rng.standard_normal((n, 3)) * np.array([1.0, 0.5, 0.2])
     steps, predicted = [], []
     for _ in range(300):
@@ -289,11 +293,44 @@ def test_step_covariance_predicts_the_scatter_of_gauss_newton_steps():
     np.testing.assert_allclose(np.diag(np.cov(np.array(steps).T)), np.diag(np.mean(predicted, axis=0)), rtol=0.25)
 
 
+def test_step_covariance_counts_the_correlation_of_a_pixels_channels():
+    """A pixel's channels share their paths, so their noise correlates (here 0.8), and a control that moves all
+    three alike (a β) gets (1 + 2·0.8)-fold the gradient noise that independent channels would give. The steps
+    scatter as `step_covariance` predicts; the per-residual variances alone would predict less than half."""
+    rng = np.random.default_rng(10)
+    n = 3999
+    jacobian = np.stack([np.repeat(rng.standard_normal(n // 3), 3), rng.standard_normal(n)], axis=1)
+    steps, predicted, independent = [], [], []
+    for _ in range(300):
+        lin = _noisy_linearization(rng, jacobian, np.zeros(2), 0.2, 0.0, channel_correlation=0.8)
+        steps.append(-np.linalg.solve(lin.curvature, lin.gradient))
+        predicted.append(lin.step_covariance)
+        h_inv, w, a = np.linalg.inv(lin.curvature), lin.loss_weights, lin.mean_jacobian
+        independent.append(h_inv @ (a.T @ ((w * w * lin.mean_variance)[:, None] * a)) @ h_inv)
+    measured = np.var(steps, axis=0)
+    np.testing.assert_allclose(measured, np.diag(np.mean(predicted, axis=0)), rtol=0.25)
+    assert measured[0] > 2 * np.diag(np.mean(independent, axis=0))[0]
+
+
+def test_statistical_covariance_is_the_classical_one_for_independent_channels():
+    """With independent, equally noisy residuals it is s² H⁻¹ (nonlinear least squares' covariance); with a
+    pixel's channels correlated it grows along the control that moves them alike, as `step_covariance` does."""
+    rng = np.random.default_rng(11)
+    n = 3999
+    jacobian = np.stack([np.repeat(rng.standard_normal(n // 3), 3), rng.standard_normal(n)], axis=1)
+    lin = _noisy_linearization(rng, jacobian, np.zeros(2), 0.2, 0.0)
+    lin = dataclasses.replace(lin, scatter=1e-5)
+    np.testing.assert_allclose(lin.statistical_covariance, 1e-5 * np.linalg.inv(lin.curvature), rtol=0.1, atol=1e-6)
+    correlated = dataclasses.replace(_noisy_linearization(rng, jacobian, np.zeros(2), 0.2, 0.0, 0.8), scatter=1e-5)
+    ratio = np.diag(correlated.statistical_covariance) / np.diag(1e-5 * np.linalg.inv(correlated.curvature))
+    assert ratio[0] > 2.0 and ratio[1] == pytest.approx(1.0, rel=0.15)
+
+
 def test_mean_covariance_counts_the_scatter_the_model_leaves_out():
     """The mean of m end points has the model's covariance / m, scaled up when the points scatter more than the
     model says (the Jacobian's noise, which `step_covariance` leaves out), never down."""
     rng = np.random.default_rng(7)
-    n = 4000
+    n = 3999
     jacobian = rng.standard_normal((n, 2))
     lin = _noisy_linearization(rng, jacobian, np.zeros(2), 0.2, 0.0)
     sigma = np.sqrt(np.diag(lin.step_covariance))
@@ -309,7 +346,7 @@ def test_a_trade_off_between_two_controls_is_named_with_its_uncertainties():
     """Two columns nearly proportional (a change of one redone by the other) correlate their estimates beyond
     0.95 and draw a warning naming both with their σ; independent columns draw none."""
     rng = np.random.default_rng(9)
-    n = 4000
+    n = 3999
     base = rng.standard_normal(n)
     for second, warned in ((base + 0.1 * rng.standard_normal(n), True), (rng.standard_normal(n), False)):
         lin = _noisy_linearization(rng, np.stack([base, second], axis=1), np.zeros(2), 0.2, 0.0)
