@@ -67,6 +67,6 @@ def estimate_uncertainty(result, lin: Linearization, mc_covariance: np.ndarray |
                 f"{labels[i]} and {labels[j]} trade off in these images (correlation {rho[i, j]:+.3f}): a change of "
                 f"one is largely compensated by the other, and their uncertainties (±{sigma[i]:.2g}, "
                 f"±{sigma[j]:.2g}) lie mostly along that trade-off. To tell them apart, add an image under another "
-                "light (a back-lit one shows transmission) or fix one of them."
+                "light or from another view (a back-lit one shows transmission), or fix one of them."
             )
 
