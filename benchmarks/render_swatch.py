@@ -95,7 +95,9 @@ def mitsuba_scene(mi, scene, spp):
         # Ours renders roughness below 0.01 as 0.01 (warp_hair.params.BETA_FLOOR); Mitsuba does not clamp.
         "longitudinal_roughness": max(hair.beta_m, 0.01),
         "azimuthal_roughness": max(hair.beta_n, 0.01),
-        "scale_tilt": hair.alpha,  # degrees in both
+        # Degrees in both; Mitsuba rotates the lobes the way pbrt-v4 does, opposite to the physical tilt ours
+        # follows (MODEL.md "Cuticle tilt α"), so the same scales need the opposite sign.
+        "scale_tilt": -hair.alpha,
         # Mitsuba's eta is int_ior / ext_ior, and ext_ior defaults to air (1.000277): pin it to 1.
         "int_ior": hair.eta,
         "ext_ior": 1.0,
