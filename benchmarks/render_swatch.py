@@ -67,9 +67,10 @@ def import_mitsuba():
     return mi
 
 
-def mitsuba_scene(mi, scene, spp):
+def mitsuba_scene(mi, scene, spp, curve="linearcurve", fibers_file=None):
     """The warp-hair `scene` as a Mitsuba 3 scene. Only what the comparison needs is translated: an
-    orthographic or perspective camera, directional lights, a constant environment, fibers from a file."""
+    orthographic or perspective camera, directional lights, a constant environment, fibers from a file (the
+    scene's own, or `fibers_file` in the same text format) as Mitsuba's `curve` shape."""
     cam = scene.camera
     width, height = cam.resolution
     T = mi.ScalarTransform4f
@@ -83,7 +84,7 @@ def mitsuba_scene(mi, scene, spp):
                       "pixel_format": "rgb"}
     sensor["sampler"] = {"type": "independent", "sample_count": spp}
 
-    fibers_file = scene.source["fibers"].get("file")  # absolute: the loader resolved it
+    fibers_file = fibers_file or scene.source["fibers"].get("file")  # absolute: the loader resolved it
     if fibers_file is None or scene.card is not None:
         raise ValueError("the Mitsuba comparison needs fibers from a file (linearcurve) and no backing card")
     hair = scene.hair
@@ -109,7 +110,7 @@ def mitsuba_scene(mi, scene, spp):
         # scattering vertices (1: direct lighting), so our 16 are its 17. Both start Russian roulette once
         # rr_depth vertices are done (Mitsuba: depth >= rr_depth after its increment).
         "integrator": {"type": "path", "max_depth": scene.render.max_depth + 1, "rr_depth": scene.render.rr_depth},
-        "fibers": {"type": "linearcurve", "filename": fibers_file, "bsdf": bsdf},
+        "fibers": {"type": curve, "filename": str(fibers_file), "bsdf": bsdf},
     }
     for k, light in enumerate(scene.lights):
         if isinstance(light, DirectionalLight):

@@ -438,19 +438,16 @@ def read_text(path):
 
 def write_text(assembly, path):
     """Save `assembly` in the plain-text format: one `x y z radius` line per vertex, a blank line between
-    strands, after one `#` comment line. Values are written with 9 significant digits, which round-trips
-    float32 exactly."""
+    strands, and nothing else, so that Mitsuba 3's `linearcurve` and `bsplinecurve` load the file too (their
+    parser takes no comment lines). Values are written with 9 significant digits, which round-trips float32
+    exactly."""
     row = "%.9g %.9g %.9g %.9g\n"
     # One format string for the whole file: formatting it in one call is several times faster than per row.
     template = [row] * assembly.num_vertices
     for last in assembly.strand_offsets[1:-1] - 1:
         template[last] = row + "\n"
     values = np.column_stack([assembly.points, assembly.radii]).ravel().tolist()
-    comment = (
-        f"# {assembly.num_strands} strands, {assembly.num_vertices} vertices: "
-        "one 'x y z radius' line per vertex, a blank line between strands\n"
-    )
-    Path(path).write_text(comment + "".join(template) % tuple(values), encoding="utf-8")
+    Path(path).write_text("".join(template) % tuple(values), encoding="utf-8")
 
 
 def _parse_text(text, source):

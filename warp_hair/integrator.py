@@ -13,7 +13,7 @@ from .camera import CameraData, generate_ray
 from .card import NO_HIT, CardData, card_distance
 from .envmap import EnvironmentData, env_pdf, env_radiance, env_sample
 from .hair_bsdf import FLOAT32_MIN_NORMAL, HairCoefficients, LobeSetup, hair_sample, hair_value_pdf, lobe_setup
-from .intersect import FiberGeometry, fibers_occluded, intersect_fibers
+from .intersect import FiberGeometry, fibers_occluded, intersect_fibers, shading_frame
 from .bsdf_jacobian import (
     CoefficientDerivatives,
     LobeEvaluation,
@@ -223,11 +223,14 @@ def make_trace_path(differentiable: bool):
             if depth >= scene.max_depth:
                 break
 
-            # The shading frame: at a fiber, x along it and z its normal (MODEL.md); at the card, z its normal
-            # turned toward the incoming ray.
+            # The shading frame: at a fiber, x along it (turning smoothly along the strand) and z its normal
+            # (MODEL.md); at the card, z its normal turned toward the incoming ray.
             on_card = t_card < hit.t
             x = hit.tangent
             z = hit.normal
+            h = hit.h
+            if not on_card:
+                x, z, h = shading_frame(scene.fibers, hit, d)
             position = hit.position
             setup = LobeSetup()
             if wp.static(differentiable):
@@ -241,9 +244,9 @@ def make_trace_path(differentiable: bool):
             y = wp.cross(z, x)
             wo = to_local(-d, x, y, z)
             if not on_card:
-                setup = lobe_setup(scene.hair, wo, hit.h)
+                setup = lobe_setup(scene.hair, wo, h)
                 if wp.static(differentiable):
-                    d_setup = lobe_setup_grad(setup, wo, hit.h)
+                    d_setup = lobe_setup_grad(setup, wo, h)
 
             # Next-event estimation with one light.
             if num_emitters > 0:

@@ -29,7 +29,7 @@ class PreparedScene:
 
     def __init__(self, scene: Scene, device: str = "cpu"):
         self.device = device
-        self.bvh = FiberBVH(scene.fibers, device=device)
+        self.bvh = FiberBVH(scene.fibers, device=device, smooth_tangents=scene.render.tangents == "smooth")
         directional = [light for light in scene.lights if isinstance(light, DirectionalLight)]
         environments = [light for light in scene.lights if isinstance(light, EnvironmentLight)]
         if len(environments) > 1:

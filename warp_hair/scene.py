@@ -234,15 +234,21 @@ class Card:
         _set(self, "distance", distance)
 
 
+TANGENT_MODES = ("smooth", "segment")
+
+
 @dataclass(frozen=True, kw_only=True)
 class RenderSettings:
-    """Samples per pixel, the longest path (bounces), the seed, and the bounce after which Russian roulette
-    may end paths."""
+    """Samples per pixel, the longest path (bounces), the seed, the bounce after which Russian roulette
+    may end paths, and the fibers' shading tangents: "smooth" (turning continuously along each strand, as the
+    curve through its vertices does) or "segment" (each segment's own axis, the polyline's frame with its steps
+    at the joints; `warp_hair.intersect` explains both)."""
 
     spp: int = 64
     max_depth: int = 64
     seed: int = 0
     rr_depth: int = 8
+    tangents: str = "smooth"
 
     def __post_init__(self):
         _set(self, "spp", _integer("spp", self.spp, minimum=1))
@@ -251,6 +257,8 @@ class RenderSettings:
         _set(self, "seed", _integer("seed", self.seed, minimum=0))
         if self.seed >= SEED_LIMIT:
             raise ValueError(f"seed must be below 2**32, got {self.seed!r}")
+        if self.tangents not in TANGENT_MODES:
+            raise ValueError(f"tangents must be one of {list(TANGENT_MODES)}, got {self.tangents!r}")
 
 
 @dataclass
