@@ -123,7 +123,7 @@ def _curves(path, curves, Usd, UsdGeom, radius, segments):
         raise fail(f"curveVertexCounts add up to {int(counts.sum())}, but there are {len(points)} points")
     bad = np.flatnonzero(~np.isfinite(points).all(axis=1))
     if bad.size:
-        raise fail(f"point {int(bad[0])} {tuple(points[bad[0]])} is not finite")
+        raise fail(f"point {int(bad[0])} ({', '.join(f'{x:g}' for x in points[bad[0]])}) is not finite")
     kind = _get(curves.GetTypeAttr(), Usd) or "cubic"
     basis = _get(curves.GetBasisAttr(), Usd) or "bezier"
     wrap = _get(curves.GetWrapAttr(), Usd) or "nonperiodic"
@@ -145,7 +145,7 @@ def _curves(path, curves, Usd, UsdGeom, radius, segments):
     widths = np.asarray(widths, dtype=np.float64).reshape(-1)
     bad = np.flatnonzero(~(np.isfinite(widths) & (widths > 0)))
     if bad.size:
-        raise fail(f"width {widths[bad[0]]} (index {int(bad[0])}) is not a positive number")
+        raise fail(f"width {widths[bad[0]]:g} (index {int(bad[0])}) is not a positive number")
 
     starts = np.concatenate([[0], np.cumsum(counts)])
     spans = [_span_count(kind, basis, wrap, int(n)) for n in counts]

@@ -26,7 +26,7 @@ RENDERERS = {module.NAME: module for module in (mitsuba, pbrt, cycles, materialx
 # The key of a fit's params.json (optimize/report.py) that holds every control of the fitted look.
 LOOK_KEY = "look"
 
-__all__ = ["RENDERERS", "LossyExportWarning", "export", "load_look", "renderer"]
+__all__ = ["RENDERERS", "LossyExportWarning", "default_filename", "export", "load_look", "parse_renderers", "renderer"]
 
 
 def renderer(name: str):
@@ -35,6 +35,21 @@ def renderer(name: str):
         return RENDERERS[name]
     except KeyError:
         raise ValueError(f"unknown renderer {name!r} to export to; choose one of {', '.join(RENDERERS)}") from None
+
+
+def parse_renderers(names: str) -> list[str]:
+    """"mitsuba,cycles" → ["mitsuba", "cycles"], each checked."""
+    chosen = [n.strip() for n in names.split(",") if n.strip()]
+    if not chosen:
+        raise ValueError(f"no renderer to export to; choose from {', '.join(RENDERERS)}")
+    for name in chosen:
+        renderer(name)
+    return chosen
+
+
+def default_filename(to: str) -> str:
+    """The file name an export gets beside a fit's params.json, e.g. hair_mitsuba.xml."""
+    return f"hair_{to}{renderer(to).SUFFIX}"
 
 
 def load_look(path) -> HairParams:

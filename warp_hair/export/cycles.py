@@ -20,7 +20,7 @@ intern/cycles/kernel/closure/bsdf_principled_hair_chiang.h `bsdf_hair_chiang_set
   v(β_R) = k·v(β_m). Coat lives in [0, 1]: k > 1 cannot be expressed (Coat 0, R as rough as β_m), nor a β_R
   below Cycles' 0.001 clamp; both warn (LossyExportWarning).
 - `IOR` = η. `Offset` = α in radians: positive Offset moves R toward a strand's first point, as ours (common.py).
-- `Random Color`, `Random Roughness` = 0: the look has no per-strand randomness.
+- `Random Roughness` = 0: the look has no per-strand randomness (`Random Color` acts on melanin only).
 """
 
 from __future__ import annotations
@@ -82,7 +82,6 @@ def node_settings(params: HairParams) -> dict:
         "Coat": coat_from_r_roughness_scale(beta_m, params.r_roughness_scale),
         "IOR": float(params.eta),
         "Offset": math.radians(tilt_degrees(params, NAME)),
-        "Random Color": 0.0,
         "Random Roughness": 0.0,
     })
     return {"model": "CHIANG", "parametrization": parametrization, "inputs": inputs}
