@@ -169,9 +169,10 @@ def test_cycles_values(colour):
     # The logistic scale: (0.265 s + 1.194 s² + 5.372 s²²) · √(π/8), as ours.
     s = inputs["Radial Roughness"]
     assert (0.265 * s + 1.194 * s**2 + 5.372 * s**22) * math.sqrt(math.pi / 8) == pytest.approx(logistic_scale(params.beta_n))
-    # hair_alpha_angles: R is evaluated at the light's θ_i rotated by +2·Offset (radians).
-    two_alpha = 2 * inputs["Offset"]
-    assert_r_toward_root(lambda ti, to: (ti + two_alpha, to), params.alpha)
+    # Blender 4.5: bsdf_hair_chiang_setup sets alpha = −Offset (radians) and hair_alpha_angles evaluates R at
+    # the viewer's sin θ_o cos 2α − cos θ_o sin 2α.
+    two_alpha = 2 * -inputs["Offset"]
+    assert_r_toward_root(lambda ti, to: (ti, to - two_alpha), params.alpha)
 
 
 @pytest.mark.parametrize("beta_m", [0.1, 0.3, 0.7])

@@ -6,9 +6,10 @@
 The script makes a material "warp-hair look" (`make_material(name)`) and, when run, gives it to the active
 object if that object takes materials.
 
-Conversion (Blender 4.5: intern/cycles/kernel/svm/closure.h `svm_node_closure_bsdf`, the Principled Hair case;
-intern/cycles/kernel/closure/bsdf_principled_hair_chiang.h `bsdf_hair_chiang_setup` and
-`bsdf_principled_hair_sigma_from_reflectance`), checked with bpy 4.5 LTS renders (benchmarks/export_roundtrip.py):
+Conversion (Blender 4.5 intern/cycles/kernel: svm/closure.h `svm_node_closure_bsdf`, the Principled Hair case;
+closure/bsdf_principled_hair_chiang.h `bsdf_hair_chiang_setup`, `hair_alpha_angles`; closure/bsdf_util.h
+`bsdf_principled_hair_sigma_from_reflectance`; the bpy 4.5 wheel ships this source), checked with bpy 4.5 LTS
+renders (benchmarks/export_roundtrip.py):
 - Colour: an albedo look uses the `COLOR` parametrization (Cycles inverts the colour with the talk's polynomial at
   `Radial Roughness`, which is ours); σ_a and melanin looks use `ABSORPTION` with our σ_a, which is per unit
   fiber radius, as Cycles'. (Cycles' own melanin coefficients are not d'Eon's, so melanin is not mapped to its
@@ -19,7 +20,8 @@ intern/cycles/kernel/closure/bsdf_principled_hair_chiang.h `bsdf_hair_chiang_set
   [0.001, 1]) where ours multiplies the R lobe's *variance* v(β_m) by k. So Coat = 1 − β_R/β_m with
   v(β_R) = k·v(β_m). Coat lives in [0, 1]: k > 1 cannot be expressed (Coat 0, R as rough as β_m), nor a β_R
   below Cycles' 0.001 clamp; both warn (LossyExportWarning).
-- `IOR` = η. `Offset` = α in radians: positive Offset moves R toward a strand's first point, as ours (common.py).
+- `IOR` = η. `Offset` = α in radians: `bsdf_hair_chiang_setup` negates it and `hair_alpha_angles` rotates the
+  viewer's θ by −2·(−Offset) for R, so positive Offset moves R toward a strand's first point, as ours (common.py).
 - `Random Roughness` = 0: the look has no per-strand randomness (`Random Color` acts on melanin only).
 """
 
