@@ -92,7 +92,7 @@ def mitsuba_scene(mi, scene, spp, shape="linearcurve", fibers_file=None):
     hair = scene.hair
     if hair.r_roughness_scale != 1.0:
         raise ValueError("Mitsuba's hair BSDF has no R-roughness scale; set r_roughness_scale = 1")
-    bsdf = bsdf_dict(hair)
+    bsdf = bsdf_dict(hair)  # scale_tilt = −α: Mitsuba rotates the lobes opposite to the physical tilt
     result = {
         "type": "scene",
         "sensor": sensor,

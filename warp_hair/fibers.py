@@ -4,6 +4,10 @@
 (Cem Yuksel's binary `.hair`, the plain-text `x y z radius` format of Mitsuba 3's `linearcurve`, and USD
 BasisCurves through `warp_hair.usd`), and
 `swatch`, `wavy`, `curly` and `fur` build procedural test geometry. Plain NumPy throughout.
+
+Every strand is listed root first, in files (as `.hair`, Mitsuba's curve text and USD BasisCurves list them)
+and in the generators: the cuticle tilt α shifts the primary highlight toward a strand's first vertex, so a
+strand listed tip first would show it on the wrong side.
 """
 
 from __future__ import annotations
@@ -553,7 +557,7 @@ def swatch(
 ):
     """A flat swatch of straight, parallel fibers, like a hair swatch card.
 
-    Fibers run along +y from y = −length/2 to +length/2 and spread across x, in `layers` layers stacked
+    Fibers run along +y from their roots at y = −length/2 to their tips at +length/2 and spread across x, in `layers` layers stacked
     towards −z: layer k lies near z = −k·layer_gap, so layer 0 (at z = 0) faces a camera on +z. Odd layers are
     offset by half a spacing to cover the gaps between the fibers of even ones, so the swatch has no
     see-through gaps. Strands are ordered layer by layer, left to right; when `layers` does not divide

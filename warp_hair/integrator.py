@@ -12,7 +12,7 @@ import warp as wp
 from .camera import CameraData, generate_ray
 from .card import NO_HIT, CardData, card_distance
 from .envmap import EnvironmentData, env_pdf, env_radiance, env_sample
-from .hair_bsdf import HairCoefficients, LobeSetup, hair_sample, hair_value_pdf, lobe_setup
+from .hair_bsdf import FLOAT32_MIN_NORMAL, HairCoefficients, LobeSetup, hair_sample, hair_value_pdf, lobe_setup
 from .intersect import FiberGeometry, fibers_occluded, intersect_fibers
 from .bsdf_jacobian import (
     CoefficientDerivatives,
@@ -30,7 +30,6 @@ from .lobes import TWO_PI
 wp.set_module_options({"enable_backward": False, "optimization_level": 3})
 
 INV_PI = wp.constant(0.31830988618379067)
-FLOAT32_MIN_NORMAL = wp.constant(1.17549435e-38)
 
 
 @wp.struct
@@ -301,7 +300,7 @@ def make_trace_path(differentiable: bool):
                 value, pdf, lobes = scatter_value_pdf_lobes(scene, on_card, setup, wi)
             else:
                 value, pdf = scatter_value_pdf(scene, on_card, setup, wi)
-            if pdf <= 0.0:
+            if pdf < FLOAT32_MIN_NORMAL:
                 break
             throughput = wp.cw_mul(throughput, value / pdf)
             prev_pdf = pdf
