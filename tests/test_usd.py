@@ -174,6 +174,17 @@ def test_bad_curves_name_file_and_prim(tmp_path, edit, message):
         load_fibers(path)
 
 
+def test_unreadable_stage_and_bad_options(tmp_path):
+    path = tmp_path / "junk.usda"
+    path.write_text("#usda 1.0\ndef Xform \"oops\" {{{\n")
+    with pytest.raises(UsdCurveError, match="junk.usda: cannot open the USD stage"):
+        load_fibers(path)
+    with pytest.raises(UsdCurveError, match="radius must be a positive number, got 'thin'"):
+        load_fibers(path, radius="thin")
+    with pytest.raises(UsdCurveError, match="segments must be an integer >= 1, got 0"):
+        load_fibers(path, segments=0)
+
+
 def test_no_basis_curves(tmp_path):
     path = tmp_path / "empty.usda"
     stage = Usd.Stage.CreateNew(str(path))
@@ -188,6 +199,7 @@ def test_round_trip_text_usd_text_keeps_every_vertex(tmp_path):
     save_fibers(swatch(count=12, segments=7, seed=3), text)
     original = load_fibers(text)
     for suffix in (".usda", ".usdc"):
+        save_fibers(swatch(count=4), tmp_path / f"groom{suffix}")  # replaced by the next save
         save_fibers(original, tmp_path / f"groom{suffix}")
         back = tmp_path / f"back{suffix}.txt"
         save_fibers(load_fibers(tmp_path / f"groom{suffix}"), back)

@@ -30,6 +30,8 @@ without `radius`.
 
 from __future__ import annotations
 
+import math
+import numbers
 from pathlib import Path
 
 import numpy as np
@@ -74,11 +76,15 @@ def read_usd(path, *, prim=None, radius=None, segments=DEFAULT_SEGMENTS):
     Usd, UsdGeom = _pxr(path)
     if not isinstance(segments, int) or isinstance(segments, bool) or segments < 1:
         raise UsdCurveError(path, f"segments must be an integer >= 1, got {segments!r}")
-    if radius is not None and not (np.isfinite(radius) and radius > 0):
+    real = isinstance(radius, numbers.Real) and not isinstance(radius, bool)
+    if radius is not None and not (real and math.isfinite(radius) and radius > 0):
         raise UsdCurveError(path, f"radius must be a positive number, got {radius!r}")
     if not path.is_file():
         raise FileNotFoundError(f"{path}: USD file not found")
-    stage = Usd.Stage.Open(str(path))
+    try:
+        stage = Usd.Stage.Open(str(path))
+    except RuntimeError as error:  # pxr.Tf.ErrorException: not a USD file, or a malformed one
+        raise UsdCurveError(path, f"cannot open the USD stage: {str(error).strip()}") from None
     if stage is None:
         raise UsdCurveError(path, "cannot open the USD stage")
     if prim is None:
@@ -239,9 +245,7 @@ def write_usd(assembly, path, *, prim=WRITE_PRIM):
     Usd, UsdGeom = _pxr(path)
     from pxr import Vt
 
-    stage = Usd.Stage.CreateNew(str(path))
-    if stage is None:
-        raise OSError(f"{path}: cannot create the USD file")
+    stage = Usd.Stage.CreateInMemory()
     UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y)
     parent = prim.rsplit("/", 1)[0]
     if parent:
@@ -254,4 +258,10 @@ def write_usd(assembly, path, *, prim=WRITE_PRIM):
     curves.CreateCurveVertexCountsAttr(Vt.IntArray.FromNumpy(assembly.vertex_counts.astype(np.int32)))
     curves.CreateWidthsAttr(Vt.FloatArray.FromNumpy(2.0 * np.asarray(assembly.radii, dtype=np.float32)))
     curves.SetWidthsInterpolation(UsdGeom.Tokens.vertex)
-    stage.GetRootLayer().Save()
+    # Export (not CreateNew + Save) so that an existing file is replaced, as the other fiber writers do.
+    try:
+        written = stage.GetRootLayer().Export(str(path))
+    except RuntimeError as error:  # pxr.Tf.ErrorException
+        raise OSError(f"{path}: cannot write the USD file: {error}") from None
+    if not written:
+        raise OSError(f"{path}: cannot write the USD file")
