@@ -2,6 +2,7 @@
 warp-hair on the same draped swatch (benchmarks/draped_swatch.toml, alpha = 0).
 
     python benchmarks/export_roundtrip.py [--spp 128] [--cycles-spp 128] [--threads N] [--out DIR] [--no-cycles]
+                                          [--alpha DEG]
 
 Prints each renderer's mean RGB and the ratio to warp-hair's, with its Monte Carlo standard error (each renderer
 renders two independent halves of the samples, seeds s and s + 1; the halves' per-pixel differences give the
@@ -14,15 +15,20 @@ that make it comparable: box pixel filter of width 1, no glossy filter, no clamp
 denoising or adaptive sampling, 128 bounces of every kind, the sun's strength as irradiance and the world colour
 as radiance. Blender runs in a child process (bpy brings its own libraries). Either renderer is skipped, with
 the reason, when it is not installed. Timings are not the point here; the machine may be shared.
+
+`--alpha DEG` checks the tilt's sign instead, with Cycles only (Mitsuba's curves flip the tangent with the side
+of the fiber hit): it prints where the highlight band lies (the centroid row of the brightest fifth of the row
+profile, row 0 at the tips) in warp-hair at +α and −α and in Cycles with the exported Offset.
 """
 
 from __future__ import annotations
 
 import argparse
+import copy
 import importlib.metadata
 import importlib.util
 import json
-import os
+import math
 import subprocess
 import sys
 import tempfile
@@ -184,6 +190,34 @@ def report(name, ours, theirs):
     return ok
 
 
+def highlight_row(image):
+    """The centroid row of the brightest fifth of the rows (mean luminance across each row)."""
+    profile = image.mean(axis=(1, 2))
+    bright = profile >= np.quantile(profile, 0.8)
+    rows = np.arange(len(profile))
+    return float(np.sum(rows[bright] * profile[bright]) / np.sum(profile[bright]))
+
+
+def tilt_check(scene, args):
+    seed = scene.render.seed
+    print(f"tilt check at alpha = {scene.hair.alpha:g} deg (Cycles only; row 0 holds the tips, the roots are at the "
+          "bottom)")
+    for alpha in (scene.hair.alpha, -scene.hair.alpha):
+        image = render(scene_with_alpha(scene, alpha), spp=args.spp, seed=seed, threads=args.threads)
+        print(f"warp-hair alpha {alpha:+g}: highlight row {highlight_row(image):.2f}")
+    with tempfile.TemporaryDirectory() as tmp:
+        cycles = render_cycles(scene, args.cycles_spp, seed, Path(tmp))
+    if cycles is not None:
+        print(f"Cycles Offset {math.radians(scene.hair.alpha):+.5f} rad: highlight row {highlight_row(cycles):.2f}")
+    return 0
+
+
+def scene_with_alpha(scene, alpha):
+    scene = copy.copy(scene)
+    scene.hair = scene.hair.replace(alpha=alpha)
+    return scene
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--spp", type=int, default=128, help="samples per pixel for warp-hair and Mitsuba")
@@ -191,12 +225,15 @@ def main(argv=None):
     parser.add_argument("--threads", type=int, default=None)
     parser.add_argument("--out", type=Path, default=HERE / "out" / "export_roundtrip")
     parser.add_argument("--no-cycles", action="store_true")
+    parser.add_argument("--alpha", type=float, help="check the tilt's sign at this alpha (degrees) against Cycles")
     parser.add_argument("--cycles-job", type=Path, help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.cycles_job is not None:
         return cycles_child(args.cycles_job)
 
     scene = load_scene(SCENE)
+    if args.alpha is not None:
+        return tilt_check(scene_with_alpha(scene, args.alpha), args)
     seed = scene.render.seed
     width, height = scene.camera.resolution
     print(f"{SCENE.name}: {width}x{height}, {scene.fibers.num_strands} fibers, look {scene.hair.to_dict()}; "
