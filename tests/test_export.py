@@ -328,3 +328,10 @@ def test_cli_export_errors(tmp_path, capsys, args, message):
     assert main(["export", *[swap.get(a, a) for a in args]]) == 2
     err = capsys.readouterr().err
     assert err.startswith("warp-hair: error: ") and message in err and "Traceback" not in err
+
+
+def test_cli_reports_what_a_renderer_cannot_express(tmp_path, capsys):
+    look = write_look(tmp_path, HairParams(albedo=0.5, r_roughness_scale=0.5))
+    assert main(["export", str(look), "--to", "mitsuba", "-o", str(tmp_path / "hair.xml")]) == 0
+    err = capsys.readouterr().err
+    assert "warp-hair: warning: mitsuba export: it has no R-roughness scale: r_roughness_scale = 0.5" in err
