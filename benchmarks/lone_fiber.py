@@ -97,7 +97,7 @@ def main(argv=None):
             if mi is not None:
                 fibers_file = Path(tmp) / "fiber.txt"
                 save_fibers(scene.fibers, fibers_file)
-                mi_scene = mitsuba_scene(mi, scene, args.spp, curve="bsplinecurve", fibers_file=fibers_file)
+                mi_scene = mitsuba_scene(mi, scene, args.spp, shape="bsplinecurve", fibers_file=fibers_file)
                 _, _, theirs = time_mitsuba(mi, mi_scene, args.spp, 5, default_threads(), 1)
                 theirs = theirs.mean(axis=0)
                 line += (f"; Mitsuba / exact {fmt(theirs.mean(axis=0) / exact.mean(axis=0))}, worst column "

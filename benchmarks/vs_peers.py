@@ -138,7 +138,7 @@ def main(argv=None):
             print(f"[{lighting}] smooth vs segment tangents: block RMSE {block_rmse(images['segment'], images['smooth']):.2%}")
             peers = {}
             if mi is not None:
-                mi_scene = mitsuba_scene(mi, scene, args.spp, curve="bsplinecurve", fibers_file=fibers_file)
+                mi_scene = mitsuba_scene(mi, scene, args.spp, shape="bsplinecurve", fibers_file=fibers_file)
                 start = time.perf_counter()
                 peers[f"Mitsuba {mi.__version__}"] = time_mitsuba(mi, mi_scene, args.spp, 0, threads, 1)[2]
                 print(f"[{lighting}] Mitsuba bsplinecurve: {time.perf_counter() - start:.1f} s")

@@ -1,7 +1,8 @@
 """Fiber geometry: strands of hair or fur as polylines with a radius per vertex.
 
 `FiberAssembly` is the container the renderer reads. Files load and save with `load_fibers` / `save_fibers`
-(Cem Yuksel's binary `.hair`, and the plain-text `x y z radius` format of Mitsuba 3's `linearcurve`), and
+(Cem Yuksel's binary `.hair`, the plain-text `x y z radius` format of Mitsuba 3's `linearcurve`, and USD
+BasisCurves through `warp_hair.usd`), and
 `swatch`, `wavy`, `curly` and `fur` build procedural test geometry. Plain NumPy throughout.
 
 Every strand is listed root first, in files (as `.hair`, Mitsuba's curve text and USD BasisCurves list them)
@@ -18,6 +19,8 @@ from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
+
+from .usd import SUFFIXES as USD_SUFFIXES
 
 
 class FiberDataError(ValueError):
@@ -236,15 +239,26 @@ def _check_strands(points, radii, offsets, source):
 # Files
 
 
-def load_fibers(path):
-    """Load a fiber file, choosing the format by extension: `.hair` (Cem Yuksel's binary) or `.txt` (text)."""
+def load_fibers(path, **options):
+    """Load a fiber file, choosing the format by extension: `.hair` (Cem Yuksel's binary), `.txt` (text), or a USD
+    stage (`.usd`, `.usda`, `.usdc`: BasisCurves, `warp_hair.usd`, which takes `options` prim, radius, segments)."""
     path = Path(path)
+    if path.suffix.lower() in USD_SUFFIXES:
+        from .usd import read_usd
+
+        return read_usd(path, **options)
+    if options:
+        raise ValueError(f"{path}: {', '.join(sorted(options))} apply to USD files only")
     return _format_for(path)[0](path)
 
 
 def save_fibers(assembly, path):
-    """Save `assembly`, choosing the format by extension: `.hair` (Cem Yuksel's binary) or `.txt` (text)."""
+    """Save `assembly`, choosing the format by extension: `.hair`, `.txt`, or USD (linear BasisCurves)."""
     path = Path(path)
+    if path.suffix.lower() in USD_SUFFIXES:
+        from .usd import write_usd
+
+        return write_usd(assembly, path)
     _format_for(path)[1](assembly, path)
 
 
@@ -253,7 +267,7 @@ def _format_for(path):
     try:
         return formats[path.suffix.lower()]
     except KeyError:
-        known = ", ".join(formats)
+        known = ", ".join([*formats, *USD_SUFFIXES])
         raise ValueError(f"{path}: unknown fiber file extension {path.suffix!r}; expected one of {known}") from None
 
 

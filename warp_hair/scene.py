@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from . import fibers as fiber_module
-from .fibers import FiberAssembly, load_fibers
+from .fibers import USD_SUFFIXES, FiberAssembly, load_fibers
 from .io import read_exr
 from .params import HairParams
 
@@ -30,6 +30,8 @@ CAMERA_TYPES = ("orthographic", "perspective")
 TABLES = ("camera", "lights", "fibers", "hair", "render", "card")
 GENERATORS = {name: getattr(fiber_module, name) for name in ("swatch", "wavy", "curly", "fur")}
 # Generator arguments that must be integers; every other argument takes a number or a list of numbers.
+# The [fibers] keys a USD file takes besides `file` (warp_hair.usd documents them).
+USD_FIBER_OPTIONS = ("prim", "radius", "segments")
 INTEGER_GENERATOR_ARGS = frozenset({"count", "layers", "segments", "seed"})
 # Warp's random streams are seeded with a uint32.
 SEED_LIMIT = 2**32
@@ -394,14 +396,15 @@ def _path(value, base_dir, name):
 
 def _fibers(table, prefix, base_dir, source):
     if ("file" in table) == ("generator" in table):
-        raise ValueError(f"{prefix} needs exactly one of file (a .txt or .hair file) and generator")
+        raise ValueError(f"{prefix} needs exactly one of file (a .txt, .hair or USD file) and generator")
     if "file" in table:
-        _check_keys(table, ["file"], prefix)
         path = _path(table["file"], base_dir, f"{prefix} file")
+        usd_options = USD_FIBER_OPTIONS if path.suffix.lower() in USD_SUFFIXES else []
+        _check_keys(table, ["file", *usd_options], prefix)
         source["fibers"]["file"] = str(path)
         try:
-            fibers = load_fibers(path)
-        except (OSError, ValueError) as error:
+            fibers = load_fibers(path, **{key: table[key] for key in usd_options if key in table})
+        except (OSError, ValueError, ImportError) as error:
             raise ValueError(f"{prefix} file: {error}") from None
     else:
         fibers = _generate(table, prefix)
