@@ -7,10 +7,8 @@
 packages. What the translation sets, and why (each one measured to matter, or Cycles' documented behaviour):
 - Strands become a hair `Curves` object (Catmull-Rom through the vertices, radius per vertex) drawn as THICK
   curves: round tubes, as ours.
-- Principled Hair BSDF, Chiang model, absorption parametrization: Cycles' absorption is per unit fiber radius,
-  as ours; Roughness and Radial Roughness are β_m and β_n (Cycles applies the talk's mappings with √(π/8)),
-  Offset is the cuticle tilt in radians with the physical sign (ours), Coat 0 (no R-roughness scale), no
-  random roughness or colour.
+- The material is the look as `warp-hair export --to cycles` writes it (`warp_hair.export.cycles` documents
+  the conversion), so this also checks the export.
 - An unbiased estimator: filter glossy 0, no clamping, light threshold 0, no denoising, no adaptive sampling,
   caustics kept, every bounce kind allowed up to the scene's max_depth. Cycles counts the bounces after the
   first hit (0 is direct lighting only), ours the scattering vertices (1 is direct lighting): ours − 1.
@@ -27,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
+from warp_hair.export import export
 from warp_hair.io import read_exr
 from warp_hair.scene import DirectionalLight, EnvironmentLight
 
@@ -76,26 +75,13 @@ def _fibers(bpy, fibers, material):
     return obj
 
 
-def _material(bpy, hair):
-    material = bpy.data.materials.new("hair")
-    material.use_nodes = True
-    nodes, links = material.node_tree.nodes, material.node_tree.links
-    nodes.clear()
-    node = nodes.new("ShaderNodeBsdfHairPrincipled")
-    node.model = "CHIANG"
-    node.parametrization = "ABSORPTION"
-    node.inputs["Absorption Coefficient"].default_value = tuple(float(c) for c in hair.sigma_a)
-    node.inputs["Roughness"].default_value = float(hair.beta_m)
-    node.inputs["Radial Roughness"].default_value = float(hair.beta_n)
-    node.inputs["Coat"].default_value = 0.0
-    node.inputs["IOR"].default_value = float(hair.eta)
-    node.inputs["Offset"].default_value = math.radians(hair.alpha)
-    node.inputs["Random Roughness"].default_value = 0.0
-    output = nodes.new("ShaderNodeOutputMaterial")
-    links.new(node.outputs["BSDF"], output.inputs["Surface"])
-    if hair.r_roughness_scale != 1.0:
-        raise ValueError("the Cycles comparison takes r_roughness_scale = 1 (Coat 0)")
-    return material
+def _material(bpy, hair, workdir):
+    """The look's material exactly as `warp-hair export --to cycles` writes it: the exported script, run."""
+    import runpy
+
+    script = Path(workdir) / "hair_cycles.py"
+    export(hair, "cycles", script)
+    return runpy.run_path(str(script))["make_material"]()
 
 
 def _lights(bpy, scene, lights):
@@ -193,8 +179,8 @@ def render_cycles(bpy, scene, spp, threads=None, seed=0, fibers=None):
     _settings(blender, spp, scene.render.max_depth, seed, threads)
     _camera(bpy, blender, scene.camera)
     _lights(bpy, blender, scene.lights)
-    _fibers(bpy, fibers, _material(bpy, scene.hair))
     with tempfile.TemporaryDirectory() as tmp:
+        _fibers(bpy, fibers, _material(bpy, scene.hair, tmp))
         path = Path(tmp) / "cycles.exr"
         blender.render.filepath = str(path)
         bpy.ops.render.render(write_still=True)

@@ -1,4 +1,5 @@
-"""Benchmark: one straight fiber, direct lighting only, against the exact answer, in warp-hair and Mitsuba 3.
+"""Benchmark: one straight fiber, direct lighting only, against the exact answer, in warp-hair, Mitsuba 3 and
+Blender Cycles.
 
     python benchmarks/lone_fiber.py [--spp 1024] [--columns 32] [--bounces 1]
 
@@ -11,7 +12,8 @@ renderers are compared with that quadrature: the ratio of image means, and the l
 This separates the BSDF and the fiber's geometry from everything else a swatch adds (inter-reflection, the
 curve shapes' joints and ends): a renderer brighter here is brighter in its single scattering. Mitsuba renders
 the fiber as a `bsplinecurve` with collinear control points (a straight tube of constant radius) at α = 0,
-`path` integrator with max_depth = bounces + 1 (its count of path segments).
+`path` integrator with max_depth = bounces + 1 (its count of path segments); Cycles as THICK curves
+(benchmarks/cycles_peer.py). Either peer is skipped, with the reason, when it is not installed.
 
 With --bounces above 1 the exact answer is the same: the near-field model's fiber is a scattering surface whose
 lobes already include every passage through it (TT, TRT, ...), and a path that leaves a lone straight fiber
@@ -32,6 +34,7 @@ from warp_hair.parallel import default_threads
 from warp_hair.render import render
 from warp_hair.scene import scene_from_dict
 
+from cycles_peer import import_bpy, render_cycles
 from render_swatch import import_mitsuba, mitsuba_scene, time_mitsuba
 
 RADIUS = 0.05
@@ -87,6 +90,7 @@ def main(argv=None):
     parser.add_argument("--bounces", type=int, default=1, help="scattering vertices a path may have (default 1)")
     args = parser.parse_args(argv)
     mi = import_mitsuba()
+    bpy = import_bpy()
     with tempfile.TemporaryDirectory() as tmp:
         for name, direction in LIGHTS.items():
             scene = lone_fiber_scene(direction, args.columns, args.spp, args.bounces)
@@ -101,6 +105,10 @@ def main(argv=None):
                 _, _, theirs = time_mitsuba(mi, mi_scene, args.spp, 5, default_threads(), 1)
                 theirs = theirs.mean(axis=0)
                 line += (f"; Mitsuba / exact {fmt(theirs.mean(axis=0) / exact.mean(axis=0))}, worst column "
+                         f"{np.max(np.abs(theirs - exact)) / exact.max():.2%}")
+            if bpy is not None:
+                theirs = render_cycles(bpy, scene, args.spp, threads=default_threads()).mean(axis=0)
+                line += (f"; Cycles / exact {fmt(theirs.mean(axis=0) / exact.mean(axis=0))}, worst column "
                          f"{np.max(np.abs(theirs - exact)) / exact.max():.2%}")
             print(line)
 

@@ -1,6 +1,8 @@
 """Benchmark: warp-hair against Mitsuba 3 on draped, non-overlapping swatches, front- and back-lit.
 
-    python benchmarks/vs_peers.py [--spp 256] [--resolution 64] [--segments 24] [--threads N] [--out DIR]
+    python benchmarks/vs_peers.py [--spp 256] [--resolution 64] [--segments 24] [--max-depth 100]
+                                  [--lightings front,back] [--threads N] [--out DIR]
+    python benchmarks/vs_peers.py --alpha 5      # the cuticle tilt's sign against Cycles instead
 
 The swatch is made here (`warp_hair.fibers.swatch` with `drape`): 4 layers of 38 straight fibers of radius
 0.004, 0.5 long, draped over a cylinder of radius 0.25 (2 radians of drape), spaced so that no two fibers
@@ -18,11 +20,21 @@ project's model notes. warp-hair renders the strands twice: with smooth shading 
 with each segment's own axis (`[render] tangents = "segment"`), which shows what a polyline's joints do to
 the highlight.
 
+Both peers render the look as `warp_hair.export` writes it for them (Mitsuba's `hair` dictionary, the Cycles
+bpy script), so this is also the check of the exporters. Cycles (the `blender` extra, bpy 4.5) renders THICK
+Catmull-Rom curves through the vertices (benchmarks/cycles_peer.py lists its settings).
+
 For each pair of images it prints the channel means and their ratio, and the RMS relative difference of
 8×8-pixel block means against the noise level: the same statistic between two warp-hair renders with
 independent seeds (what two renderers that agree exactly would show at this spp, if their noise were alike).
-Writes EXRs and `side_by_side_{front,back}.png` (ours | Mitsuba | 5× block difference about grey) to --out.
-Mitsuba needs the `bench` extra (`pip install -e ".[bench]"`) and libLLVM (`apt-get install libllvm19`).
+Writes EXRs and `side_by_side_{peer}_{lighting}.png` (ours | peer | 5× block difference about grey) to --out.
+Mitsuba needs the `bench` extra (`pip install -e ".[bench]"`) and libLLVM (`apt-get install libllvm19`). A peer
+that is not installed is skipped, with the reason.
+
+`--alpha DEG` checks the tilt's sign instead (Cycles only: Mitsuba's curves flip the tangent with the side of the
+fiber hit). The strands run root first from the bottom of the image to the top, so a positive, physical tilt
+moves the highlight band down, toward the roots: it prints the band's centroid row (row 0 at the top) in
+warp-hair at +α and −α and in Cycles with the exported Offset.
 """
 
 from __future__ import annotations
@@ -101,6 +113,27 @@ def fmt(values, spec=".4f"):
     return "(" + ", ".join(format(v, spec) for v in values) + ")"
 
 
+def highlight_row(image):
+    """The centroid row of the brightest fifth of the rows (each row's mean luminance)."""
+    profile = image.mean(axis=(1, 2))
+    bright = profile >= np.quantile(profile, 0.8)
+    rows = np.arange(len(profile))
+    return float(np.sum(rows[bright] * profile[bright]) / np.sum(profile[bright]))
+
+
+def tilt_check(args, fibers, threads):
+    bpy = import_bpy()
+    for alpha in (args.alpha, -args.alpha):
+        data = scene_data(args.resolution, LIGHTINGS["front"], args.spp, max_depth=args.max_depth)
+        data["hair"] = {**HAIR, "alpha": alpha}
+        scene = scene_from_dict(data)
+        scene.fibers = fibers
+        print(f"warp-hair alpha {alpha:+g} deg: highlight row {highlight_row(render(scene, threads=threads)):.2f}")
+        if bpy is not None and alpha == args.alpha:
+            cycles = render_cycles(bpy, scene, args.spp, threads=threads)
+            print(f"Cycles Offset {np.radians(alpha):+.5f} rad (exported): highlight row {highlight_row(cycles):.2f}")
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--spp", type=int, default=256)
@@ -109,6 +142,7 @@ def main(argv=None):
     parser.add_argument("--max-depth", type=int, default=100, help="scattering vertices a path may have")
     parser.add_argument("--lightings", default="front,back", help="comma-separated: front, back")
     parser.add_argument("--threads", type=int, default=None)
+    parser.add_argument("--alpha", type=float, help="check the tilt's sign at this alpha (degrees) against Cycles")
     parser.add_argument("--out", type=Path, default=HERE / "out" / "vs_peers")
     args = parser.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
@@ -116,6 +150,8 @@ def main(argv=None):
     print(f"draped swatch: {fibers.num_strands} fibers x {args.segments} segments, {args.resolution}^2 px, "
           f"{args.spp} spp, max depth {args.max_depth}, alpha 0")
     threads = args.threads or default_threads()
+    if args.alpha is not None:
+        return tilt_check(args, fibers, threads)
     mi = import_mitsuba()
     bpy = import_bpy()
     with tempfile.TemporaryDirectory() as tmp:

@@ -9,7 +9,7 @@ object if that object takes materials.
 Conversion (Blender 4.5 intern/cycles/kernel: svm/closure.h `svm_node_closure_bsdf`, the Principled Hair case;
 closure/bsdf_principled_hair_chiang.h `bsdf_hair_chiang_setup`, `hair_alpha_angles`; closure/bsdf_util.h
 `bsdf_principled_hair_sigma_from_reflectance`; the bpy 4.5 wheel ships this source), checked with bpy 4.5 LTS
-renders (benchmarks/export_roundtrip.py):
+renders (benchmarks/vs_peers.py, which renders the exported script):
 - Colour: an albedo look uses the `COLOR` parametrization (Cycles inverts the colour with the talk's polynomial at
   `Radial Roughness`, which is ours); σ_a and melanin looks use `ABSORPTION` with our σ_a, which is per unit
   fiber radius, as Cycles'. (Cycles' own melanin coefficients are not d'Eon's, so melanin is not mapped to its
