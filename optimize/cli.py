@@ -157,14 +157,19 @@ def add_targets(subparsers) -> None:
 
 
 def run_targets(args: argparse.Namespace) -> None:
-    from .target import load_target, make_target, shipped_targets
+    from .target import load_target, make_target, shipped_targets, target_renderer
 
     directories = [resolve_target(n) for n in args.names] if args.names else shipped_targets()
     for directory in directories:
         if args.action == "list":
             target = load_target(directory)
             truth = "" if target.truth is None else " ".join(f"{k}={v}" for k, v in target.truth.to_dict().items())
-            print(f"{directory.name}: {', '.join(im.name for im in target.images)}; {truth}")
+            by = "" if target.renderer == "warp-hair" else f" (rendered by {target.renderer})"
+            print(f"{directory.name}: {', '.join(im.name for im in target.images)}{by}; {truth}")
+            continue
+        if not args.names and target_renderer(directory) != "warp-hair":
+            print(f"{directory.name}: rendered by {target_renderer(directory)}, left as it is "
+                  "(benchmarks/make_peer_targets.py re-renders it)")
             continue
         start = time.perf_counter()
         with render_cli.progress_bar(unit="px", desc=f"make {directory.name}") as progress:
