@@ -161,8 +161,6 @@ def gradcheck_scene(args: argparse.Namespace) -> None:
 
 
 def add_calibrate(subparsers) -> None:
-    from .calibrate import DEFAULT_BETA_N, DEFAULT_SIGMA_A
-
     parser = subparsers.add_parser(
         "calibrate",
         help="refit the albedo inversion for a scene's assembly and lighting",
@@ -175,10 +173,12 @@ def add_calibrate(subparsers) -> None:
     parser.add_argument("scene", type=Path, metavar="SCENE.toml", help="the scene file (assembly, lights, camera)")
     parser.add_argument("-o", "--output", type=Path, metavar="COPY.toml",
                         help="write a copy of the scene with the fitted [hair.albedo_inversion] table")
-    parser.add_argument("--sigma-a", nargs="+", type=float, default=list(DEFAULT_SIGMA_A), metavar="S",
-                        help="grey absorptions of the grid, > 0 (default %(default)s)")
-    parser.add_argument("--beta-n", nargs="+", type=float, default=list(DEFAULT_BETA_N), metavar="B",
-                        help="azimuthal roughnesses of the grid, in [0.01, 1], at least 6 (default %(default)s)")
+    parser.add_argument("--sigma-a", nargs="+", type=float, metavar="S",
+                        help="grey absorptions of the grid, > 0 (default: warp_hair.calibrate.DEFAULT_SIGMA_A, "
+                        "5 values; the grid is printed)")
+    parser.add_argument("--beta-n", nargs="+", type=float, metavar="B",
+                        help="azimuthal roughnesses of the grid, in [0.01, 1], at least 6 distinct (default: "
+                        "warp_hair.calibrate.DEFAULT_BETA_N, 8 values)")
     parser.add_argument("--spp", type=int, metavar="N", help="samples per pixel (default: the scene's [render] spp)")
     parser.add_argument("--seed", type=int, metavar="S",
                         help="seed of the first render, the k-th uses S + k (default: the scene's [render] seed)")
@@ -187,11 +187,19 @@ def add_calibrate(subparsers) -> None:
 
 
 def calibrate_scene(args: argparse.Namespace) -> None:
-    from .calibrate import calibrate, check_copy_path, check_grid, inversion_toml, write_calibrated_scene
+    from .calibrate import (
+        DEFAULT_BETA_N,
+        DEFAULT_SIGMA_A,
+        calibrate,
+        check_copy_path,
+        check_grid,
+        inversion_toml,
+        write_calibrated_scene,
+    )
     from .render import sampling
     from .scene import load_scene
 
-    sigma_a, beta_n = check_grid(args.sigma_a, args.beta_n)
+    sigma_a, beta_n = check_grid(args.sigma_a or DEFAULT_SIGMA_A, args.beta_n or DEFAULT_BETA_N)
     if args.output is not None:
         check_copy_path(args.scene, args.output)
     scene = load_scene(args.scene)
@@ -200,7 +208,8 @@ def calibrate_scene(args: argparse.Namespace) -> None:
     total = len(sigma_a) * len(beta_n)
     with progress_bar(total=total, unit="render", desc=f"{args.scene.name} {width}x{height} {spp} spp") as progress:
         result = calibrate(scene, sigma_a, beta_n, spp=spp, seed=seed, threads=args.threads, progress=progress)
-    print(f"measured over {result.pixels} fully covered pixels, {total} renders")
+    print(f"grid: sigma_a {' '.join(f'{s:g}' for s in sigma_a)} x beta_n {' '.join(f'{b:g}' for b in beta_n)}; "
+          f"measured over {result.pixels} fully covered pixels")
     print(result.table())
     print(result.summary())
     print(inversion_toml(result.coefficients), end="")
