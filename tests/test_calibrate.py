@@ -7,6 +7,7 @@ does at low β_n (requested 0.75 at β_n = 0.05 measures 0.71 at 40 layers, 0.74
 renders below misses them by up to 3.8 standard errors (χ²/dof 5.8).
 """
 
+import dataclasses
 import math
 import tomllib
 import warnings
@@ -16,6 +17,7 @@ import pytest
 import warp as wp
 
 from warp_hair.calibrate import (
+    _environment_white,
     block_scene,
     fit_inversion,
     measure_points,
@@ -26,7 +28,7 @@ from warp_hair.calibrate import (
 )
 from warp_hair.cli import main
 from warp_hair.params import TALK_ALBEDO_INVERSION, HairParams, check_albedo_inversion
-from warp_hair.scene import load_scene, scene_from_dict
+from warp_hair.scene import DirectionalLight, load_scene, scene_from_dict
 
 wp.config.quiet = True
 
@@ -169,8 +171,16 @@ def test_calibrated_copy_keeps_the_scene_and_refuses_to_overwrite_it(tmp_path):
 
 
 def test_white_reference_and_measured_pixels():
+    """A white Lambertian card facing the camera shows L under a sky of radiance L (also as a lat-long image)
+    and E cos θ / π under a directional light of irradiance E at θ from its normal."""
     scene = block_scene(HairParams(albedo=0.5), layers=4, resolution=8)
     np.testing.assert_allclose(white_radiance(scene), [1.0, 1.0, 1.0])
+    sun = DirectionalLight(direction=(0.0, -math.sin(0.5), -math.cos(0.5)), irradiance=(3.0, 2.0, 1.0))
+    behind = DirectionalLight(direction=(0.0, 0.0, 1.0), irradiance=(5.0, 5.0, 5.0))
+    lit = dataclasses.replace(scene, lights=[sun, behind])
+    np.testing.assert_allclose(white_radiance(lit), np.array([3.0, 2.0, 1.0]) * math.cos(0.5) / math.pi, rtol=1e-6)
+    normal = -scene.camera.frame()[0]
+    np.testing.assert_allclose(_environment_white(np.full((64, 128, 3), 2.0), normal), [2.0, 2.0, 2.0], rtol=2e-3)
     assert measured_pixels(scene).all()
     wide = scene_from_dict({**tomllib.loads(BLOCK_TOML), "camera": {**tomllib.loads(BLOCK_TOML)["camera"], "width": 3.0}})
     covered = measured_pixels(wide)

@@ -57,19 +57,18 @@ BLOCK_MAX_DEPTH = 1024
 def block_scene(
     hair: HairParams,
     layers: int = 40,
-    width: float = 4.0,
+    per_layer: int = 328,
     length: float = 8.0,
     view: float = 0.5,
     resolution: int = 32,
     spp: int = 256,
     max_depth: int = BLOCK_MAX_DEPTH,
 ) -> Scene:
-    """The talk's calibration setup: a block of `layers` layers of straight parallel fibers (the `swatch`
-    generator's defaults otherwise: radius 0.004, no two fibers touching), `width` across x and `length` along y,
-    fibers along y listed root first, under a uniform white sky (radiance 1), over a black card, seen head-on by
-    an orthographic camera `view` wide at the block's centre, far from its sides and ends."""
-    spacing = 2.1 * 0.004 / (1 - 1.25 * 0.25)  # the swatch generator's default spacing at its default jitter
-    per_layer = max(1, int(width / spacing))
+    """The talk's calibration setup: a block of `layers` layers of `per_layer` straight parallel fibers (the
+    `swatch` generator's defaults otherwise: radius 0.004, spacing 0.0122, no two fibers touching; 328 span about
+    4 units across x), `length` along y, fibers along y listed root first, under a uniform white sky (radiance 1),
+    over a black card, seen head-on by an orthographic camera `view` wide at the block's centre, far from its
+    sides and ends."""
     scene = scene_from_dict(
         {
             "camera": {
