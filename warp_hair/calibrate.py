@@ -57,7 +57,7 @@ BLOCK_MAX_DEPTH = 1024
 def block_scene(
     hair: HairParams,
     layers: int = 40,
-    per_layer: int = 328,
+    per_layer: int = 327,
     length: float = 8.0,
     view: float = 0.5,
     resolution: int = 32,
@@ -65,7 +65,7 @@ def block_scene(
     max_depth: int = BLOCK_MAX_DEPTH,
 ) -> Scene:
     """The talk's calibration setup: a block of `layers` layers of `per_layer` straight parallel fibers (the
-    `swatch` generator's defaults otherwise: radius 0.004, spacing 0.0122, no two fibers touching; 328 span about
+    `swatch` generator's defaults otherwise: radius 0.004, spacing 0.0122, no two fibers touching; 327 span about
     4 units across x), `length` along y, fibers along y listed root first, under a uniform white sky (radiance 1),
     over a black card, seen head-on by an orthographic camera `view` wide at the block's centre, far from its
     sides and ends."""
