@@ -107,10 +107,13 @@ def check_albedo_inversion(coefficients, name="albedo_inversion"):
     # P > 0 on [lo, hi] iff it is positive at lo and has no real root in (lo, hi].
     roots = [r.real for r in polynomial.roots() if abs(r.imag) <= 1e-9 * max(1.0, abs(r)) and lo <= r.real <= hi]
     if polynomial(lo) <= 0 or roots:
-        where = min(roots) if polynomial(lo) > 0 else lo
+        if polynomial(lo) <= 0:
+            found = f"P(β_n) = {polynomial(lo):.3g} at β_n = {lo}"
+        else:
+            found = f"P(β_n) = 0 at β_n = {min(roots):.3g}"
         raise ValueError(
-            f"{name} = {list(values)} gives P(β_n) = {polynomial(where):.3g} at β_n = {where:.3g}: the polynomial "
-            f"must be positive over all of [{lo}, {hi}], or σ_a = (ln c / P(β_n))² blows up"
+            f"{name} = {list(values)} gives {found}: the polynomial must be positive over all of [{lo}, {hi}], "
+            "or σ_a = (ln c / P(β_n))² blows up"
         )
     return values
 
