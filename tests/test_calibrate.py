@@ -156,8 +156,8 @@ def test_calibrated_copy_keeps_the_scene_and_refuses_to_overwrite_it(tmp_path):
     fibers = tmp_path / "fibers.txt"
     fibers.write_text("0 -0.5 0 0.01\n0 0.5 0 0.01\n")
     source = tmp_path / "scene.toml"
-    source.write_text(BLOCK_TOML.replace('generator = "swatch"   # a dense block: 80 layers, 80 fibers each\ncount = 6400\nlayers = 80\n'
-                                         'length = 2.0\nsegments = 1', 'file = "fibers.txt"  # kept comment'))
+    generated = BLOCK_TOML[BLOCK_TOML.index('generator = "swatch"'):BLOCK_TOML.index("segments = 1")]
+    source.write_text(BLOCK_TOML.replace(generated + "segments = 1", 'file = "fibers.txt"  # kept comment'))
     (tmp_path / "out").mkdir()
     copy = write_calibrated_scene(source, tmp_path / "out" / "calibrated.toml", CUSTOM)
     assert "# kept comment" in copy.read_text()
@@ -182,7 +182,8 @@ def test_white_reference_and_measured_pixels():
     normal = -scene.camera.frame()[0]
     np.testing.assert_allclose(_environment_white(np.full((64, 128, 3), 2.0), normal), [2.0, 2.0, 2.0], rtol=2e-3)
     assert measured_pixels(scene).all()
-    wide = scene_from_dict({**tomllib.loads(BLOCK_TOML), "camera": {**tomllib.loads(BLOCK_TOML)["camera"], "width": 3.0}})
+    data = tomllib.loads(BLOCK_TOML)
+    wide = scene_from_dict({**data, "camera": {**data["camera"], "width": 3.0}})
     covered = measured_pixels(wide)
     assert covered.any() and not covered.all()  # the block's sides are in view, with sky beyond them
 
@@ -199,7 +200,8 @@ def test_recovered_coefficients_reproduce_talk_renders_within_noise():
     assert np.all(np.abs(z) < 3.5), z
     assert np.sum(z**2) / (len(z) - 6) < 3.0
     # And through HairParams: asking for the measured albedo with the fitted inversion gives back σ_a.
-    recovered = [HairParams(albedo=c, beta_n=b, albedo_inversion=coefficients).sigma_a[0] for c, b in zip(albedo, beta_n)]
+    recovered = [HairParams(albedo=c, beta_n=b, albedo_inversion=coefficients).sigma_a[0]
+                 for c, b in zip(albedo, beta_n)]
     slope = 2 * sigma_a / (albedo * np.abs(np.log(albedo)))  # |dσ_a/dc| of the inversion
     assert np.all(np.abs(np.array(recovered) - sigma_a) < 1.1 * slope * 3.5 * stderr)
 
