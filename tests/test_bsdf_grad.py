@@ -276,13 +276,8 @@ def test_roughness_floor_has_zero_derivative():
         assert np.any(g["alpha"] != 0.0)
 
 
-@pytest.fixture(scope="module", autouse=True)
-def _bsdf_grad_built_first():
-    """This module's kernels call bsdf_grad's functions; see bsdf_grad's docstring on building it first."""
-    wp.load_module(bsdf_grad, device="cpu")
-
-
-@wp.kernel
+# A module of its own: see bsdf_grad's docstring on forward-only callers of the mappings.
+@wp.kernel(module="unique")
 def _coefficients_kernel(controls: bsdf_grad.HairControls, out: wp.array(dtype=HairCoefficients)):
     out[0] = bsdf_grad.coefficients_from_controls(controls.theta, controls.colour_mode, controls.albedo_inversion)
 

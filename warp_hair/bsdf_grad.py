@@ -20,10 +20,9 @@ Call these two from a kernel, or from a `wp.func` that itself calls `wp.grad`. W
 that calls `wp.grad` after all others (they call adjoints, which are emitted in between), so a plain
 `wp.func` that calls one of them is compiled before its callee is declared and the module fails to build
 ("use of undeclared identifier 'hair_value_pdf_vjp_0'").
-Build this module before a module of yours whose kernels call them (`wp.load_module(bsdf_grad, device=...)`):
-Warp 1.19 forces adjoint code only for the callees it builds after wp.grad marks the function, and when your
-module is built first, the helpers of the mappings can keep stub adjoints there, so that wp.grad returns 0 for
-β_m, β_n and the colour (seen with tests/test_bsdf_grad.py's kernels on a fresh kernel cache).
+Nor may a kernel in the same module call `coefficients_from_controls` (or the mappings under it) without
+wp.grad: Warp 1.19 builds that kernel first, its helpers keep stub adjoints in the module, and wp.grad then
+returns 0 for β_m, β_n and the colour (give such a kernel a module of its own: `@wp.kernel(module="unique")`).
 
 The derivatives are Warp's own reverse mode, run inside the forward kernel by `wp.grad`: the scalar
 seed·(S, pdf) is written as one `wp.func` of the controls (`value_pdf_dot`), which maps them to the model
