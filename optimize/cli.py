@@ -139,7 +139,7 @@ def _export(params_json: Path, renderers) -> list[Path]:
 def _fix_controls(target, fixed: dict) -> None:
     for image in target.images:
         values = {name: v if SPECS[name].size == 3 else v[0] for name, v in fixed.items()}
-        hair = HairParams.from_dict({**image.scene.hair.to_dict(), **values}, where="--fix")
+        hair = HairParams.from_dict({**image.scene.hair.to_table(), **values}, where="--fix")
         image.scene = dataclasses.replace(image.scene, hair=hair)
 
 

@@ -5,10 +5,10 @@ control may take, so no step can leave the valid range and nothing is clipped:
 
     bounded (lo, hi)      x = lo + (hi − lo) · sigmoid(z)     β_m, β_n, α
     bounded below (lo, ∞) x = lo + exp(z)                     σ_a, melanins, η, r_roughness_scale, exposure
-    albedo, in (0, 1)     a = exp(−e^(z/2) · d(β_n))          z = log σ_a, the absorption it stands for
+    albedo, in (0, 1)     a = exp(−e^(z/2) · P(β_n))          z = log σ_a, the absorption it stands for
 
-The albedo's latent is the log of the absorption σ_a = (ln a / d(β_n))² the renderer derives from it (talk,
-"Controllability"). Albedo and β_n are coupled through that inversion: at fixed albedo a change of β_n changes
+The albedo's latent is the log of the absorption σ_a = (ln a / P(β_n))² the renderer derives from it (talk,
+"Controllability"; P with the target's own inversion coefficients, HairParams.albedo_inversion). Albedo and β_n are coupled through that inversion: at fixed albedo a change of β_n changes
 σ_a too, so in (albedo, β_n) the loss has a long diagonal valley that plain Adam crawls along. In (log σ_a, β_n)
 each latent has its own effect on the images (absorption; azimuthal spread), and the fit converges in a fraction
 of the iterations. The result is still reported, and its uncertainty estimated, as albedo.
@@ -45,17 +45,21 @@ class ControlSpec:
     def interval(self) -> str:
         return f"({self.lo:g}, {self.hi:g})"
 
-    def to_latent(self, value: torch.Tensor, beta_n) -> torch.Tensor:
+    def to_latent(self, value: torch.Tensor, beta_n, inversion=None) -> torch.Tensor:
+        """The latent of a value; `beta_n` and `inversion` (the coefficients of P) are used by albedo only."""
         if self.name == "albedo":
-            return 2.0 * torch.log(-torch.log(value) / albedo_polynomial(beta_n))
+            _need_inversion(inversion)
+            return 2.0 * torch.log(-torch.log(value) / albedo_polynomial(beta_n, inversion))
         if math.isinf(self.hi):
             return torch.log(value - self.lo)
         return torch.logit((value - self.lo) / (self.hi - self.lo))
 
-    def from_latent(self, latent: torch.Tensor, beta_n) -> torch.Tensor:
-        """The control's value; `beta_n` (≥ BETA_FLOOR, a tensor when it is fitted too) is used by albedo only."""
+    def from_latent(self, latent: torch.Tensor, beta_n, inversion=None) -> torch.Tensor:
+        """The control's value; `beta_n` (≥ BETA_FLOOR, a tensor when it is fitted too) and `inversion` (the
+        coefficients of P) are used by albedo only."""
         if self.name == "albedo":
-            return torch.exp(-torch.exp(0.5 * latent) * albedo_polynomial(beta_n))
+            _need_inversion(inversion)
+            return torch.exp(-torch.exp(0.5 * latent) * albedo_polynomial(beta_n, inversion))
         if math.isinf(self.hi):
             return self.lo + torch.exp(latent)
         return self.lo + (self.hi - self.lo) * torch.sigmoid(latent)
@@ -68,6 +72,11 @@ class ControlSpec:
                 raise ValueError(
                     f"{where}: {label} = {v} cannot start a fit: it must lie strictly inside {self.interval}"
                 )
+
+
+def _need_inversion(inversion) -> None:
+    if inversion is None:
+        raise ValueError("the albedo's latent needs the target's albedo inversion coefficients (HairParams.albedo_inversion)")
 
 
 SPECS = {

@@ -146,14 +146,18 @@ def _as_control(name, values):
 class _Latents:
     """The optimiser's parameters: one latent tensor per fitted control, float64.
 
-    The albedo's latent depends on β_n (controls.py): the fitted β_n's current value, else the scenes' own.
+    The albedo's latent depends on β_n (controls.py): the fitted β_n's current value, else the scenes' own; and
+    on the scenes' albedo inversion coefficients.
     """
 
-    def __init__(self, start: dict, fixed_beta_n: float):
+    def __init__(self, start: dict, fixed_beta_n: float, inversion):
         self.fixed_beta_n = float(effective_beta(fixed_beta_n))
+        self.inversion = inversion
         beta_n = torch.tensor(start["beta_n"][0] if "beta_n" in start else self.fixed_beta_n, dtype=torch.float64)
         self.tensors = {
-            name: SPECS[name].to_latent(torch.tensor(v if SPECS[name].size == 3 else v[0], dtype=torch.float64), beta_n).requires_grad_()
+            name: SPECS[name].to_latent(
+                torch.tensor(v if SPECS[name].size == 3 else v[0], dtype=torch.float64), beta_n, inversion
+            ).requires_grad_()
             for name, v in start.items()
         }
 
@@ -161,7 +165,7 @@ class _Latents:
         beta_n = self.fixed_beta_n
         if "beta_n" in self.tensors:
             beta_n = SPECS["beta_n"].from_latent(self.tensors["beta_n"], None)
-        return {name: SPECS[name].from_latent(z, beta_n) for name, z in self.tensors.items()}
+        return {name: SPECS[name].from_latent(z, beta_n, self.inversion) for name, z in self.tensors.items()}
 
 
 def _plain(values: dict) -> dict:
@@ -202,7 +206,7 @@ def fit(target: Target, settings: FitSettings | None = None, progress: bool = Tr
         settings = FitSettings(**{**settings.__dict__, **overrides})
     names = check_settings(target, settings)
     start = start_values(names, settings)
-    latents = _Latents(start, target.hair.beta_n)
+    latents = _Latents(start, target.hair.beta_n, target.hair.albedo_inversion)
     optimizer = torch.optim.Adam(latents.tensors.values(), lr=settings.lr)
     schedule = torch.optim.lr_scheduler.LambdaLR(optimizer, lambda it: lr_factor(it, settings.iters))
     targets = [torch.from_numpy(image.image) for image in target.images]

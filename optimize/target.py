@@ -177,7 +177,7 @@ def _check_consistent(images) -> None:
     first = images[0]
     for other in images[1:]:
         pair = f"{first.scene.path.name} and {other.scene.path.name}"
-        if other.scene.hair.to_dict() != first.scene.hair.to_dict():
+        if other.scene.hair.to_table() != first.scene.hair.to_table():
             raise ValueError(f"{pair} have different [hair] tables; the images of a target show one hair")
         a, b = first.scene.fibers, other.scene.fibers
         if a.points.shape != b.points.shape or not (np.array_equal(a.points, b.points) and np.array_equal(a.radii, b.radii)):
@@ -229,7 +229,7 @@ def make_target(directory, threads=None, progress=None) -> list[Path]:
         done += scene.camera.resolution[0] * scene.camera.resolution[1]
     _check_consistent([TargetImage("", s, None, None, Path()) for s in scenes])
     truth = directory / TRUTH_FILE
-    truth.write_text(json.dumps(scenes[0].hair.to_dict(), indent=2) + "\n", encoding="utf-8")
+    truth.write_text(json.dumps(scenes[0].hair.to_table(), indent=2) + "\n", encoding="utf-8")
     written.append(truth)
     return written
 

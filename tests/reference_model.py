@@ -27,9 +27,13 @@ def coefficients(controls):
     if len(kinds) != 1:
         raise ValueError(f"need exactly one colour control, got {kinds}")
     if kinds[0] == "albedo":
-        # Albedo inversion (talk, Controllability; MODEL.md), using the floored beta_n.
-        poly = (5.969 - 0.215 * bn + 2.532 * bn**2 - 10.73 * bn**3
-                + 5.574 * bn**4 + 0.245 * bn**5)
+        # Albedo inversion (talk, Controllability; MODEL.md), using the floored beta_n; an "albedo_inversion"
+        # entry (p_0 ... p_5) replaces the talk's polynomial.
+        if "albedo_inversion" in c:
+            poly = sum(float(p) * bn**k for k, p in enumerate(c["albedo_inversion"]))
+        else:
+            poly = (5.969 - 0.215 * bn + 2.532 * bn**2 - 10.73 * bn**3
+                    + 5.574 * bn**4 + 0.245 * bn**5)
         sigma_a = (np.log(_rgb(c["albedo"])) / poly) ** 2
     elif kinds[0] == "sigma_a":
         sigma_a = _rgb(c["sigma_a"])

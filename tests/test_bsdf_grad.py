@@ -48,7 +48,13 @@ from sphere import random_directions
 import warp_hair as wh
 from warp_hair import bsdf_grad
 from warp_hair.hair_bsdf import HairCoefficients, hair_coefficients
-from warp_hair.params import lobe_variances, logistic_scale, longitudinal_variance, sigma_a_from_albedo
+from warp_hair.params import (
+    TALK_ALBEDO_INVERSION,
+    lobe_variances,
+    logistic_scale,
+    longitudinal_variance,
+    sigma_a_from_albedo,
+)
 
 wp.set_module_options({"enable_backward": False})
 
@@ -223,9 +229,10 @@ def _material_pairs(rng, n):
 def _sigma_a_slopes(controls, step=1e-6):
     """∂σ_a/∂β_n and ∂σ_a/∂albedo (diagonal), both (3,), of the albedo inversion in float64."""
     albedo, beta_n = np.array(controls["albedo"]), controls["beta_n"]
-    d_beta_n = (sigma_a_from_albedo(albedo, beta_n + step) - sigma_a_from_albedo(albedo, beta_n - step)) / (2 * step)
+    p = controls.get("albedo_inversion", TALK_ALBEDO_INVERSION)
+    d_beta_n = (sigma_a_from_albedo(albedo, beta_n + step, p) - sigma_a_from_albedo(albedo, beta_n - step, p)) / (2 * step)
     h = step * albedo
-    d_albedo = (sigma_a_from_albedo(albedo + h, beta_n) - sigma_a_from_albedo(albedo - h, beta_n)) / (2 * h)
+    d_albedo = (sigma_a_from_albedo(albedo + h, beta_n, p) - sigma_a_from_albedo(albedo - h, beta_n, p)) / (2 * h)
     return d_beta_n, d_albedo
 
 
@@ -269,9 +276,10 @@ def test_roughness_floor_has_zero_derivative():
         assert np.any(g["alpha"] != 0.0)
 
 
-@wp.kernel
+# A module of its own: see bsdf_grad's docstring on forward-only callers of the mappings.
+@wp.kernel(module="unique")
 def _coefficients_kernel(controls: bsdf_grad.HairControls, out: wp.array(dtype=HairCoefficients)):
-    out[0] = bsdf_grad.coefficients_from_controls(controls.theta, controls.colour_mode)
+    out[0] = bsdf_grad.coefficients_from_controls(controls.theta, controls.colour_mode, controls.albedo_inversion)
 
 
 def test_warp_mappings_build_the_host_coefficients():

@@ -297,3 +297,34 @@ if __name__ == "__main__":
         for name, comparison in (("interior", interior_comparison), ("edges", edge_comparison)):
             worst, relative = comparison(mode)
             print(f"{mode:8s} {name:9s} {worst:18.3f} {relative:31.2e}")
+
+
+# Positive over [0.01, 1], with a steep P' (P(0) = 4, P(1) = 3.5, P'(0) = 3): the absorption path of ∂/∂β_n
+# differs clearly from the talk's polynomial's.
+CUSTOM_INVERSION = [4.0, 3.0, -6.0, 2.0, 1.0, -0.5]
+
+
+def test_custom_albedo_inversion_matches_finite_differences():
+    """With an albedo input and custom inversion coefficients, ∂S/∂albedo and ∂S/∂β_n of the closed form and of
+    wp.grad both meet test_bsdf_grad's allowance against five-point differences of the float64 reference (which
+    applies the same coefficients), and the host's ∂σ_a/∂β_n is the central difference of HairParams.sigma_a."""
+    rng = np.random.default_rng(61)
+    entries = [("albedo", 0), ("albedo", 1), ("albedo", 2), ("beta_n", None)]
+    columns = [0, 1, 2, bsdf_grad.BETA_N]
+    for _ in range(6):
+        controls = {**random_controls(rng, "albedo"), "albedo_inversion": CUSTOM_INVERSION}
+        params = wh.HairParams(**controls)
+        assert params.albedo_inversion == tuple(CUSTOM_INVERSION)
+        wo, wi, h = configurations(rng, params, 96)
+        J = closed_form(params, wo, wi, h)[0].astype(np.float64)
+        R = reverse_mode(params, wo, wi, h).astype(np.float64)
+        for (name, component), column in zip(entries, columns):
+            d, terms, out = reference_derivative(controls, name, component, wo, wi, h)
+            allowed = RTOL * terms[:, :3] + ATOL * np.abs(out[:, :3]) * natural_scale(controls, name) + UNDERFLOW
+            for derivative in (J, R):
+                assert np.all(np.abs(derivative[:, :, column] - d[:, :3]) <= allowed), (controls, name, component)
+        k = coefficient_derivatives(params)
+        expected = _central(lambda p: p.sigma_a, controls, "beta_n")
+        np.testing.assert_allclose(np.array(k.d_sigma_d_beta_n), expected, rtol=1e-5, atol=1e-9)
+        talk = coefficient_derivatives(params.replace(albedo_inversion=wh.params.TALK_ALBEDO_INVERSION))
+        assert not np.allclose(np.array(talk.d_sigma_d_beta_n), expected, rtol=1e-2)

@@ -175,6 +175,15 @@ def test_cycles_values(colour):
     assert_r_toward_root(lambda ti, to: (ti, to - two_alpha), params.alpha)
 
 
+def test_cycles_takes_a_calibrated_inversion_as_absorption():
+    """Cycles inverts a colour with the talk's polynomial: a look with its own inversion goes as σ_a."""
+    params = HairParams(albedo=[0.6, 0.4, 0.2], beta_n=0.4, albedo_inversion=(5.0, 0.1, 1.0, -4.0, 2.0, 0.3))
+    settings = node_settings(params)
+    assert settings["parametrization"] == "ABSORPTION"
+    expected = (np.log([0.6, 0.4, 0.2]) / np.polyval([0.3, 2.0, -4.0, 1.0, 0.1, 5.0], 0.4)) ** 2
+    np.testing.assert_allclose(settings["inputs"]["Absorption Coefficient"], expected, rtol=1e-12)
+
+
 @pytest.mark.parametrize("beta_m", [0.1, 0.3, 0.7])
 @pytest.mark.parametrize("scale", [0.1, 0.5, 0.9, 1.0])
 def test_cycles_coat_gives_our_r_variance(beta_m, scale):

@@ -20,6 +20,7 @@ from optimize.refine import inside, mean_covariance
 from optimize.uncertainty import estimate_uncertainty
 from optimize.target import SHIPPED_TARGETS, load_target, make_target, shipped_targets
 from warp_hair.io import read_exr, write_exr
+from warp_hair.params import TALK_ALBEDO_INVERSION
 from warp_hair.render import render
 from warp_hair.torch import default_grad_seed, scene_with_controls
 
@@ -88,14 +89,17 @@ def test_latent_round_trip_stays_inside_the_interval(name):
     assert (extreme >= spec.lo).all() and (extreme <= spec.hi).all()
 
 
-def test_albedo_latent_is_log_sigma_a_of_the_inversion():
+@pytest.mark.parametrize("inversion", [TALK_ALBEDO_INVERSION, (4.0, 3.0, -6.0, 2.0, 1.0, -0.5)])
+def test_albedo_latent_is_log_sigma_a_of_the_inversion(inversion):
+    """With the talk's coefficients and with custom ones: the latent follows the material's own inversion."""
     from warp_hair.params import sigma_a_from_albedo
 
     albedo = torch.tensor([0.05, 0.5, 0.95], dtype=torch.float64)
     for beta_n in (0.01, 0.3, 0.9):
-        z = SPECS["albedo"].to_latent(albedo, torch.tensor(beta_n, dtype=torch.float64))
-        assert np.allclose(torch.exp(z).numpy(), sigma_a_from_albedo(albedo.numpy(), beta_n), rtol=1e-12)
-        assert torch.allclose(SPECS["albedo"].from_latent(z, beta_n), albedo, rtol=1e-12)
+        z = SPECS["albedo"].to_latent(albedo, torch.tensor(beta_n, dtype=torch.float64), inversion)
+        expected = sigma_a_from_albedo(albedo.numpy(), beta_n, inversion)
+        assert np.allclose(torch.exp(z).numpy(), expected, rtol=1e-12)
+        assert torch.allclose(SPECS["albedo"].from_latent(z, beta_n, inversion), albedo, rtol=1e-12)
 
 
 def test_start_on_a_bound_is_refused():

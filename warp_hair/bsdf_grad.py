@@ -20,6 +20,9 @@ Call these two from a kernel, or from a `wp.func` that itself calls `wp.grad`. W
 that calls `wp.grad` after all others (they call adjoints, which are emitted in between), so a plain
 `wp.func` that calls one of them is compiled before its callee is declared and the module fails to build
 ("use of undeclared identifier 'hair_value_pdf_vjp_0'").
+Nor may a kernel in the same module call `coefficients_from_controls` (or the mappings under it) without
+wp.grad: Warp 1.19 builds that kernel first, its helpers keep stub adjoints in the module, and wp.grad then
+returns 0 for β_m, β_n and the colour (give such a kernel a module of its own: `@wp.kernel(module="unique")`).
 
 The derivatives are Warp's own reverse mode, run inside the forward kernel by `wp.grad`: the scalar
 seed·(S, pdf) is written as one `wp.func` of the controls (`value_pdf_dot`), which maps them to the model
@@ -55,13 +58,14 @@ import warp as wp
 from .bsdf import _check_params, _directions, _launch, _offsets
 from .hair_bsdf import HairCoefficients, hair_value_pdf, lobe_setup
 from .lobes import PI
-from .params import BETA_FLOOR, EUMELANIN_SIGMA_A, PHEOMELANIN_SIGMA_A, HairParams
+from .params import ALBEDO_INVERSION_DEGREE, BETA_FLOOR, EUMELANIN_SIGMA_A, PHEOMELANIN_SIGMA_A, HairParams
 
 # wp.grad runs forward only: the kernels here need no backward pass of their own.
 wp.set_module_options({"enable_backward": False})
 
 CONTROL_COUNT = 8
 controls_vec = wp.types.vector(length=CONTROL_COUNT, dtype=wp.float32)
+inversion_vec = wp.types.vector(length=ALBEDO_INVERSION_DEGREE + 1, dtype=wp.float32)
 jacobian_mat = wp.types.matrix(shape=(4, CONTROL_COUNT), dtype=wp.float32)
 
 COLOUR_ALBEDO = wp.constant(0)
@@ -86,10 +90,12 @@ _RADIANS = wp.constant(math.pi / 180.0)
 
 @wp.struct
 class HairControls:
-    """The artist controls of one material as kernels differentiate them (ordering in the module docstring)."""
+    """The artist controls of one material as kernels differentiate them (ordering in the module docstring),
+    and the coefficients p_0 ... p_5 of its albedo inversion (HairParams.albedo_inversion; not differentiated)."""
 
     theta: controls_vec
     colour_mode: int
+    albedo_inversion: inversion_vec
 
 
 def hair_controls(params: HairParams) -> HairControls:
@@ -104,6 +110,7 @@ def hair_controls(params: HairParams) -> HairControls:
         colour = (params.eumelanin, params.pheomelanin, 0.0)
     k.theta = controls_vec(*colour, params.beta_m, params.beta_n, params.alpha, params.eta, params.r_roughness_scale)
     k.colour_mode = COLOUR_MODES[mode]
+    k.albedo_inversion = inversion_vec(*params.albedo_inversion)
     return k
 
 
@@ -131,16 +138,16 @@ def logistic_scale(beta_n: float):
 
 
 @wp.func
-def albedo_denominator(beta_n: float):
+def albedo_denominator(beta_n: float, p: inversion_vec):
     b = effective_beta(beta_n)
-    return 5.969 + b * (-0.215 + b * (2.532 + b * (-10.73 + b * (5.574 + b * 0.245))))
+    return p[0] + b * (p[1] + b * (p[2] + b * (p[3] + b * (p[4] + b * p[5]))))
 
 
 @wp.func
-def sigma_a_from_controls(theta: controls_vec, colour_mode: int):
+def sigma_a_from_controls(theta: controls_vec, colour_mode: int, inversion: inversion_vec):
     colour = wp.vec3(theta[0], theta[1], theta[2])
     if colour_mode == COLOUR_ALBEDO:
-        d = albedo_denominator(theta[BETA_N])
+        d = albedo_denominator(theta[BETA_N], inversion)
         r = wp.vec3(wp.log(colour[0]), wp.log(colour[1]), wp.log(colour[2])) / d
         return wp.cw_mul(r, r)
     if colour_mode == COLOUR_MELANIN:
@@ -162,13 +169,13 @@ def longitudinal_norm(v: float):
 
 
 @wp.func
-def coefficients_from_controls(theta: controls_vec, colour_mode: int):
+def coefficients_from_controls(theta: controls_vec, colour_mode: int, inversion: inversion_vec):
     """The HairCoefficients of the controls, as `hair_coefficients` builds them, but differentiable.
 
     `n_tail` (used only by sampling) is left at 0: nothing differentiated here samples.
     """
     c = HairCoefficients()
-    c.sigma_a = sigma_a_from_controls(theta, colour_mode)
+    c.sigma_a = sigma_a_from_controls(theta, colour_mode, inversion)
     c.eta = theta[ETA]
     v = longitudinal_variance(theta[BETA_M])
     c.v = wp.vec4(v * theta[R_ROUGHNESS_SCALE], 0.25 * v, 4.0 * v, 4.0 * v)
@@ -187,20 +194,24 @@ def coefficients_from_controls(theta: controls_vec, colour_mode: int):
 
 
 @wp.func
-def value_pdf_dot(theta: controls_vec, colour_mode: int, wo: wp.vec3, wi: wp.vec3, h: float, seed: wp.vec4):
+def value_pdf_dot(
+    theta: controls_vec, colour_mode: int, inversion: inversion_vec, wo: wp.vec3, wi: wp.vec3, h: float, seed: wp.vec4
+):
     """seed · (S_r, S_g, S_b, pdf): the scalar whose gradient `wp.grad` takes.
 
     wp.grad seeds the adjoint of every output with 1, so of a function returning (S, pdf) it would give the
     gradient of S_r + S_g + S_b + pdf; the seed picks the combination instead.
     """
-    value, density = hair_value_pdf(lobe_setup(coefficients_from_controls(theta, colour_mode), wo, h), wi)
+    value, density = hair_value_pdf(lobe_setup(coefficients_from_controls(theta, colour_mode, inversion), wo, h), wi)
     return seed[0] * value[0] + seed[1] * value[1] + seed[2] * value[2] + seed[3] * density
 
 
 @wp.func
 def hair_value_pdf_vjp(controls: HairControls, wo: wp.vec3, wi: wp.vec3, h: float, seed: wp.vec4):
     """Σ_r seed_r ∂(S_r, S_g, S_b, pdf)_r / ∂θ: one reverse pass."""
-    d_theta, d_mode, d_wo, d_wi, d_h, d_seed = wp.grad(value_pdf_dot)(controls.theta, controls.colour_mode, wo, wi, h, seed)
+    d_theta, d_mode, d_inversion, d_wo, d_wi, d_h, d_seed = wp.grad(value_pdf_dot)(
+        controls.theta, controls.colour_mode, controls.albedo_inversion, wo, wi, h, seed
+    )
     return d_theta
 
 
@@ -215,8 +226,8 @@ def hair_value_pdf_jacobian(controls: HairControls, wo: wp.vec3, wi: wp.vec3, h:
     for r in range(4):
         seed = wp.vec4(0.0)
         seed[r] = 1.0
-        d_theta, d_mode, d_wo, d_wi, d_h, d_seed = wp.grad(value_pdf_dot)(
-            controls.theta, controls.colour_mode, wo, wi, h, seed
+        d_theta, d_mode, d_inversion, d_wo, d_wi, d_h, d_seed = wp.grad(value_pdf_dot)(
+            controls.theta, controls.colour_mode, controls.albedo_inversion, wo, wi, h, seed
         )
         J[r] = d_theta
     return J

@@ -101,11 +101,14 @@ def coefficient_derivatives(params: HairParams) -> CoefficientDerivatives:
     d_beta_n = np.zeros(3)
     if mode == "albedo":
         albedo = np.asarray(params.albedo, dtype=np.float64)
-        denominator = albedo_denominator(params.beta_n)
-        # σ_c = (ln albedo_c / d(β_n))²
+        def polynomial(beta_n):
+            return albedo_denominator(beta_n, params.albedo_inversion)
+
+        denominator = polynomial(params.beta_n)
+        # σ_c = (ln albedo_c / P(β_n))², P with the material's own inversion coefficients
         d_colour = np.diag(2.0 * np.log(albedo) / (denominator * denominator * albedo))
         if _live(params.beta_n):
-            d_beta_n = -2.0 * params.sigma_a * _slope(albedo_denominator, params.beta_n) / denominator
+            d_beta_n = -2.0 * params.sigma_a * _slope(polynomial, params.beta_n) / denominator
     elif mode == "sigma_a":
         d_colour = np.eye(3)
     else:

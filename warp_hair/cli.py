@@ -8,6 +8,7 @@ itself lives in the library. Bad input (a control out of range, an unwritable pa
     warp-hair render SCENE.toml -o OUT.exr [--spp N] [--seed S] [--threads T] [--png PREVIEW.png]
     warp-hair gradcheck SCENE.toml [--spp N] [--seeds K] [--params albedo,eta,...] [--eps E] [--threads T]
     warp-hair export LOOK --to mitsuba|pbrt|cycles|materialx [-o FILE]
+    warp-hair calibrate SCENE.toml [-o COPY.toml] [--sigma-a S ...] [--beta-n B ...] [--spp N] [--seed S] [--threads T]
 
 and, added by optimize/cli.py, `warp-hair fit` and `warp-hair targets make`.
 """
@@ -185,6 +186,61 @@ def export_look(args: argparse.Namespace) -> None:
         sys.stdout.write(text)
     else:
         print(f"wrote {args.output}")
+def add_calibrate(subparsers) -> None:
+    parser = subparsers.add_parser(
+        "calibrate",
+        help="refit the albedo inversion for a scene's assembly and lighting",
+        description="Render the scene at every point of a grid of grey sigma_a and beta_n (its other controls as "
+        "they are), measure each render's albedo (the mean of the pixels the fibers cover, over the radiance of a "
+        "white Lambertian card facing the camera under the same lights), fit ln c = -sqrt(sigma_a) P(beta_n) with "
+        "P of degree 5 by weighted least squares, and print the coefficients, the residuals and the "
+        "[hair.albedo_inversion] table that makes HairParams use them. The scene file is never changed.",
+    )
+    parser.add_argument("scene", type=Path, metavar="SCENE.toml", help="the scene file (assembly, lights, camera)")
+    parser.add_argument("-o", "--output", type=Path, metavar="COPY.toml",
+                        help="write a copy of the scene with the fitted [hair.albedo_inversion] table")
+    parser.add_argument("--sigma-a", nargs="+", type=float, metavar="S",
+                        help="grey absorptions of the grid, > 0 (default: warp_hair.calibrate.DEFAULT_SIGMA_A, "
+                        "5 values; the grid is printed)")
+    parser.add_argument("--beta-n", nargs="+", type=float, metavar="B",
+                        help="azimuthal roughnesses of the grid, in [0.01, 1], at least 6 distinct (default: "
+                        "warp_hair.calibrate.DEFAULT_BETA_N, 8 values)")
+    parser.add_argument("--spp", type=int, metavar="N", help="samples per pixel (default: the scene's [render] spp)")
+    parser.add_argument("--seed", type=int, metavar="S",
+                        help="seed of the first render, the k-th uses S + k (default: the scene's [render] seed)")
+    parser.add_argument("--threads", type=int, metavar="T", help="CPU threads (default: all cores)")
+    parser.set_defaults(run=calibrate_scene)
+
+
+def calibrate_scene(args: argparse.Namespace) -> None:
+    from .calibrate import (
+        DEFAULT_BETA_N,
+        DEFAULT_SIGMA_A,
+        calibrate,
+        check_copy_path,
+        check_grid,
+        inversion_toml,
+        write_calibrated_scene,
+    )
+    from .render import sampling
+    from .scene import load_scene
+
+    sigma_a, beta_n = check_grid(args.sigma_a or DEFAULT_SIGMA_A, args.beta_n or DEFAULT_BETA_N)
+    if args.output is not None:
+        check_copy_path(args.scene, args.output)
+    scene = load_scene(args.scene)
+    spp, seed = sampling(scene, args.spp, args.seed)
+    width, height = scene.camera.resolution
+    total = len(sigma_a) * len(beta_n)
+    with progress_bar(total=total, unit="render", desc=f"{args.scene.name} {width}x{height} {spp} spp") as progress:
+        result = calibrate(scene, sigma_a, beta_n, spp=spp, seed=seed, threads=args.threads, progress=progress)
+    print(f"grid: sigma_a {' '.join(f'{s:g}' for s in sigma_a)} x beta_n {' '.join(f'{b:g}' for b in beta_n)}; "
+          f"measured over {result.pixels} fully covered pixels")
+    print(result.table())
+    print(result.summary())
+    print(inversion_toml(result.coefficients), end="")
+    if args.output is not None:
+        print(f"wrote {write_calibrated_scene(args.scene, args.output, result.coefficients)}")
 
 
 @contextlib.contextmanager
@@ -201,7 +257,7 @@ def progress_bar(**tqdm_args):
         yield progress
 
 
-SUBCOMMANDS = (add_plot_bsdf, add_render, add_gradcheck, add_export)
+SUBCOMMANDS = (add_plot_bsdf, add_render, add_gradcheck, add_export, add_calibrate)
 
 
 def build_parser(extra=()) -> argparse.ArgumentParser:

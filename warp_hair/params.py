@@ -23,6 +23,9 @@ PHEOMELANIN_SIGMA_A = np.array([0.187, 0.4, 1.05])
 
 ALPHA_RANGE_DEG = (-30.0, 30.0)
 
+# The [hair] key of the albedo inversion's table (not a control: see HairParams).
+ALBEDO_INVERSION_KEY = "albedo_inversion"
+
 CONTROL_NAMES = (
     "albedo",
     "sigma_a",
@@ -59,19 +62,60 @@ def logistic_scale(beta_n):
     return math.sqrt(math.pi / 8.0) * (0.265 * b + 1.194 * b**2 + 5.372 * b**22)
 
 
-def albedo_denominator(beta_n):
-    """The β_n polynomial of the talk's albedo inversion, fitted by Chiang et al. to brute-force simulations."""
-    return albedo_polynomial(effective_beta(beta_n))
+# The albedo inversion σ_a = (ln c / P(β_n))², P(b) = Σ_k p_k b^k of degree 5: the coefficients p_0 ... p_5 that
+# Chiang et al. fitted to brute-force renders of a dense block of fibers (talk, "Controllability").
+# `warp-hair calibrate` refits them for a user's own assembly and lighting ([hair.albedo_inversion] in a scene).
+TALK_ALBEDO_INVERSION = (5.969, -0.215, 2.532, -10.73, 5.574, 0.245)
+ALBEDO_INVERSION_DEGREE = len(TALK_ALBEDO_INVERSION) - 1
+# P must stay positive over the β_n the model renders, [BETA_FLOOR, 1]: at a root σ_a blows up, past one it
+# would fall again as albedo rises.
+ALBEDO_INVERSION_RANGE = (BETA_FLOOR, 1.0)
 
 
-def albedo_polynomial(b):
-    """albedo_denominator without the floor: plain arithmetic, so it also takes torch tensors (the fit's latents)."""
-    return 5.969 - 0.215 * b + 2.532 * b**2 - 10.73 * b**3 + 5.574 * b**4 + 0.245 * b**5
+def albedo_denominator(beta_n, coefficients):
+    """P(β_n) of the albedo inversion with the given coefficients (p_0 ... p_5), β_n floored as the lobes use it."""
+    return albedo_polynomial(effective_beta(beta_n), coefficients)
 
 
-def sigma_a_from_albedo(albedo, beta_n):
-    """σ_a = (ln c / poly(β_n))²: the absorption that gives multiple-scattering albedo c (talk, Controllability)."""
-    return (np.log(np.asarray(albedo, dtype=np.float64)) / albedo_denominator(beta_n)) ** 2
+def albedo_polynomial(b, coefficients):
+    """albedo_denominator without the floor: plain arithmetic (Horner), so it also takes torch tensors (the fit's
+    latents) and complex steps (bsdf_jacobian's derivatives)."""
+    value = 0.0
+    for p in reversed(coefficients):
+        value = value * b + float(p)
+    return value
+
+
+def sigma_a_from_albedo(albedo, beta_n, coefficients):
+    """σ_a = (ln c / P(β_n))²: the absorption that gives multiple-scattering albedo c (talk, Controllability)."""
+    return (np.log(np.asarray(albedo, dtype=np.float64)) / albedo_denominator(beta_n, coefficients)) ** 2
+
+
+def check_albedo_inversion(coefficients, name="albedo_inversion"):
+    """The coefficients p_0 ... p_5 as a tuple of floats, or a ValueError naming `name` if there are not six
+    finite numbers or if P(β_n) is not positive over all of [0.01, 1]."""
+    values = np.atleast_1d(np.asarray(coefficients, dtype=object)).ravel()
+    count = ALBEDO_INVERSION_DEGREE + 1
+    if values.size != count:
+        raise ValueError(
+            f"{name} must be {count} numbers (p_0 ... p_{ALBEDO_INVERSION_DEGREE} of P(β_n) = Σ p_k β_n^k), "
+            f"got {coefficients!r}"
+        )
+    values = tuple(_real(f"{name}[{k}]", v) for k, v in enumerate(values))
+    lo, hi = ALBEDO_INVERSION_RANGE
+    polynomial = np.polynomial.Polynomial(values)
+    # P > 0 on [lo, hi] iff it is positive at lo and has no real root in (lo, hi].
+    roots = [r.real for r in polynomial.roots() if abs(r.imag) <= 1e-9 * max(1.0, abs(r)) and lo <= r.real <= hi]
+    if polynomial(lo) <= 0 or roots:
+        if polynomial(lo) <= 0:
+            found = f"P(β_n) = {polynomial(lo):.3g} at β_n = {lo}"
+        else:
+            found = f"P(β_n) = 0 at β_n = {min(roots):.3g}"
+        raise ValueError(
+            f"{name} = {list(values)} gives {found}: the polynomial must be positive over all of [{lo}, {hi}], "
+            "or σ_a = (ln c / P(β_n))² blows up"
+        )
+    return values
 
 
 def sigma_a_from_melanin(eumelanin, pheomelanin):
@@ -119,6 +163,10 @@ class HairParams:
     as 0.01 (with a warning), because a zero-width lobe cannot be sampled. ``alpha`` is the cuticle tilt in
     degrees, ``eta`` the index of refraction (> 1), ``r_roughness_scale`` the species control: a factor on the
     primary reflection (R) lobe's longitudinal variance only.
+
+    ``albedo_inversion`` is not a control but the calibration behind the albedo input: the coefficients
+    p_0 ... p_5 of P(β_n) in σ_a = (ln c / P(β_n))², by default the talk's (TALK_ALBEDO_INVERSION); P must be
+    positive over [0.01, 1]. `warp-hair calibrate` fits them for a given assembly and lighting.
     """
 
     albedo: tuple | None = None
@@ -130,6 +178,7 @@ class HairParams:
     alpha: float = 2.0
     eta: float = 1.55
     r_roughness_scale: float = 1.0
+    albedo_inversion: tuple = TALK_ALBEDO_INVERSION
 
     def __init__(
         self,
@@ -143,6 +192,7 @@ class HairParams:
         alpha=2.0,
         eta=1.55,
         r_roughness_scale=1.0,
+        albedo_inversion=TALK_ALBEDO_INVERSION,
     ):
         given = [name for name, v in (("albedo", albedo), ("sigma_a", sigma_a)) if v is not None]
         if eumelanin is not None or pheomelanin is not None:
@@ -192,6 +242,7 @@ class HairParams:
         set_(self, "alpha", alpha)
         set_(self, "eta", eta)
         set_(self, "r_roughness_scale", r_roughness_scale)
+        set_(self, "albedo_inversion", check_albedo_inversion(albedo_inversion))
 
     @property
     def colour_input(self) -> str:
@@ -206,7 +257,7 @@ class HairParams:
     def sigma_a(self) -> np.ndarray:
         """The absorption coefficient (RGB, per unit fiber radius) the model uses, whatever the colour input."""
         if self.albedo is not None:
-            return sigma_a_from_albedo(self.albedo, self.beta_n)
+            return sigma_a_from_albedo(self.albedo, self.beta_n, self.albedo_inversion)
         if self.sigma_a_input is not None:
             return np.array(self.sigma_a_input, dtype=np.float64)
         return sigma_a_from_melanin(self.eumelanin, self.pheomelanin)
@@ -221,7 +272,8 @@ class HairParams:
         return logistic_scale(self.beta_n)
 
     def to_dict(self) -> dict:
-        """The controls as given, as a flat dict of named values (colour under its own input's name)."""
+        """The controls as given, as a flat dict of named values (colour under its own input's name); the
+        albedo inversion is not a control and is not in it (see `to_table`)."""
         d = {}
         if self.colour_input == "albedo":
             d["albedo"] = list(self.albedo)
@@ -238,19 +290,48 @@ class HairParams:
         )
         return d
 
+    def to_table(self) -> dict:
+        """A scene file's [hair] table: the controls, plus [hair.albedo_inversion] when it is not the talk's."""
+        d = self.to_dict()
+        if self.albedo_inversion != TALK_ALBEDO_INVERSION:
+            d[ALBEDO_INVERSION_KEY] = {"coefficients": list(self.albedo_inversion)}
+        return d
+
     @classmethod
     def from_dict(cls, controls: dict, where: str = "hair controls") -> HairParams:
-        """Build from a flat dict (a scene file's [hair] table); unknown keys are errors naming the key."""
-        unknown = sorted(set(controls) - set(CONTROL_NAMES))
+        """Build from a flat dict (a scene file's [hair] table, `to_table`'s output); unknown keys are errors
+        naming the key. An ``albedo_inversion`` entry is a table holding ``coefficients``."""
+        unknown = sorted(set(controls) - set(CONTROL_NAMES) - {ALBEDO_INVERSION_KEY})
         if unknown:
-            raise ValueError(f"unknown key(s) {unknown} in {where}; allowed: {list(CONTROL_NAMES)}")
+            raise ValueError(
+                f"unknown key(s) {unknown} in {where}; allowed: {list(CONTROL_NAMES) + [ALBEDO_INVERSION_KEY]}"
+            )
+        controls = dict(controls)
+        if ALBEDO_INVERSION_KEY in controls:
+            controls[ALBEDO_INVERSION_KEY] = _inversion_table(controls[ALBEDO_INVERSION_KEY], where)
         return cls(**controls)
 
     def replace(self, **changes) -> HairParams:
-        """A copy with some controls changed; changing the colour input replaces the old one."""
+        """A copy with some controls changed (the albedo inversion kept unless given); changing the colour input
+        replaces the old one."""
         d = self.to_dict()
         if {"albedo", "sigma_a", "eumelanin", "pheomelanin"} & set(changes):
             for key in ("albedo", "sigma_a", "eumelanin", "pheomelanin"):
                 d.pop(key, None)
+        d[ALBEDO_INVERSION_KEY] = self.albedo_inversion
         d.update(changes)
         return HairParams(**d)
+
+
+def _inversion_table(table, where) -> tuple:
+    """The coefficients of an [hair.albedo_inversion] table, checked, with errors naming the table's key."""
+    if not isinstance(table, dict):
+        raise ValueError(f"{where}: {ALBEDO_INVERSION_KEY} must be a table with a coefficients key, got {table!r}")
+    if set(table) != {"coefficients"}:
+        raise ValueError(
+            f"{where}: {ALBEDO_INVERSION_KEY} takes one key, coefficients (p_0 ... p_5); got keys {sorted(table)}"
+        )
+    try:
+        return check_albedo_inversion(table["coefficients"], f"{ALBEDO_INVERSION_KEY}.coefficients")
+    except ValueError as error:
+        raise ValueError(f"{where}: {error}") from None

@@ -80,7 +80,7 @@ def render_metadata(scene: Scene, spp: int, seed: int) -> dict:
         "warp_hair": {
             "version": __version__,
             "scene": scene.source,
-            "hair": scene.hair.to_dict(),
+            "hair": scene.hair.to_table(),
             "sigma_a": [float(c) for c in scene.hair.sigma_a],
             "spp": spp,
             "seed": seed,

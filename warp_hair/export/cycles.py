@@ -11,7 +11,8 @@ closure/bsdf_principled_hair_chiang.h `bsdf_hair_chiang_setup`, `hair_alpha_angl
 `bsdf_principled_hair_sigma_from_reflectance`; the bpy 4.5 wheel ships this source), checked with bpy 4.5 LTS
 renders (benchmarks/vs_peers.py, which renders the exported script):
 - Colour: an albedo look uses the `COLOR` parametrization (Cycles inverts the colour with the talk's polynomial at
-  `Radial Roughness`, which is ours); σ_a and melanin looks use `ABSORPTION` with our σ_a, which is per unit
+  `Radial Roughness`, which is ours, unless the look carries a calibrated `albedo_inversion`: then, like σ_a and
+  melanin looks, it uses `ABSORPTION` with our σ_a), which is per unit
   fiber radius, as Cycles'. (Cycles' own melanin coefficients are not d'Eon's, so melanin is not mapped to its
   `MELANIN` inputs.)
 - `Roughness`, `Radial Roughness` = β_m, β_n: Cycles clamps them to [0.001, 1] and applies the talk's
@@ -29,7 +30,7 @@ from __future__ import annotations
 
 import math
 
-from ..params import HairParams
+from ..params import TALK_ALBEDO_INVERSION, HairParams
 from .common import fmt, lossy, roughness, sigma_a, tilt_degrees
 
 NAME = "cycles"
@@ -72,7 +73,7 @@ def node_settings(params: HairParams) -> dict:
     """{"parametrization": ..., "inputs": {socket name: value}} of the Principled Hair BSDF (model CHIANG)."""
     beta_m, beta_n = roughness(params)
     inputs = {}
-    if params.colour_input == "albedo":
+    if params.colour_input == "albedo" and params.albedo_inversion == TALK_ALBEDO_INVERSION:
         parametrization = "COLOR"
         inputs["Color"] = [float(c) for c in params.albedo] + [1.0]
     else:
