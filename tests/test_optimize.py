@@ -404,7 +404,14 @@ def test_fit_command_names_a_missing_target(tmp_path, capsys):
 
 def test_shipped_targets_are_complete():
     names = [d.name for d in shipped_targets()]
-    assert names == ["auburn_curly", "black_straight", "blonde_straight", "brown_wavy", "fur_patch"]
+    own = ["auburn_curly", "black_straight", "blonde_straight", "brown_wavy", "fur_patch"]
+    peers = [f"{peer}_{look}" for peer in ("cycles", "mitsuba") for look in ("blonde_straight", "brown_straight", "dark_wavy")]
+    assert names == sorted(own + peers)
+    for name in peers:
+        target = load_target(SHIPPED_TARGETS / name)
+        assert target.renderer == name.split("_")[0]
+        # Mitsuba's curves flip the tangent with the side hit: its targets are rendered without tilt.
+        assert (target.hair.alpha == 0.0) == (target.renderer == "mitsuba")
     total = sum(f.stat().st_size for f in SHIPPED_TARGETS.rglob("*") if f.is_file())
     assert total < 4e6
     for directory in shipped_targets():
