@@ -54,6 +54,8 @@ BINS = 16
 MAX_DEPTH = 40
 # Cost of testing a node's child boxes, relative to one primitive test.
 TRAVERSAL_COST = 1.0
+# Levels with fewer ranges than this are split in one launch, not over the thread pool.
+PARALLEL_RANGES = 256
 # Corner of the box of an empty child slot.
 EMPTY_BOX = 1.0e30
 
@@ -140,8 +142,7 @@ def _build_binary(lowers, uppers, max_leaf, traversal_cost, threads=None) -> Tre
         wp_start = wp.array(start.astype(np.int32), dtype=wp.int32, device=device)
         wp_count = wp.array(count.astype(np.int32), dtype=wp.int32, device=device)
         out = {name: wp.empty(k, dtype=dtype, device=device) for name, dtype in _SPLIT_OUTPUTS}
-        launch_ranges(_best_splits_kernel, k, [prims.lowers, prims.uppers, wp_start, wp_count, nb, *out.values()],
-                      threads=threads, device=device)
+        _launch(_best_splits_kernel, k, [prims.lowers, prims.uppers, wp_start, wp_count, nb, *out.values()], threads)
         box_lo, box_hi = out["box_lo"].numpy(), out["box_hi"].numpy()
         extent = out["c_extent"].numpy()
         best_cost, best_axis = out["cost"].numpy(), out["axis"].numpy()
@@ -167,9 +168,8 @@ def _build_binary(lowers, uppers, max_leaf, traversal_cost, threads=None) -> Tre
         # by the centre for a median split.
         mode = np.where(leaf, 0, np.where(median, 2, 1)).astype(np.int32)
         n_left = wp.zeros(k, dtype=wp.int32, device=device)
-        launch_ranges(_partition_kernel, k, [prims, wp_start, wp_count, wp.array(mode, dtype=wp.int32, device=device),
-                                             out["axis"], out["bin"], out["c_lo"], out["c_extent"], nb, scratch, n_left],
-                      threads=threads, device=device)
+        _launch(_partition_kernel, k, [prims, wp_start, wp_count, wp.array(mode, dtype=wp.int32, device=device),
+                                       out["axis"], out["bin"], out["c_lo"], out["c_extent"], nb, scratch, n_left], threads)
         n_left = n_left.numpy().astype(np.int64)
         medians = np.flatnonzero(median)
         if len(medians):
@@ -192,6 +192,15 @@ def _build_binary(lowers, uppers, max_leaf, traversal_cost, threads=None) -> Tre
     hi[slot[:, 0], slot[:, 1]] = np.concatenate([b[1] for b in slot_boxes])
     child[slot[:, 0], slot[:, 1]] = np.concatenate(refs)
     return Tree(order, _round_down(lo), _round_up(hi), child.astype(np.int32), depth - 1, np.concatenate(levels))
+
+
+def _launch(kernel, k, inputs, threads):
+    """One thread per range; the levels with few ranges (the top ones, and every level of a small tree) in
+    one launch, where a thread pool would cost more than it saves."""
+    if k < PARALLEL_RANGES:
+        wp.launch(kernel, dim=k, inputs=[*inputs, 0], device="cpu")
+    else:
+        launch_ranges(kernel, k, inputs, threads=threads, device="cpu")
 
 
 def _median_partition(prims, start, count, axis):
