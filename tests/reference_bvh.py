@@ -5,25 +5,17 @@ import math
 
 import numpy as np
 
-from warp_hair.bvh import BINS, MAX_DEPTH, EMPTY_BOX, MAX_LEAF_SIZE, Tree, _half_area, _round_down, _round_up, leaf_code
+from warp_hair.bvh import BINS, MAX_DEPTH, Tree, _half_area, _round_down, _round_up, leaf_code
 
 
 def build_binary(lowers, uppers, max_leaf, traversal_cost) -> Tree:
-    """The binary tree, built level by level (module docstring); node ids are assigned in level order."""
-    if not 1 <= max_leaf <= MAX_LEAF_SIZE:
-        raise ValueError(f"max_leaf must be in [1, {MAX_LEAF_SIZE}], got {max_leaf}")
+    """The binary tree of two or more boxes, built level by level (warp_hair.bvh's docstring); node ids are
+    assigned in level order. (The build's argument checks and its trees of 0 and 1 boxes are not repeated here.)"""
     lowers = np.asarray(lowers, dtype=np.float64).reshape(-1, 3)
     uppers = np.asarray(uppers, dtype=np.float64).reshape(-1, 3)
     m = len(lowers)
+    assert m >= 2
     order = np.arange(m, dtype=np.int64)
-    if m == 0:
-        empty = np.zeros((0, 2, 3), np.float32)
-        return Tree(order, empty, empty, np.zeros((0, 2), np.int32), 0, np.zeros(0, np.int64))
-    if m == 1:
-        lo = np.stack([lowers[0], np.full(3, EMPTY_BOX)])[None]
-        hi = np.stack([uppers[0], np.full(3, EMPTY_BOX)])[None]
-        child = np.array([[leaf_code(0, 1), leaf_code(0, 0)]], dtype=np.int32)
-        return Tree(order, _round_down(lo), _round_up(hi), child, 1, np.zeros(1, np.int64))
 
     # Boxes as six rows (lo, −hi), so that one minimum reduces both corners; centres as three rows.
     boxes = np.ascontiguousarray(np.concatenate([lowers.T, -uppers.T]))
