@@ -90,6 +90,8 @@ def test_prepare_rejects_what_it_cannot_use():
         prepare({"camera": {}})
     with pytest.raises(ValueError, match="prepared on device 'cpu'"):
         prepare(prepared, device="cuda:7")
+    with pytest.raises(TypeError, match="hair must be a HairParams"):
+        prepared.with_hair({"albedo": 0.5})
 
 
 def test_fit_builds_each_images_scene_once(monkeypatch):

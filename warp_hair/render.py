@@ -77,6 +77,8 @@ class PreparedScene:
 
     def with_hair(self, hair: HairParams) -> "PreparedScene":
         """This prepared scene with other hair controls; the geometry, lights and camera are shared, not rebuilt."""
+        if not isinstance(hair, HairParams):
+            raise TypeError(f"hair must be a HairParams (e.g. scene.hair.replace(albedo=...)), got {type(hair).__name__}")
         other = copy.copy(self)
         other.scene = dataclasses.replace(self.scene, hair=hair)
         other.data = self._scene_data(hair_coefficients(hair))
