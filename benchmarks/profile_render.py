@@ -25,7 +25,6 @@ wall times are inflated by other jobs; the CPU times much less.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import time
 from pathlib import Path
 

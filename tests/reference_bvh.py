@@ -5,7 +5,7 @@ import math
 
 import numpy as np
 
-from warp_hair.bvh import BINS, MAX_DEPTH, Tree, _half_area, _round_down, _round_up, leaf_code
+from warp_hair.bvh import BINS, MAX_DEPTH, Tree, _half_area, _level_nodes, _round_down, _round_up, leaf_code
 
 
 def build_binary(lowers, uppers, max_leaf, traversal_cost) -> Tree:
@@ -45,17 +45,11 @@ def build_binary(lowers, uppers, max_leaf, traversal_cost) -> Tree:
 
         bins, best_cost, best_axis, best_bin = _best_splits(box, c, c_lo, extent, rid, count)
         area = _half_area(range_box)
-        split_cost = traversal_cost + best_cost / np.where(area > 0, area, 1.0)
         is_root = slot[:, 0] < 0
-        leaf = ~is_root & ((count == 1) | ((count <= max_leaf) & (count <= split_cost)))
-        median = ~leaf & (~np.isfinite(best_cost) | (depth >= sah_depth))
-
-        split = np.flatnonzero(~leaf)
-        node_id = np.full(k, -1, dtype=np.int64)
-        node_id[split] = 0 if depth == 0 else num_nodes + np.arange(len(split))
-        num_nodes += 0 if depth == 0 else len(split)
-        if depth > 0:
-            levels.append(np.full(len(split), depth))
+        # The leaf rule and the node numbering are the build's own: what is checked is the splits.
+        leaf, median, split, node_id, num_nodes = _level_nodes(
+            count, best_cost, area, is_root, max_leaf, traversal_cost, depth, sah_depth, num_nodes, levels
+        )
         # What the parents' slots hold: this range's box, and its node or leaf.
         has_parent = ~is_root
         slots.append(slot[has_parent])

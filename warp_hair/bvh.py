@@ -147,17 +147,10 @@ def _build_binary(lowers, uppers, max_leaf, traversal_cost, threads=None) -> Tre
         extent = out["c_extent"].numpy()
         best_cost, best_axis = out["cost"].numpy(), out["axis"].numpy()
         area = _half_area(np.concatenate([box_lo.T, -box_hi.T]))
-        split_cost = traversal_cost + best_cost / np.where(area > 0, area, 1.0)
         is_root = slot[:, 0] < 0
-        leaf = ~is_root & ((count == 1) | ((count <= max_leaf) & (count <= split_cost)))
-        median = ~leaf & (~np.isfinite(best_cost) | (depth >= sah_depth))
-
-        split = np.flatnonzero(~leaf)
-        node_id = np.full(k, -1, dtype=np.int64)
-        node_id[split] = 0 if depth == 0 else num_nodes + np.arange(len(split))
-        num_nodes += 0 if depth == 0 else len(split)
-        if depth > 0:
-            levels.append(np.full(len(split), depth))
+        leaf, median, split, node_id, num_nodes = _level_nodes(
+            count, best_cost, area, is_root, max_leaf, traversal_cost, depth, sah_depth, num_nodes, levels
+        )
         # What the parents' slots hold: this range's box, and its node or leaf.
         has_parent = ~is_root
         slots.append(slot[has_parent])
@@ -192,6 +185,22 @@ def _build_binary(lowers, uppers, max_leaf, traversal_cost, threads=None) -> Tre
     hi[slot[:, 0], slot[:, 1]] = np.concatenate([b[1] for b in slot_boxes])
     child[slot[:, 0], slot[:, 1]] = np.concatenate(refs)
     return Tree(order, _round_down(lo), _round_up(hi), child.astype(np.int32), depth - 1, np.concatenate(levels))
+
+
+def _level_nodes(count, best_cost, area, is_root, max_leaf, traversal_cost, depth, sah_depth, num_nodes, levels):
+    """Which ranges of a level become leaves and which split at the median (the others at their best binned
+    split), the splitting ones' indices and node ids, and the node count after them; appends their depths to
+    `levels`."""
+    split_cost = traversal_cost + best_cost / np.where(area > 0, area, 1.0)
+    leaf = ~is_root & ((count == 1) | ((count <= max_leaf) & (count <= split_cost)))
+    median = ~leaf & (~np.isfinite(best_cost) | (depth >= sah_depth))
+    split = np.flatnonzero(~leaf)
+    node_id = np.full(len(count), -1, dtype=np.int64)
+    node_id[split] = 0 if depth == 0 else num_nodes + np.arange(len(split))
+    num_nodes += 0 if depth == 0 else len(split)
+    if depth > 0:
+        levels.append(np.full(len(split), depth))
+    return leaf, median, split, node_id, num_nodes
 
 
 def _launch(kernel, k, inputs, threads):
