@@ -35,6 +35,7 @@ import torch
 from tqdm import tqdm
 
 from warp_hair.params import effective_beta
+from warp_hair.render import prepare
 from warp_hair.torch import render_torch_pair
 
 from .controls import DEFAULT_FIT, EXPOSURE, SPECS, as_values, parse_control_names
@@ -177,13 +178,14 @@ def _mean_values(history_values: dict, window: int) -> dict:
             for name, vals in history_values.items()}
 
 
-def _loss(target: Target, values: dict, spp: int, seeds, settings: FitSettings, targets, masks):
-    """The mean image loss over the target's images, each rendered as a decorrelated pair of spp/2 each."""
+def _loss(target: Target, scenes, values: dict, spp: int, seeds, settings: FitSettings, targets, masks):
+    """The mean image loss over the target's images (`scenes`: theirs, prepared), each rendered as a decorrelated
+    pair of spp/2 each."""
     hair = {name: v for name, v in values.items() if name != EXPOSURE}
     gain = values.get(EXPOSURE, 1.0)
     total = 0.0
     for k, image in enumerate(target.images):
-        pair = render_torch_pair(image.scene, hair, spp=max(1, spp // 2), seed=seeds[k], threads=settings.threads)
+        pair = render_torch_pair(scenes[k], hair, spp=max(1, spp // 2), seed=seeds[k], threads=settings.threads)
         for rendered in pair:
             total = total + image_loss(rendered * gain, targets[k], settings.loss, masks[k], settings.pool)
     return total / (2 * len(target.images))
@@ -218,6 +220,8 @@ def fit(target: Target, settings: FitSettings | None = None, progress: bool = Tr
     since_best = 0
     final_stage_start = spp_at(settings.iters - 1, settings.iters, settings.spp)
     begun = time.perf_counter()
+    # The fibers, BVH, camera and lights of each image, built once: only the hair changes between renders.
+    scenes = [prepare(image.scene) for image in target.images]
     bar = tqdm(total=settings.iters, desc=f"fit {target.name}", unit="it", disable=not progress)
     try:
         for it in range(settings.iters):
@@ -225,7 +229,7 @@ def fit(target: Target, settings: FitSettings | None = None, progress: bool = Tr
             optimizer.zero_grad()
             values = latents.values()
             seeds = [iteration_seed(settings.seed, it, k) for k in range(len(target.images))]
-            loss = _loss(target, values, spp, seeds, settings, targets, masks)
+            loss = _loss(target, scenes, values, spp, seeds, settings, targets, masks)
             loss.backward()
             history["loss"].append(float(loss.detach()))
             history["spp"].append(spp)
@@ -256,10 +260,10 @@ def fit(target: Target, settings: FitSettings | None = None, progress: bool = Tr
         estimate = {name: _as_control(name, start[name]) for name in names}
     else:
         estimate = _mean_values(history["values"], max(1, int(AVERAGED_FRACTION * done)))
-    return _finish(target, settings, names, start, estimate, history, done, stop_reason, begun, progress)
+    return _finish(target, scenes, settings, names, start, estimate, history, done, stop_reason, begun, progress)
 
 
-def _finish(target, settings, names, start, estimate, history, done, stop_reason, begun, progress) -> FitResult:
+def _finish(target, scenes, settings, names, start, estimate, history, done, stop_reason, begun, progress) -> FitResult:
     """Gauss–Newton refinement (unless interrupted), then the final renders and the uncertainties from the
     loss linearised at the result, all at FINAL_SPP_FACTOR × spp per render."""
     final_spp = settings.spp * FINAL_SPP_FACTOR
@@ -279,14 +283,15 @@ def _finish(target, settings, names, start, estimate, history, done, stop_reason
         lin, mc_covariance = None, None
         try:
             estimate, lin, mc_covariance = refine(target, estimate, settings, final_spp, seed, steps, on_step,
-                                      lambda values: last_kept.update(values=values))
+                                      lambda values: last_kept.update(values=values), scenes=scenes)
         except KeyboardInterrupt:
             stop_reason = "interrupted"
             estimate = last_kept["values"]
         finally:
             bar.close()
     if not steps or lin is None:
-        lin, mc_covariance = linearize(target, estimate, settings, final_spp, seed, threads=settings.threads), None
+        lin, mc_covariance = linearize(target, estimate, settings, final_spp, seed, threads=settings.threads,
+                                       scenes=scenes), None
     losses = [image_loss(torch.from_numpy(fitted), torch.from_numpy(image.image), settings.loss,
                          None if image.mask is None else torch.from_numpy(image.mask), settings.pool)
               for fitted, image in zip(lin.images, target.images)]

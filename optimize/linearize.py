@@ -27,6 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from warp_hair.render import prepare
 from warp_hair.render_jacobian import render_jacobian
 from warp_hair.torch import default_grad_seed, scene_with_controls
 
@@ -163,13 +164,18 @@ def _hair(values: dict) -> dict:
     return {name: v for name, v in values.items() if name != EXPOSURE}
 
 
-def linearize(target, values: dict, settings, spp: int, seed: int, threads=None) -> Linearization:
-    """Render every image of `target` twice at `values` (spp each) and linearise the loss there."""
+def linearize(target, values: dict, settings, spp: int, seed: int, threads=None, scenes=None) -> Linearization:
+    """Render every image of `target` twice at `values` (spp each) and linearise the loss there.
+
+    `scenes`: the target's scenes prepared once (`warp_hair.render.prepare`, one per image, in order), so that
+    repeated linearisations do not rebuild the BVH; by default each image's scene, prepared here once for both
+    passes."""
     gain = float(values.get(EXPOSURE, 1.0))
     rs, vs, js = [[], []], [[], []], [[], []]
     images, weights = [], []
+    scenes = [prepare(image.scene) for image in target.images] if scenes is None else scenes
     for k, image in enumerate(target.images):
-        scene = scene_with_controls(image.scene, _hair(values))
+        scene = scene_with_controls(scenes[k], _hair(values))
         reference, _ = _reduce(image, image.image, None, settings.pool)
         weight = _weight(reference, settings.loss)
         pair = []

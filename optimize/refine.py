@@ -63,20 +63,22 @@ def inside(x: np.ndarray, step: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> n
     return step * float(np.min(limits, initial=1.0))
 
 
-def refine(target, start: dict, settings, spp: int, seed: int, steps: int, on_step=None, on_keep=None):
+def refine(target, start: dict, settings, spp: int, seed: int, steps: int, on_step=None, on_keep=None, scenes=None):
     """(values, Linearization at them, the Monte Carlo covariance of `values` or None) after `steps` steps.
 
     start: the controls to refine from ({name: float or list of 3}). `on_keep(values)` is called with each kept
     step (the fit keeps it, to return after a KeyboardInterrupt), and `on_step(record)` after every step with
     {"values", "loss", "misfit", "change", "accepted"}. The returned linearisation carries the last
-    linearisations' Jacobians and the target's scatter averaged over the later ones.
+    linearisations' Jacobians and the target's scatter averaged over the later ones. `scenes`: the target's
+    prepared scenes (`linearize`).
     """
     names = list(start)
     lo, hi = _bounds(names)
     x = _flat(start)
 
     def linearized(x_at, k) -> Linearization:
-        return linearize(target, by_control(names, x_at), settings, spp, seed + SEED_STRIDE * k, threads=settings.threads)
+        return linearize(target, by_control(names, x_at), settings, spp, seed + SEED_STRIDE * k, threads=settings.threads,
+                         scenes=scenes)
 
     def with_earlier(lin_at: Linearization) -> Linearization:
         """lin_at with the Jacobians of the JACOBIAN_WINDOW − 1 linearisations before it."""

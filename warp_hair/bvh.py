@@ -1,4 +1,4 @@
-"""A bounding volume hierarchy over axis-aligned boxes, built in NumPy and traversed in Warp kernels.
+"""A bounding volume hierarchy over axis-aligned boxes, built and traversed in Warp kernels.
 
 Layout
 ------
@@ -17,13 +17,17 @@ before t ≈ 1e30, and one that does finds nothing. An empty set has no nodes at
 
 Construction
 ------------
-The binary tree is built top down, one level at a time so that every step is a NumPy operation over all the
-nodes of the level: each node's primitives are binned by box centre along each axis (`BINS` bins over the
-centres' extent), and the node is split at the bin boundary of least surface area heuristic (SAH) cost, the
-area of each side's box times its number of primitives. A node becomes a leaf when it holds at most
-`max_leaf` primitives and the heuristic prefers that to splitting. Nodes whose centres all fall in one bin,
-and all nodes once the tree is deep enough that SAH splits could exceed `MAX_DEPTH`, are split at the median
-instead, so the depth never exceeds MAX_DEPTH interior nodes.
+The binary tree is built top down, one level at a time: a Warp kernel with one thread per node of the level
+bins the node's primitives by box centre along each axis (`BINS` bins over the centres' extent, all three axes
+in one pass), and the node is split at the bin boundary of least surface area heuristic (SAH) cost, the area of
+each side's box times its number of primitives; a second kernel partitions each node's range stably. The
+primitives' boxes move with their indices, so every pass reads contiguous memory. The levels' bookkeeping (which
+ranges become leaves, node ids) is NumPy over the nodes, not the primitives. A node becomes a leaf when it
+holds at most `max_leaf` primitives and the heuristic prefers that to splitting. Nodes whose centres all fall
+in one bin, and all nodes once the tree is deep enough that SAH splits could exceed `MAX_DEPTH`, are split at
+the median instead (sorted in NumPy: rare), so the depth never exceeds MAX_DEPTH interior nodes. The build is
+in float64 and deterministic: tests/reference_bvh.py, the same algorithm in NumPy, gives the same tree.
+Build time and memory per segment, 10³ to 10⁶ segments: `benchmarks/scaling.py`.
 
 The 4-wide tree collapses the binary one: its nodes are the binary nodes at even depth, and their children
 are their binary grandchildren (or a child itself, where that is a leaf).
@@ -35,6 +39,11 @@ import math
 from typing import NamedTuple
 
 import numpy as np
+import warp as wp
+
+from .parallel import launch_ranges
+
+wp.set_module_options({"enable_backward": False, "optimization_level": 3})
 
 # Bits of a leaf code that hold the primitive count.
 LEAF_BITS = 3
@@ -45,6 +54,8 @@ BINS = 16
 MAX_DEPTH = 40
 # Cost of testing a node's child boxes, relative to one primitive test.
 TRAVERSAL_COST = 1.0
+# Levels with fewer ranges than this are split in one launch, not over the thread pool.
+PARALLEL_RANGES = 256
 # Corner of the box of an empty child slot.
 EMPTY_BOX = 1.0e30
 
@@ -72,11 +83,14 @@ def leaf_range(code):
     return code >> LEAF_BITS, code & MAX_LEAF_SIZE
 
 
-def build_bvh(lowers, uppers, max_leaf: int = 4, width: int = 2, traversal_cost: float = TRAVERSAL_COST) -> Tree:
-    """The tree of the given `width` (2 or 4) over the boxes (lowers, uppers) (M, 3); see the module docstring."""
+def build_bvh(lowers, uppers, max_leaf: int = 4, width: int = 2, traversal_cost: float = TRAVERSAL_COST,
+              threads: int | None = None) -> Tree:
+    """The tree of the given `width` (2 or 4) over the boxes (lowers, uppers) (M, 3); see the module docstring.
+    The ranges of a level are split by `threads` threads (default: one per core); the tree does not depend on
+    their number."""
     if width not in (2, 4):
         raise ValueError(f"width must be 2 or 4, got {width}")
-    tree = _build_binary(lowers, uppers, max_leaf, traversal_cost)
+    tree = _build_binary(lowers, uppers, max_leaf, traversal_cost, threads)
     return tree if width == 2 else _widen(tree)
 
 
@@ -86,7 +100,7 @@ def _half_area(box):
     return d[0] * d[1] + d[1] * d[2] + d[2] * d[0]
 
 
-def _build_binary(lowers, uppers, max_leaf, traversal_cost) -> Tree:
+def _build_binary(lowers, uppers, max_leaf, traversal_cost, threads=None) -> Tree:
     """The binary tree, built level by level (module docstring); node ids are assigned in level order."""
     if not 1 <= max_leaf <= MAX_LEAF_SIZE:
         raise ValueError(f"max_leaf must be in [1, {MAX_LEAF_SIZE}], got {max_leaf}")
@@ -102,10 +116,14 @@ def _build_binary(lowers, uppers, max_leaf, traversal_cost) -> Tree:
         hi = np.stack([uppers[0], np.full(3, EMPTY_BOX)])[None]
         child = np.array([[leaf_code(0, 1), leaf_code(0, 0)]], dtype=np.int32)
         return Tree(order, _round_down(lo), _round_up(hi), child, 1, np.zeros(1, np.int64))
+    if m >= 2**31:
+        raise ValueError(f"at most 2**31 - 1 boxes, got {m}")
 
-    # Boxes as six rows (lo, −hi), so that one minimum reduces both corners; centres as three rows.
-    boxes = np.ascontiguousarray(np.concatenate([lowers.T, -uppers.T]))
-    centres = np.ascontiguousarray((lowers + uppers).T / 2)
+    device = "cpu"
+    # The primitives' indices and boxes, kept in the order of `order` as the ranges are partitioned, so that
+    # every pass over a range reads contiguous memory.
+    prims = _primitives(np.arange(m, dtype=np.int32), lowers, uppers, device)
+    scratch = _primitives(np.empty(m, dtype=np.int32), np.empty((m, 3)), np.empty((m, 3)), device)
     slots, refs, slot_boxes = [], [], []
     num_nodes = 1
     levels = [np.zeros(1, np.int64)]
@@ -113,52 +131,43 @@ def _build_binary(lowers, uppers, max_leaf, traversal_cost) -> Tree:
     sah_depth = MAX_DEPTH - math.ceil(math.log2(m))
     # The ranges of `order` placed at this level of the tree: start, count, and the parent slot
     # (node, side) that refers to each (the root, always an interior node, has none).
-    start = np.array([0])
-    count = np.array([m])
+    start = np.array([0], dtype=np.int64)
+    count = np.array([m], dtype=np.int64)
     slot = np.array([[-1, 0]])
     depth = 0
     while len(start):
         k = len(start)
-        first = np.concatenate([[0], np.cumsum(count)[:-1]])
-        rid = np.repeat(np.arange(k), count)
-        pos = start[rid] + np.arange(len(rid)) - first[rid]
-        prims = order[pos]
-        box = boxes[:, prims]
-        c = centres[:, prims]
-        range_box = np.minimum.reduceat(box, first, axis=1)
-        c_lo = np.minimum.reduceat(c, first, axis=1)
-        extent = np.maximum.reduceat(c, first, axis=1) - c_lo
-
-        bins, best_cost, best_axis, best_bin = _best_splits(box, c, c_lo, extent, rid, count)
-        area = _half_area(range_box)
-        split_cost = traversal_cost + best_cost / np.where(area > 0, area, 1.0)
+        # More bins than primitives would not help, and the deep levels hold many small ranges.
+        nb = int(np.clip(count.max(), 2, BINS))
+        wp_start = wp.array(start.astype(np.int32), dtype=wp.int32, device=device)
+        wp_count = wp.array(count.astype(np.int32), dtype=wp.int32, device=device)
+        out = {name: wp.empty(k, dtype=dtype, device=device) for name, dtype in _SPLIT_OUTPUTS}
+        _launch(_best_splits_kernel, k, [prims.lowers, prims.uppers, wp_start, wp_count, nb, *out.values()], threads)
+        box_lo, box_hi = out["box_lo"].numpy(), out["box_hi"].numpy()
+        extent = out["c_extent"].numpy()
+        best_cost, best_axis = out["cost"].numpy(), out["axis"].numpy()
+        area = _half_area(np.concatenate([box_lo.T, -box_hi.T]))
         is_root = slot[:, 0] < 0
-        leaf = ~is_root & ((count == 1) | ((count <= max_leaf) & (count <= split_cost)))
-        median = ~leaf & (~np.isfinite(best_cost) | (depth >= sah_depth))
-
-        split = np.flatnonzero(~leaf)
-        node_id = np.full(k, -1, dtype=np.int64)
-        node_id[split] = 0 if depth == 0 else num_nodes + np.arange(len(split))
-        num_nodes += 0 if depth == 0 else len(split)
-        if depth > 0:
-            levels.append(np.full(len(split), depth))
+        leaf, median, split, node_id, num_nodes = _level_nodes(
+            count, best_cost, area, is_root, max_leaf, traversal_cost, depth, sah_depth, num_nodes, levels
+        )
         # What the parents' slots hold: this range's box, and its node or leaf.
         has_parent = ~is_root
         slots.append(slot[has_parent])
-        slot_boxes.append(range_box[:, has_parent])
+        slot_boxes.append((box_lo[has_parent], box_hi[has_parent]))
         refs.append(np.where(leaf, leaf_code(start, count), node_id)[has_parent])
 
-        # Partition the ranges that split, left side first: by bin for a binned split (stable), by the
-        # centre for a median split.
-        elements = np.arange(len(rid))
-        axis = np.where(median, np.argmax(extent, axis=0), best_axis)[rid]
-        goes_right = bins[axis, elements] > best_bin[rid]
-        key = np.where(median[rid], c[axis, elements], goes_right)
-        sort = np.lexsort((key, rid))
-        splitting = ~leaf[rid]
-        sort = sort[splitting[sort]]
-        order[pos[splitting]] = prims[sort]
-        n_left = np.where(median, count // 2, np.bincount(rid, weights=~goes_right, minlength=k).astype(np.int64))
+        # Partition the ranges that split, left side first: by bin for a binned split (stable, in the kernel),
+        # by the centre for a median split.
+        mode = np.where(leaf, 0, np.where(median, 2, 1)).astype(np.int32)
+        n_left = wp.zeros(k, dtype=wp.int32, device=device)
+        _launch(_partition_kernel, k, [prims, wp_start, wp_count, wp.array(mode, dtype=wp.int32, device=device),
+                                       out["axis"], out["bin"], out["c_lo"], out["c_extent"], nb, scratch, n_left], threads)
+        n_left = n_left.numpy().astype(np.int64)
+        medians = np.flatnonzero(median)
+        if len(medians):
+            _median_partition(prims, start[medians], count[medians], np.argmax(extent[medians], axis=1))
+            n_left[medians] = count[medians] // 2
 
         s, n_left = start[split], n_left[split]
         start = np.concatenate([s, s + n_left])
@@ -167,15 +176,52 @@ def _build_binary(lowers, uppers, max_leaf, traversal_cost) -> Tree:
         slot = np.column_stack([np.tile(node_id[split], 2), side])
         depth += 1
 
+    order = prims.index.numpy().astype(np.int64)
     slot = np.concatenate(slots)
-    box = np.concatenate(slot_boxes, axis=1)
     lo = np.zeros((num_nodes, 2, 3))
     hi = np.zeros((num_nodes, 2, 3))
     child = np.zeros((num_nodes, 2), dtype=np.int64)
-    lo[slot[:, 0], slot[:, 1]] = box[:3].T
-    hi[slot[:, 0], slot[:, 1]] = -box[3:].T
+    lo[slot[:, 0], slot[:, 1]] = np.concatenate([b[0] for b in slot_boxes])
+    hi[slot[:, 0], slot[:, 1]] = np.concatenate([b[1] for b in slot_boxes])
     child[slot[:, 0], slot[:, 1]] = np.concatenate(refs)
     return Tree(order, _round_down(lo), _round_up(hi), child.astype(np.int32), depth - 1, np.concatenate(levels))
+
+
+def _level_nodes(count, best_cost, area, is_root, max_leaf, traversal_cost, depth, sah_depth, num_nodes, levels):
+    """Which ranges of a level become leaves and which split at the median (the others at their best binned
+    split), the splitting ones' indices and node ids, and the node count after them; appends their depths to
+    `levels`."""
+    split_cost = traversal_cost + best_cost / np.where(area > 0, area, 1.0)
+    leaf = ~is_root & ((count == 1) | ((count <= max_leaf) & (count <= split_cost)))
+    median = ~leaf & (~np.isfinite(best_cost) | (depth >= sah_depth))
+    split = np.flatnonzero(~leaf)
+    node_id = np.full(len(count), -1, dtype=np.int64)
+    node_id[split] = 0 if depth == 0 else num_nodes + np.arange(len(split))
+    num_nodes += 0 if depth == 0 else len(split)
+    if depth > 0:
+        levels.append(np.full(len(split), depth))
+    return leaf, median, split, node_id, num_nodes
+
+
+def _launch(kernel, k, inputs, threads):
+    """One thread per range; the levels with few ranges (the top ones, and every level of a small tree) in
+    one launch, where a thread pool would cost more than it saves."""
+    if k < PARALLEL_RANGES:
+        wp.launch(kernel, dim=k, inputs=[*inputs, 0], device="cpu")
+    else:
+        launch_ranges(kernel, k, inputs, threads=threads, device="cpu")
+
+
+def _median_partition(prims, start, count, axis):
+    """Each range sorted by its primitives' centres along its axis (stable), in place (NumPy views of the CPU
+    arrays): the first count // 2 are the left side."""
+    rid = np.repeat(np.arange(len(start)), count)
+    first = np.concatenate([[0], np.cumsum(count)[:-1]])
+    pos = start[rid] + np.arange(len(rid)) - first[rid]
+    index, lowers, uppers = prims.index.numpy(), prims.lowers.numpy(), prims.uppers.numpy()
+    centre = (lowers[pos, axis[rid]] + uppers[pos, axis[rid]]) / 2
+    sort = pos[np.lexsort((centre, rid))]
+    index[pos], lowers[pos], uppers[pos] = index[sort], lowers[sort], uppers[sort]
 
 
 def _widen(tree: Tree) -> Tree:
@@ -205,39 +251,211 @@ def _widen(tree: Tree) -> Tree:
     return Tree(tree.order, lo, hi, child.astype(np.int32), (tree.depth + 1) // 2, tree.level[keep] // 2)
 
 
-def _best_splits(box, c, c_lo, extent, rid, count):
-    """The least-cost binned split of each range: (bins (3, E) of the elements, cost (k,) — the sum over the
-    two sides of box area × count, inf where no split separates any two centres —, axis (k,), last bin of the
-    left side (k,))."""
-    k = len(count)
-    # More bins than primitives would not help, and the deep levels hold many small ranges.
-    nb = int(np.clip(count.max(), 2, BINS))
-    scale = np.where(extent > 0, nb / np.where(extent > 0, extent, 1.0), 0.0)
-    bins = np.clip(((c - c_lo[:, rid]) * scale[:, rid]).astype(np.int64), 0, nb - 1)
-    best_cost = np.full(k, np.inf)
-    best_axis = np.zeros(k, dtype=np.int64)
-    best_bin = np.zeros(k, dtype=np.int64)
+# Per-bin values of all three axes (axis · BINS + bin).
+BinValues = wp.types.vector(length=3 * BINS, dtype=wp.float64)
+BinCounts = wp.types.vector(length=3 * BINS, dtype=wp.int32)
+_SPLIT_OUTPUTS = (("box_lo", wp.vec3d), ("box_hi", wp.vec3d), ("c_lo", wp.vec3d), ("c_extent", wp.vec3d),
+                  ("cost", wp.float64), ("axis", wp.int32), ("bin", wp.int32))
+
+
+@wp.struct
+class _Primitives:
+    """Primitive indices and their boxes, in one order."""
+
+    index: wp.array(dtype=wp.int32)
+    lowers: wp.array(dtype=wp.vec3d)
+    uppers: wp.array(dtype=wp.vec3d)
+
+
+def _primitives(index, lowers, uppers, device) -> _Primitives:
+    prims = _Primitives()
+    prims.index = wp.array(index, dtype=wp.int32, device=device)
+    prims.lowers = wp.array(lowers, dtype=wp.vec3d, device=device)
+    prims.uppers = wp.array(uppers, dtype=wp.vec3d, device=device)
+    return prims
+
+
+@wp.func
+def _area(lo: wp.vec3d, hi: wp.vec3d):
+    """Half the surface area of a box; 0 for an empty one (lo = +inf, hi = −inf)."""
+    zero = wp.float64(0.0)
+    dx = wp.max(hi[0] - lo[0], zero)
+    dy = wp.max(hi[1] - lo[1], zero)
+    dz = wp.max(hi[2] - lo[2], zero)
+    return dx * dy + dy * dz + dz * dx
+
+
+@wp.func
+def _bin_scale(extent: wp.float64, nb: int):
+    """Bins per unit length, for nb bins over a centre extent (0 when the extent is: all in bin 0)."""
+    scale = wp.float64(0.0)
+    if extent > wp.float64(0.0):
+        scale = wp.float64(nb) / extent
+    return scale
+
+
+@wp.func
+def _bin_of(c: wp.float64, c_lo: wp.float64, scale: wp.float64, nb: int):
+    """The bin of a centre coordinate among nb from c_lo on."""
+    return wp.clamp(int((c - c_lo) * scale), 0, nb - 1)
+
+
+@wp.kernel
+def _best_splits_kernel(
+    lowers: wp.array(dtype=wp.vec3d),
+    uppers: wp.array(dtype=wp.vec3d),
+    start: wp.array(dtype=wp.int32),
+    count: wp.array(dtype=wp.int32),
+    nb: int,
+    box_lo: wp.array(dtype=wp.vec3d),
+    box_hi: wp.array(dtype=wp.vec3d),
+    c_lo_out: wp.array(dtype=wp.vec3d),
+    c_extent_out: wp.array(dtype=wp.vec3d),
+    cost_out: wp.array(dtype=wp.float64),
+    axis_out: wp.array(dtype=wp.int32),
+    bin_out: wp.array(dtype=wp.int32),
+    first_range: int,
+):
+    """Per range: its box, its centres' extent, and its least-cost binned split: the sum over the two sides of
+    box area × count, inf where no split separates any two centres; the axis and the last bin of the left side.
+    One thread per range, two passes over its primitives (bounds, then the bins of all three axes)."""
+    r = wp.tid() + first_range
+    first = int(start[r])
+    end = first + int(count[r])
+    inf = wp.float64(wp.inf)
+    half = wp.float64(0.5)
+    lo = wp.vec3d(inf, inf, inf)
+    hi = wp.vec3d(-inf, -inf, -inf)
+    c_lo = wp.vec3d(inf, inf, inf)
+    c_hi = wp.vec3d(-inf, -inf, -inf)
+    for i in range(first, end):
+        a = lowers[i]
+        b = uppers[i]
+        lo = wp.min(lo, a)
+        hi = wp.max(hi, b)
+        c = (a + b) * half
+        c_lo = wp.min(c_lo, c)
+        c_hi = wp.max(c_hi, c)
+    extent = c_hi - c_lo
+    box_lo[r] = lo
+    box_hi[r] = hi
+    c_lo_out[r] = c_lo
+    c_extent_out[r] = extent
+
+    n_bin = BinCounts()
+    lx = BinValues()
+    ly = BinValues()
+    lz = BinValues()
+    hx = BinValues()
+    hy = BinValues()
+    hz = BinValues()
+    for j in range(3 * BINS):
+        lx[j] = inf
+        ly[j] = inf
+        lz[j] = inf
+        hx[j] = -inf
+        hy[j] = -inf
+        hz[j] = -inf
+    scale = wp.vec3d(_bin_scale(extent[0], nb), _bin_scale(extent[1], nb), _bin_scale(extent[2], nb))
+    for i in range(first, end):
+        a = lowers[i]
+        b = uppers[i]
+        c = (a + b) * half
+        for axis in range(3):
+            j = axis * BINS + _bin_of(c[axis], c_lo[axis], scale[axis], nb)
+            n_bin[j] = n_bin[j] + 1
+            lx[j] = wp.min(lx[j], a[0])
+            ly[j] = wp.min(ly[j], a[1])
+            lz[j] = wp.min(lz[j], a[2])
+            hx[j] = wp.max(hx[j], b[0])
+            hy[j] = wp.max(hy[j], b[1])
+            hz[j] = wp.max(hz[j], b[2])
+
+    best_cost = inf
+    best_axis = int(0)
+    best_bin = int(0)
+    right_area = BinValues()
+    right_n = BinCounts()
     for axis in range(3):
-        # Per bin and range, laid out (bin, range) so that the scans over the bins run along long rows.
-        key = bins[axis] * k + rid
-        n_bin = np.bincount(key, minlength=nb * k).reshape(nb, k)
-        bin_box = np.full((6, nb * k), np.inf)
-        for row in range(6):
-            np.minimum.at(bin_box[row], key, box[row])
-        bin_box = bin_box.reshape(6, nb, k)
-        # Split after bin j: left = bins 0..j, right = bins j+1..nb−1.
-        left_area = _half_area(np.minimum.accumulate(bin_box, axis=1))[:-1]
-        right_area = _half_area(np.minimum.accumulate(bin_box[:, ::-1], axis=1))[-2::-1]
-        left_n = np.cumsum(n_bin, axis=0)[:-1]
-        right_n = count - left_n
-        cost = np.where((left_n > 0) & (right_n > 0), left_area * left_n + right_area * right_n, np.inf)
-        j = np.argmin(cost, axis=0)
-        axis_cost = cost[j, np.arange(k)]
-        better = axis_cost < best_cost
-        best_cost = np.where(better, axis_cost, best_cost)
-        best_axis = np.where(better, axis, best_axis)
-        best_bin = np.where(better, j, best_bin)
-    return bins, best_cost, best_axis, best_bin
+        base = axis * BINS
+        # Right side of the split after bin j: bins j+1..nb−1, swept from the last bin.
+        r_lo = wp.vec3d(inf, inf, inf)
+        r_hi = wp.vec3d(-inf, -inf, -inf)
+        m = int(0)
+        for step in range(nb - 1):
+            j = base + nb - 1 - step
+            r_lo = wp.min(r_lo, wp.vec3d(lx[j], ly[j], lz[j]))
+            r_hi = wp.max(r_hi, wp.vec3d(hx[j], hy[j], hz[j]))
+            m += n_bin[j]
+            right_area[j - 1] = _area(r_lo, r_hi)
+            right_n[j - 1] = m
+        l_lo = wp.vec3d(inf, inf, inf)
+        l_hi = wp.vec3d(-inf, -inf, -inf)
+        m = int(0)
+        axis_cost = inf
+        axis_bin = int(0)
+        for split in range(nb - 1):
+            j = base + split
+            l_lo = wp.min(l_lo, wp.vec3d(lx[j], ly[j], lz[j]))
+            l_hi = wp.max(l_hi, wp.vec3d(hx[j], hy[j], hz[j]))
+            m += n_bin[j]
+            cost = inf
+            if m > 0 and right_n[j] > 0:
+                cost = _area(l_lo, l_hi) * wp.float64(m) + right_area[j] * wp.float64(right_n[j])
+            if cost < axis_cost:
+                axis_cost = cost
+                axis_bin = split
+        if axis_cost < best_cost:
+            best_cost = axis_cost
+            best_axis = axis
+            best_bin = axis_bin
+    cost_out[r] = best_cost
+    axis_out[r] = best_axis
+    bin_out[r] = best_bin
+
+
+@wp.kernel
+def _partition_kernel(
+    prims: _Primitives,
+    start: wp.array(dtype=wp.int32),
+    count: wp.array(dtype=wp.int32),
+    mode: wp.array(dtype=wp.int32),
+    axis: wp.array(dtype=wp.int32),
+    split_bin: wp.array(dtype=wp.int32),
+    c_lo: wp.array(dtype=wp.vec3d),
+    extent: wp.array(dtype=wp.vec3d),
+    nb: int,
+    scratch: _Primitives,
+    n_left: wp.array(dtype=wp.int32),
+    first_range: int,
+):
+    """Ranges of mode 1 (a binned split) reordered in place, stably: the primitives whose centre's bin is at most
+    the split bin first; their number in n_left. Other ranges (leaves, median splits) are left alone."""
+    r = wp.tid() + first_range
+    if mode[r] != 1:
+        return
+    first = int(start[r])
+    end = first + int(count[r])
+    k = axis[r]
+    lo = c_lo[r][k]
+    scale = _bin_scale(extent[r][k], nb)
+    b = split_bin[r]
+    half = wp.float64(0.5)
+    w = first
+    for side in range(2):
+        for i in range(first, end):
+            right = wp.where(_bin_of((prims.lowers[i][k] + prims.uppers[i][k]) * half, lo, scale, nb) > b, 1, 0)
+            if right == side:
+                scratch.index[w] = prims.index[i]
+                scratch.lowers[w] = prims.lowers[i]
+                scratch.uppers[w] = prims.uppers[i]
+                w += 1
+        if side == 0:
+            n_left[r] = w - first
+    for i in range(first, end):
+        prims.index[i] = scratch.index[i]
+        prims.lowers[i] = scratch.lowers[i]
+        prims.uppers[i] = scratch.uppers[i]
 
 
 def _round_down(x):

@@ -35,13 +35,12 @@ the test scene the difference resolves the gradient to ~10% at --spp 128 --seeds
 
 from __future__ import annotations
 
-import copy
 import math
 from dataclasses import dataclass
 
 import numpy as np
 
-from .render import render
+from .render import prepare, render
 from .render_grad import render_grad
 from .scene import Scene
 
@@ -128,12 +127,6 @@ def parse_controls(scene: Scene, names) -> list[str]:
     if not names:
         raise ValueError(f"--params names no control; this scene's controls are {available}")
     return list(dict.fromkeys(names))
-
-
-def _with_hair(scene: Scene, hair) -> Scene:
-    other = copy.copy(scene)
-    other.hair = hair
-    return other
 
 
 def target_hair(hair, names):
@@ -229,11 +222,13 @@ def gradcheck(
         raise ValueError(f"target_spp must be at least 1, got {target_spp}")
     names = parse_controls(scene, names)
     hair = scene.hair
+    # Every render of the check shows the same fibers: one BVH, each render with its own hair.
+    prepared = prepare(scene)
     components = _components(hair, names)
     steps = {name: (DEFAULT_STEPS[name] if eps is None else float(eps)) for name in names}
     # Scenes for θ ± ε and θ ± ε/2, built (and range-checked) before any rendering.
     shifted = {
-        (label, sign, scale): _with_hair(scene, _shifted(hair, name, c, sign * scale * steps[name], steps[name]))
+        (label, sign, scale): prepared.with_hair(_shifted(hair, name, c, sign * scale * steps[name], steps[name]))
         for label, name, c in components
         for sign in (1.0, -1.0)
         for scale in (1.0, 0.5)
@@ -248,7 +243,7 @@ def gradcheck(
         if progress is not None:
             progress(done, total)
 
-    target = render(_with_hair(scene, target_hair(hair, names)), spp=target_spp, seed=scene.render.seed,
+    target = render(prepared.with_hair(target_hair(hair, names)), spp=target_spp, seed=scene.render.seed,
                     threads=threads).astype(np.float64)
     tick()
     n = target.size
@@ -268,12 +263,12 @@ def gradcheck(
         # Symmetrized like the product L̂: 0.5 (grad with adjoint from I_a over paths b + the same with a, b
         # swapped). Then gradient and difference estimate the same quantity path by path, and their paired
         # difference per seed pair has a far smaller spread than either.
-        image_a = render(scene, spp=spp, seed=seed_a, threads=threads).astype(np.float64)
+        image_a = render(prepared, spp=spp, seed=seed_a, threads=threads).astype(np.float64)
         tick()
-        g_ab, image_b = render_grad(scene, (image_a - target) / n, spp=spp, seed=seed_b, threads=threads,
+        g_ab, image_b = render_grad(prepared, (image_a - target) / n, spp=spp, seed=seed_b, threads=threads,
                                     return_image=True)
         tick()
-        g_ba = render_grad(scene, (image_b.astype(np.float64) - target) / n, spp=spp, seed=seed_a, threads=threads)
+        g_ba = render_grad(prepared, (image_b.astype(np.float64) - target) / n, spp=spp, seed=seed_a, threads=threads)
         tick()
         for label, name, c in components:
             pick = (lambda g: float(g[name])) if c is None else (lambda g: float(np.asarray(g[name])[c]))

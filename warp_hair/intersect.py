@@ -48,7 +48,7 @@ consistent as the BSDF assumes. The geometry stays the mitred tubes.
 
 BVH traversal
 -------------
-The tubes' boxes go into a 4-wide BVH built in NumPy (`warp_hair.bvh`, which documents the layout): each
+The tubes' boxes go into a 4-wide BVH (`warp_hair.bvh`, which documents the layout and the build): each
 `BvhNode` holds the boxes of its four children as six vec4 (one per bound, children 0..3) and their
 references, and the per-tube data sits in one `Tube` struct array in leaf order, so that a leaf reads one
 contiguous block. A traversal keeps a fixed-size local stack (`NodeStack`, a Warp vector of STACK_SIZE ints;

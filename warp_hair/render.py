@@ -6,6 +6,9 @@ core); every pixel owns its random stream, so the image depends on the seed only
 
 from __future__ import annotations
 
+import copy
+import dataclasses
+
 import numpy as np
 import warp as wp
 
@@ -15,6 +18,7 @@ from .envmap import environment_data
 from .hair_bsdf import hair_coefficients
 from .integrator import DirectionalLightData, SceneData, render_kernel
 from .intersect import FiberBVH
+from .params import HairParams
 from .parallel import launch_ranges
 from .scene import DirectionalLight, EnvironmentLight, Scene
 
@@ -25,9 +29,14 @@ TILE_PIXELS = 256
 
 
 class PreparedScene:
-    """Everything a render kernel reads, built once per scene and device (the BVH, light tables, ...)."""
+    """Everything a render kernel reads, built once per scene and device: the tubes and their BVH, the camera,
+    the light tables, the card. `prepare(scene)` makes one; `render` and `render_jacobian` accept it in place of
+    the scene. Only the hair coefficients change between a fit's iterations: `with_hair` swaps them and shares
+    the rest, so a fit builds its BVH once, and a render of the prepared scene is bit for bit that of the scene.
+    """
 
     def __init__(self, scene: Scene, device: str = "cpu"):
+        self.scene = scene
         self.device = device
         self.bvh = FiberBVH(scene.fibers, device=device, smooth_tangents=scene.render.tangents == "smooth")
         directional = [light for light in scene.lights if isinstance(light, DirectionalLight)]
@@ -45,19 +54,54 @@ class PreparedScene:
             image=None if env is None else env.image,
             device=device,
         )
-        data = SceneData()
-        data.camera = camera_data(scene.camera)
-        data.fibers = self.bvh.geometry
-        data.hair = hair_coefficients(scene.hair)
-        data.lights = self.lights
-        data.num_lights = len(directional)
-        data.env = self.env
-        data.has_env = int(env is not None)
-        data.card = card_data(scene.card, scene.camera, self.bvh.bounds)
-        data.max_depth = scene.render.max_depth
-        data.rr_depth = scene.render.rr_depth
-        self.data = data
+        self._num_lights = len(directional)
+        self._has_env = int(env is not None)
+        self._camera = camera_data(scene.camera)
+        self._card = card_data(scene.card, scene.camera, self.bvh.bounds)
+        self.data = self._scene_data(hair_coefficients(scene.hair))
         self.resolution = scene.camera.resolution
+
+    def _scene_data(self, hair) -> SceneData:
+        data = SceneData()
+        data.camera = self._camera
+        data.fibers = self.bvh.geometry
+        data.hair = hair
+        data.lights = self.lights
+        data.num_lights = self._num_lights
+        data.env = self.env
+        data.has_env = self._has_env
+        data.card = self._card
+        data.max_depth = self.scene.render.max_depth
+        data.rr_depth = self.scene.render.rr_depth
+        return data
+
+    def with_hair(self, hair: HairParams) -> "PreparedScene":
+        """This prepared scene with other hair controls; the geometry, lights and camera are shared, not rebuilt."""
+        if not isinstance(hair, HairParams):
+            raise TypeError(f"hair must be a HairParams (e.g. scene.hair.replace(albedo=...)), got {type(hair).__name__}")
+        other = copy.copy(self)
+        other.scene = dataclasses.replace(self.scene, hair=hair)
+        other.data = self._scene_data(hair_coefficients(hair))
+        return other
+
+
+def _same_device(a: str, b: str) -> bool:
+    try:
+        return wp.get_device(a) == wp.get_device(b)
+    except ValueError:  # not a device on this machine
+        return False
+
+
+def prepare(scene: Scene | PreparedScene, device: str | None = None) -> PreparedScene:
+    """The scene made ready to render on `device` (default "cpu"), for rendering it many times with only its
+    hair changing (`PreparedScene.with_hair`); a prepared scene is returned as it is (on its own device)."""
+    if isinstance(scene, PreparedScene):
+        if device is not None and not _same_device(device, scene.device):
+            raise ValueError(f"the scene was prepared on device {scene.device!r}, not {device!r}; prepare it again")
+        return scene
+    if not isinstance(scene, Scene):
+        raise TypeError(f"expected a Scene or a PreparedScene, got {type(scene).__name__}")
+    return PreparedScene(scene, device="cpu" if device is None else device)
 
 
 def _directional_data(light: DirectionalLight | None) -> DirectionalLightData:
@@ -70,6 +114,11 @@ def _directional_data(light: DirectionalLight | None) -> DirectionalLightData:
     data.to_light = wp.vec3(*(-travel / np.linalg.norm(travel)))
     data.irradiance = wp.vec3(*light.irradiance)
     return data
+
+
+def scene_of(scene: Scene | PreparedScene) -> Scene:
+    """The Scene itself, of a Scene or a PreparedScene."""
+    return scene.scene if isinstance(scene, PreparedScene) else scene
 
 
 def render_metadata(scene: Scene, spp: int, seed: int) -> dict:
@@ -88,8 +137,9 @@ def render_metadata(scene: Scene, spp: int, seed: int) -> dict:
     }
 
 
-def sampling(scene: Scene, spp=None, seed=None) -> tuple:
+def sampling(scene: Scene | PreparedScene, spp=None, seed=None) -> tuple:
     """(spp, seed): the given ones, else the scene's [render] table's; spp must be at least 1."""
+    scene = scene_of(scene)
     spp = scene.render.spp if spp is None else int(spp)
     seed = scene.render.seed if seed is None else int(seed)
     if spp < 1:
@@ -98,22 +148,25 @@ def sampling(scene: Scene, spp=None, seed=None) -> tuple:
 
 
 def render(
-    scene: Scene,
+    scene: Scene | PreparedScene,
     spp: int | None = None,
     seed: int | None = None,
     threads: int | None = None,
-    device: str = "cpu",
+    device: str | None = None,
     progress=None,
     return_stderr: bool = False,
 ):
     """Linear radiance, float32 (H, W, 3), row 0 at the top.
 
-    spp and seed default to the scene's [render] table. `progress(done, total)` is called as tiles finish.
+    `scene` is a Scene, or a PreparedScene (`prepare(scene)`) to skip building the BVH again; `device` defaults
+    to the prepared scene's, else "cpu". spp and seed default to the scene's [render] table.
+    `progress(done, total)` is called as tiles finish.
     With `return_stderr`, returns (image, stderr): the standard error of each pixel's mean, estimated from
     the spread of its own samples.
     """
     spp, seed = sampling(scene, spp, seed)
-    prepared = PreparedScene(scene, device=device)
+    prepared = prepare(scene, device)
+    device = prepared.device
     width, height = prepared.resolution
     image = wp.zeros(width * height, dtype=wp.vec3, device=device)
     stderr = wp.zeros(width * height, dtype=wp.vec3, device=device)

@@ -44,6 +44,7 @@ from __future__ import annotations
 import numpy as np
 
 from .bsdf_grad import SCALAR_CONTROLS
+from .render import PreparedScene, scene_of
 from .render_jacobian import render_jacobian
 from .scene import Scene
 
@@ -84,24 +85,25 @@ def contract_crossed(adjoints, jacobians) -> np.ndarray:
 
 
 def render_grad(
-    scene: Scene,
+    scene: Scene | PreparedScene,
     adjoint,
     spp: int | None = None,
     seed: int | None = None,
     threads: int | None = None,
-    device: str = "cpu",
+    device: str | None = None,
     return_image: bool = False,
 ):
     """{control: ∂L/∂control} for L = Σ adjoint ⊙ image, the image `render(scene, spp, seed)` would give.
 
-    adjoint: (H, W, 3), the image's shape, finite. spp and seed default to the scene's [render] table. With
+    `scene` may be prepared (`render.prepare`). adjoint: (H, W, 3), the image's shape, finite. spp and seed
+    default to the scene's [render] table. With
     `return_image`, returns (gradients, image): the image of the same paths (equal to `render`'s up to float
     rounding).
     """
-    width, height = scene.camera.resolution
+    width, height = scene_of(scene).camera.resolution
     a = _check_adjoint(adjoint, (height, width, 3))
     jacobian, image, _ = render_jacobian(scene, spp=spp, seed=seed, threads=threads, device=device)
-    named = named_gradients(scene.hair, contract(a, jacobian))
+    named = named_gradients(scene_of(scene).hair, contract(a, jacobian))
     if return_image:
         return named, image
     return named

@@ -18,7 +18,7 @@ from .bsdf_jacobian import CoefficientDerivatives, coefficient_derivatives, valu
 from .camera import generate_ray
 from .integrator import SceneData, pixel_start, rand2, standard_error, trace_path_grad
 from .parallel import launch_ranges
-from .render import TILE_PIXELS, PreparedScene, sampling
+from .render import TILE_PIXELS, PreparedScene, prepare, sampling
 from .scene import Scene
 
 wp.set_module_options({"enable_backward": False, "optimization_level": 3})
@@ -52,15 +52,16 @@ def render_jacobian_kernel(
     jacobian[pixel] = total_jacobian / float(spp)
 
 
-def render_jacobian(scene: Scene, spp: int | None = None, seed: int | None = None, threads: int | None = None,
-                    device: str = "cpu"):
+def render_jacobian(scene: Scene | PreparedScene, spp: int | None = None, seed: int | None = None,
+                    threads: int | None = None, device: str | None = None):
     """(jacobian (H, W, 3, 8) float32, image (H, W, 3), stderr (H, W, 3)) of `scene` at its own controls.
 
-    spp and seed default to the scene's [render] table; the image is `render(scene, spp, seed)`'s up to float
-    rounding (the same paths).
+    `scene` is a Scene or a PreparedScene (`render.prepare`, built once for many renders); spp and seed default
+    to the scene's [render] table; the image is `render(scene, spp, seed)`'s up to float rounding (the same paths).
     """
     spp, seed = sampling(scene, spp, seed)
-    prepared = PreparedScene(scene, device=device)
+    prepared = prepare(scene, device)
+    device = prepared.device
     width, height = prepared.resolution
     n = width * height
     image = wp.zeros(n, dtype=wp.vec3, device=device)
@@ -69,7 +70,7 @@ def render_jacobian(scene: Scene, spp: int | None = None, seed: int | None = Non
     launch_ranges(
         render_jacobian_kernel,
         n,
-        [prepared.data, coefficient_derivatives(scene.hair), spp, seed, image, stderr, jacobian],
+        [prepared.data, coefficient_derivatives(prepared.scene.hair), spp, seed, image, stderr, jacobian],
         threads=threads,
         device=device,
         chunk=TILE_PIXELS,

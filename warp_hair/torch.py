@@ -49,6 +49,9 @@ are the same, whatever `threads`).
 add a term per image: its backward pass meets each image's adjoint with the other's Jacobian, which the same
 pass computed, so it needs no second tracing of the paths (what `optimize.fit` uses; see its docstring).
 
+`scene` may be a `warp_hair.render.prepare(scene)`: a loop that renders the same scene with new controls then
+builds its BVH once, not once per render (the images are the same, bit for bit).
+
 Everything runs on Warp's CPU device; the image is returned on the device of the first control tensor (CPU if
 none), and gradients have each control's dtype and device. Double backward is not supported.
 """
@@ -61,7 +64,7 @@ import numpy as np
 import torch
 
 from .params import CONTROL_NAMES
-from .render import render, sampling
+from .render import PreparedScene, render, sampling, scene_of
 from .render_grad import contract, contract_crossed, named_gradients
 from .render_jacobian import render_jacobian
 from .scene import Scene
@@ -78,17 +81,17 @@ def default_grad_seed(seed: int) -> int:
     return (int(seed) + GRAD_SEED_OFFSET) % SEED_MODULUS
 
 
-def allowed_controls(scene: Scene) -> tuple:
+def allowed_controls(scene: Scene | PreparedScene) -> tuple:
     """The control names `render_torch` accepts for this scene (its colour input's, then the scalars)."""
-    return COLOUR_CONTROLS[scene.hair.colour_input] + SCALAR_CONTROLS
+    return COLOUR_CONTROLS[scene_of(scene).hair.colour_input] + SCALAR_CONTROLS
 
 
-def _check_controls(scene: Scene, controls: dict) -> dict:
+def _check_controls(scene: Scene | PreparedScene, controls: dict) -> dict:
     """Validate names and shapes; returns {name: tensor} in a fixed order."""
     if not isinstance(controls, dict):
         raise ValueError(f"controls must be a dict of name → tensor, got {type(controls).__name__}")
     allowed = allowed_controls(scene)
-    mode = scene.hair.colour_input
+    mode = scene_of(scene).hair.colour_input
     checked = {}
     for name, value in controls.items():
         if name not in allowed:
@@ -116,11 +119,15 @@ def _check_controls(scene: Scene, controls: dict) -> dict:
     return {name: checked[name] for name in allowed if name in checked}
 
 
-def scene_with_controls(scene: Scene, values: dict) -> Scene:
-    """A copy of the scene with the named controls (floats, or lists of three for RGB) replacing its own."""
+def scene_with_controls(scene: Scene | PreparedScene, values: dict) -> Scene | PreparedScene:
+    """A copy of the scene with the named controls (floats, or lists of three for RGB) replacing its own; of a
+    prepared scene, the prepared scene with the new hair (its BVH shared, not rebuilt)."""
     if not values:
         return scene
-    return dataclasses.replace(scene, hair=scene.hair.replace(**values))
+    hair = scene_of(scene).hair.replace(**values)
+    if isinstance(scene, PreparedScene):
+        return scene.with_hair(hair)
+    return dataclasses.replace(scene, hair=hair)
 
 
 def _to_python(name, tensor):
@@ -134,7 +141,7 @@ def _scene_for(scene, names, tensors):
 
 def _control_gradients(ctx, theta_gradient):
     """Per-control torch gradients from the 8 θ components, in each input's dtype and device."""
-    named = named_gradients(ctx.scene.hair, theta_gradient)
+    named = named_gradients(scene_of(ctx.scene).hair, theta_gradient)
     out = []
     for name, need, (dtype, device) in zip(ctx.names, ctx.needs_input_grad[2:], ctx.meta):
         if not need:
@@ -211,7 +218,7 @@ def _checked_seed(name, seed):
     return seed
 
 
-def render_torch(scene: Scene, controls: dict, spp=None, seed=0, grad_seed=None, threads=None) -> torch.Tensor:
+def render_torch(scene: Scene | PreparedScene, controls: dict, spp=None, seed=0, grad_seed=None, threads=None) -> torch.Tensor:
     """The image (H, W, 3) float32 of `scene` with `controls` substituted, differentiable in the controls.
 
     controls: {name: tensor}, "albedo"/"sigma_a" (3,) or the 0-d scalars (see the module docstring); not
@@ -227,7 +234,7 @@ def render_torch(scene: Scene, controls: dict, spp=None, seed=0, grad_seed=None,
     return _RenderFunction.apply(config, tuple(checked), *checked.values())
 
 
-def render_torch_pair(scene: Scene, controls: dict, spp=None, seed=0, threads=None) -> torch.Tensor:
+def render_torch_pair(scene: Scene | PreparedScene, controls: dict, spp=None, seed=0, threads=None) -> torch.Tensor:
     """Two independent renders (2, H, W, 3) of `scene` with `controls`, each at `spp`, in one pass each.
 
     For losses that add a term per image, ℓ(pair[0]) + ℓ(pair[1]): the backward pass contracts each image's
