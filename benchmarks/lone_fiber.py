@@ -35,7 +35,7 @@ from warp_hair.render import render
 from warp_hair.scene import scene_from_dict
 
 from cycles_peer import import_bpy, render_cycles
-from render_swatch import import_mitsuba, mitsuba_scene, time_mitsuba
+from mitsuba_peer import import_mitsuba, mitsuba_scene, time_mitsuba
 
 RADIUS = 0.05
 HAIR = {"albedo": [0.55, 0.4, 0.25], "beta_m": 0.3, "beta_n": 0.35, "alpha": 0.0, "eta": 1.55}

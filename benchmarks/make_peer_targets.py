@@ -6,7 +6,7 @@ Each image is rendered by that renderer from the target's scene file, at its [re
 look as `warp_hair.export` writes it for that renderer; truth.json is written from the [hair] table. The fibers
 are the scene's own (its generator or file), handed to Cycles as THICK Catmull-Rom curves through the vertices
 (benchmarks/cycles_peer.py), and to Mitsuba as a `bsplinecurve` over the vertices with an end control point
-mirrored at each end, so that the curve reaches the end vertices (benchmarks/vs_peers.py explains both). The
+mirrored at each end, so that the curve reaches the end vertices (benchmarks/mitsuba_peer.py explains why). The
 strands are dense (a segment turns the tangent by well under a degree), so that the polyline warp-hair
 renders and the curves the peers render describe the same fibers. Mitsuba's targets have α = 0: its curve
 shapes flip the frame's tangent with the side of the fiber that is hit, which would turn the tilt around on
@@ -29,8 +29,7 @@ from warp_hair.parallel import default_threads
 from warp_hair.scene import load_scene
 
 from cycles_peer import import_bpy, render_cycles
-from render_swatch import import_mitsuba, mitsuba_scene, time_mitsuba
-from vs_peers import bspline_control_points
+from mitsuba_peer import bspline_control_points, import_mitsuba, mitsuba_scene, time_mitsuba
 
 
 def peer_renderer(name):

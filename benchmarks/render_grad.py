@@ -46,7 +46,7 @@ from warp_hair.scene import load_scene
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
-from render_swatch import import_mitsuba, mitsuba_scene  # noqa: E402  (the same scene translation)
+from mitsuba_peer import import_mitsuba, mitsuba_scene  # noqa: E402  (the same scene translation)
 
 SCENE = HERE / "standard_swatch.toml"
 SEED_TARGET, SEED_PRIMAL, SEED_GRAD = 7, 1, 2
@@ -152,7 +152,7 @@ def mitsuba_gradient(mi, scene, spp, threads, repeat):
 
     dr.set_thread_count(threads)
     mi_scene = mitsuba_scene(mi, scene, spp)
-    # Same translation as render_swatch.py, but the prb integrator (path replay backpropagation): its backward
+    # Same translation as render_swatch.py (mitsuba_peer), but the prb integrator (path replay backpropagation): its backward
     # pass re-traces the paths, so forward+backward is a primal plus an adjoint pass, like ours.
     integrator = mi.load_dict({"type": "prb", "max_depth": scene.render.max_depth + 1,
                                "rr_depth": scene.render.rr_depth})

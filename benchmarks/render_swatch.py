@@ -25,11 +25,12 @@ import numpy as np
 from warp_hair.io import write_exr, write_png
 from warp_hair.parallel import default_threads
 from warp_hair.render import render
-from warp_hair.scene import DirectionalLight, EnvironmentLight, load_scene
+from warp_hair.scene import load_scene
+
+from mitsuba_peer import import_mitsuba, mitsuba_scene, time_mitsuba
 
 HERE = Path(__file__).resolve().parent
 SCENE = HERE / "standard_swatch.toml"
-LIBLLVM = Path("/usr/lib/x86_64-linux-gnu/libLLVM-19.so")
 # Mean radiance differing by more than this (relative, any channel) is reported as a disagreement. At 64 spp
 # the noise in the image mean is far below it.
 AGREEMENT_TOLERANCE = 0.03
@@ -52,68 +53,6 @@ def time_ours(scene, spp, threads, repeat):
     return warmup, best, image
 
 
-def import_mitsuba():
-    """The mitsuba module with the llvm_ad_rgb variant set, or None (with the reason printed)."""
-    if "DRJIT_LIBLLVM_PATH" not in os.environ and LIBLLVM.is_file():
-        os.environ["DRJIT_LIBLLVM_PATH"] = str(LIBLLVM)
-    try:
-        import mitsuba as mi
-
-        mi.set_variant("llvm_ad_rgb")
-    except ImportError as error:
-        print(f"Mitsuba comparison skipped: {error}. Enable it with `pip install mitsuba` (and libLLVM: "
-              "apt-get install libllvm19, or DRJIT_LIBLLVM_PATH=/path/to/libLLVM.so).")
-        return None
-    return mi
-
-
-def mitsuba_scene(mi, scene, spp, shape="linearcurve", fibers_file=None):
-    """The warp-hair `scene` as a Mitsuba 3 scene. Only what the comparison needs is translated: an
-    orthographic or perspective camera, directional lights, a constant environment, fibers from a file
-    (`fibers_file`, default the scene's) as `shape`, the hair as warp_hair.export.mitsuba writes it."""
-    from warp_hair.export.mitsuba import bsdf_dict
-
-    cam = scene.camera
-    width, height = cam.resolution
-    T = mi.ScalarTransform4f
-    to_world = T().look_at(origin=cam.origin, target=cam.target, up=cam.up)
-    if cam.type == "orthographic":
-        # Mitsuba's orthographic sensor sees [-1, 1] along the camera's x (and y·H/W): scale by half the width.
-        sensor = {"type": "orthographic", "to_world": to_world @ T().scale([0.5 * cam.width, 0.5 * cam.width, 1])}
-    else:
-        sensor = {"type": "perspective", "to_world": to_world, "fov": cam.fov, "fov_axis": "x"}
-    sensor["film"] = {"type": "hdrfilm", "width": width, "height": height, "rfilter": {"type": "box"},
-                      "pixel_format": "rgb"}
-    sensor["sampler"] = {"type": "independent", "sample_count": spp}
-
-    fibers_file = fibers_file or scene.source["fibers"].get("file")  # absolute: the loader resolved it
-    if fibers_file is None or scene.card is not None:
-        raise ValueError("the Mitsuba comparison needs fibers from a file (linearcurve) and no backing card")
-    hair = scene.hair
-    if hair.r_roughness_scale != 1.0:
-        raise ValueError("Mitsuba's hair BSDF has no R-roughness scale; set r_roughness_scale = 1")
-    bsdf = bsdf_dict(hair)  # scale_tilt = −α: Mitsuba rotates the lobes opposite to the physical tilt
-    result = {
-        "type": "scene",
-        "sensor": sensor,
-        # Mitsuba counts path segments (max_depth 1: emitters seen directly, 2: direct lighting); ours counts
-        # scattering vertices (1: direct lighting), so our 16 are its 17. Both start Russian roulette once
-        # rr_depth vertices are done (Mitsuba: depth >= rr_depth after its increment).
-        "integrator": {"type": "path", "max_depth": scene.render.max_depth + 1, "rr_depth": scene.render.rr_depth},
-        "fibers": {"type": shape, "filename": str(fibers_file), "bsdf": bsdf},
-    }
-    for k, light in enumerate(scene.lights):
-        if isinstance(light, DirectionalLight):
-            # Both take the direction the light travels, and the irradiance on a surface facing the light.
-            result[f"light{k}"] = {"type": "directional", "direction": list(light.direction),
-                                   "irradiance": {"type": "rgb", "value": list(light.irradiance)}}
-        elif isinstance(light, EnvironmentLight) and light.image is None:
-            result[f"light{k}"] = {"type": "constant", "radiance": {"type": "rgb", "value": list(light.radiance)}}
-        else:
-            raise ValueError("the Mitsuba comparison does not translate environment maps")
-    return mi.load_dict(result)
-
-
 def reversed_tangents(mi, mi_scene, fibers):
     """Fraction of probe hits where Mitsuba's shading frame does not run root to tip along the fiber (the hair
     BSDF's local y, which orients the cuticle tilt). Rays come from 16 directions around the middle of each
@@ -134,24 +73,6 @@ def reversed_tangents(mi, mi_scene, fibers):
     on_target = np.asarray(si.is_valid()) & (np.asarray(si.prim_index) == target)
     along = np.sum(np.asarray(si.sh_frame.t).T * np.tile(axis, (16, 1)), axis=1)
     return float(np.mean(along[on_target] < 0.99)) if on_target.any() else float("nan")
-
-
-def time_mitsuba(mi, mi_scene, spp, seed, threads, repeat):
-    """(warm-up seconds, best seconds, image). Dr.Jit traces and compiles its kernels on the first render
-    (a 1-spp render compiles the same kernels), so the timed renders are the later ones. Converting the result
-    to NumPy inside the timed region waits for the lazily evaluated image."""
-    import drjit as dr
-
-    dr.set_thread_count(threads)
-    start = time.perf_counter()
-    np.array(mi.render(mi_scene, spp=1, seed=seed))
-    warmup = time.perf_counter() - start
-    best = np.inf
-    for _ in range(repeat):
-        start = time.perf_counter()
-        image = np.array(mi.render(mi_scene, spp=spp, seed=seed), dtype=np.float32)
-        best = min(best, time.perf_counter() - start)
-    return warmup, best, image
 
 
 def blocks(image):

@@ -47,14 +47,14 @@ from pathlib import Path
 
 import numpy as np
 
-from warp_hair.fibers import FiberAssembly, save_fibers, swatch
+from warp_hair.fibers import save_fibers, swatch
 from warp_hair.io import write_exr, write_png
 from warp_hair.parallel import default_threads
 from warp_hair.render import render
 from warp_hair.scene import scene_from_dict
 
 from cycles_peer import import_bpy, render_cycles
-from render_swatch import import_mitsuba, mitsuba_scene, time_mitsuba
+from mitsuba_peer import bspline_control_points, import_mitsuba, mitsuba_scene, time_mitsuba
 
 HERE = Path(__file__).resolve().parent
 BLOCK = 8
@@ -83,18 +83,6 @@ def scene_data(resolution, light_direction, spp, tangents="smooth", max_depth=10
         "hair": HAIR,
         "render": {"spp": spp, "max_depth": max_depth, "seed": 0, "tangents": tangents},
     }
-
-
-def bspline_control_points(fibers):
-    """The strands with one control point added at each end, mirrored through the end vertex (2·p0 − p1):
-    a uniform cubic B-spline over the vertices alone stops short of the end vertices by about a segment, and
-    with these it starts and ends exactly at them, so that Mitsuba's `bsplinecurve` spans the same fibers."""
-    strands = []
-    for k in range(fibers.num_strands):
-        points, radii = fibers.strand(k)
-        points = np.concatenate([[2 * points[0] - points[1]], points, [2 * points[-1] - points[-2]]])
-        strands.append((points, np.concatenate([radii[:1], radii, radii[-1:]])))
-    return FiberAssembly.from_strands(strands)
 
 
 def blocks(image):
