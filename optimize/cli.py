@@ -94,6 +94,7 @@ def run_fit(args: argparse.Namespace) -> None:
     from .report import format_table, true_values, write_outputs
     from .target import load_target
 
+    render_cli.check_sampling_args(args)
     target = load_target(resolve_target(args.target))
     names = [n.strip() for n in args.fit.split(",") if n.strip()]
     fixed = parse_assignments(args.fix, "--fix")
@@ -141,6 +142,7 @@ def add_targets(subparsers) -> None:
 def run_targets(args: argparse.Namespace) -> None:
     from .target import load_target, make_target, shipped_targets
 
+    render_cli.check_sampling_args(args)
     directories = [resolve_target(n) for n in args.names] if args.names else shipped_targets()
     for directory in directories:
         if args.action == "list":

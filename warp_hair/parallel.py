@@ -31,7 +31,8 @@ def launch_ranges(
 
     Without `chunk`, one range per thread (for uniform work). With `chunk`, ranges of that many items
     handed out as threads free up, which balances uneven work (pixels on fibers cost more than background).
-    `progress(done, total)` is called after each range.
+    `progress(done, total)` is called after each range. On Ctrl-C (or an error in a range) no further range
+    starts: the running ones finish, and the KeyboardInterrupt (or the error) propagates within one range's time.
     """
     if n == 0:
         return
@@ -54,8 +55,14 @@ def launch_ranges(
         return count
 
     done = 0
-    with ThreadPoolExecutor(threads) as pool:
+    pool = ThreadPoolExecutor(threads)
+    try:
         for future in as_completed([pool.submit(run, r) for r in ranges]):
             done += future.result()
             if progress is not None:
                 progress(done, n)
+    except BaseException:
+        # A plain `with` would wait for every queued range before the interrupt got through.
+        pool.shutdown(wait=True, cancel_futures=True)
+        raise
+    pool.shutdown(wait=True)

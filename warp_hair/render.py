@@ -16,7 +16,8 @@ from .hair_bsdf import hair_coefficients
 from .integrator import DirectionalLightData, SceneData, render_kernel
 from .intersect import FiberBVH
 from .parallel import launch_ranges
-from .scene import DirectionalLight, EnvironmentLight, Scene
+from . import validate
+from .scene import DirectionalLight, EnvironmentLight, Scene, check_scene
 
 
 # Pixels per range handed to a thread: fiber pixels cost far more than background ones, and small ranges
@@ -28,6 +29,7 @@ class PreparedScene:
     """Everything a render kernel reads, built once per scene and device (the BVH, light tables, ...)."""
 
     def __init__(self, scene: Scene, device: str = "cpu"):
+        check_scene(scene)  # a scene built in Python, not loaded, is checked here
         self.device = device
         self.bvh = FiberBVH(scene.fibers, device=device)
         directional = [light for light in scene.lights if isinstance(light, DirectionalLight)]
@@ -89,11 +91,9 @@ def render_metadata(scene: Scene, spp: int, seed: int) -> dict:
 
 
 def sampling(scene: Scene, spp=None, seed=None) -> tuple:
-    """(spp, seed): the given ones, else the scene's [render] table's; spp must be at least 1."""
-    spp = scene.render.spp if spp is None else int(spp)
-    seed = scene.render.seed if seed is None else int(seed)
-    if spp < 1:
-        raise ValueError(f"spp must be at least 1, got {spp}")
+    """(spp, seed): the given ones, else the scene's [render] table's; spp in [1, 2**31), seed in [0, 2**32)."""
+    spp = scene.render.spp if spp is None else validate.integer("spp", spp, minimum=1)
+    seed = scene.render.seed if seed is None else validate.seed("seed", seed)
     return spp, seed
 
 
