@@ -19,6 +19,7 @@ import numpy as np
 from optimize.fit import fit
 from optimize.report import true_values, write_outputs
 from optimize.target import load_target, shipped_targets
+from warp_hair.cli import exit_on_interrupt
 
 HERE = Path(__file__).resolve().parent
 ALBEDO_BOUND, BETA_BOUND = 0.02, 0.03
@@ -51,6 +52,8 @@ def main() -> None:
             f"| {a_err:.3f} | {m_err:.3f} | {n_err:.3f} | {'yes' if ok else 'no'} | {result.seconds:.0f} s |"
         )
         print(rows[-1], flush=True)
+        if result.stop_reason == "interrupted":  # the fit saved its estimate; the other targets are not started
+            raise KeyboardInterrupt
     print()
     print("| target | true albedo / β_m / β_n | fitted albedo / β_m / β_n | max albedo error | β_m error | β_n error | within bounds | time |")
     print("| --- | --- | --- | --- | --- | --- | --- | --- |")
@@ -58,4 +61,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    exit_on_interrupt(main)

@@ -210,6 +210,15 @@ def build_parser(extra=()) -> argparse.ArgumentParser:
     return parser
 
 
+def exit_on_interrupt(run) -> None:
+    """Run `run()` (a script's main) and exit: on Ctrl-C with one line and status 130, as the command does."""
+    try:
+        run()
+    except KeyboardInterrupt:
+        print(f"{sys.argv[0]}: interrupted", file=sys.stderr)
+        sys.exit(130)
+
+
 def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
     print(f"{PROG}: warning: {message}", file=sys.stderr)
 

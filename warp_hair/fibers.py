@@ -78,7 +78,8 @@ class FiberAssembly:
     @classmethod
     def from_arrays(cls, points, radii, *, source=None):
         """Strands of equal vertex count: `points` (S, N, 3); `radii` a scalar, (S,) per strand or (S, N)."""
-        points = np.asarray(points, dtype=np.float32)
+        with np.errstate(over="ignore"):  # beyond float32 range: inf, which construction reports by strand
+            points = np.asarray(points, dtype=np.float32)
         if points.ndim != 3 or points.shape[2] != 3:
             raise FiberDataError(f"points must have shape (S, N, 3), got {points.shape}", source=source)
         strands, per_strand = points.shape[:2]

@@ -23,6 +23,13 @@ from .scene import DirectionalLight, EnvironmentLight, Scene, check_scene
 # Pixels per range handed to a thread: fiber pixels cost far more than background ones, and small ranges
 # balance the threads at a negligible cost per launch (a fit's 48×48 targets are 9 ranges, not one core's work).
 TILE_PIXELS = 256
+# Above this spp a range holds proportionally fewer pixels, so that one range stays a fraction of a second and
+# Ctrl-C, which lets the running ranges finish, stops a render at any spp within about a second.
+TILE_SPP = 64
+
+
+def tile_pixels(spp: int) -> int:
+    return max(1, TILE_PIXELS * TILE_SPP // max(spp, TILE_SPP))
 
 
 class PreparedScene:
@@ -123,7 +130,7 @@ def render(
         [prepared.data, spp, seed, image, stderr],
         threads=threads,
         device=device,
-        chunk=TILE_PIXELS,
+        chunk=tile_pixels(spp),
         progress=progress,
     )
     image = image.numpy().reshape(height, width, 3)
