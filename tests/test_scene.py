@@ -206,7 +206,7 @@ BAD_SCENES = [
     (("fibers", "count"), 12.5, r"scene.toml: [fibers] generator 'wavy': count must be an integer, got 12.5"),
     (("fibers", "amplitude"), "big", r"scene.toml: [fibers] generator 'wavy': amplitude must be a number"),
     (("fibers", "amplitude"), -1.0, r"scene.toml: [fibers] generator 'wavy': amplitude must be a positive"),
-    (("hair", "beta"), 0.3, r"unknown key(s) ['beta'] in scene.toml [hair]"),
+    (("hair", "beta"), 0.3, r"scene.toml: [hair] unknown key(s) ['beta']; allowed: ['albedo',"),
     (("hair", "beta_m"), 1.5, r"scene.toml: [hair] beta_m = 1.5 is outside the allowed range [0.0, 1.0]"),
     (("hair", "albedo"), REMOVE, r"scene.toml: [hair] HairParams needs exactly one colour input"),
     (("render", "spp"), 1.5, r"scene.toml: [render] spp must be an integer, got 1.5"),

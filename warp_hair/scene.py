@@ -25,7 +25,7 @@ from . import fibers as fiber_module
 from . import validate
 from .fibers import FiberAssembly, load_fibers
 from .io import read_exr
-from .params import HairParams
+from .params import CONTROL_NAMES, HairParams
 
 CAMERA_TYPES = ("orthographic", "perspective")
 TABLES = ("camera", "lights", "fibers", "hair", "render", "card")
@@ -440,10 +440,9 @@ def _check_generator_arg(key, value, prefix):
 
 
 def _hair(table, where):
-    table_where = f"{where} [hair]"
+    # Checked here, not by from_dict, so that the message starts with the file like every other scene error.
+    _check_keys(table, list(CONTROL_NAMES), f"{where}: [hair]")
     try:
-        return HairParams.from_dict(table, where=table_where)
+        return HairParams.from_dict(table)
     except ValueError as error:
-        message = str(error)
-        # from_dict names `where` itself for unknown keys; the range checks of HairParams do not.
-        raise ValueError(message if table_where in message else f"{where}: [hair] {message}") from None
+        raise ValueError(f"{where}: [hair] {error}") from None
