@@ -38,7 +38,9 @@ SCENES = sorted(ROOT.glob("targets/*/scene_*.toml")) + [ROOT / "examples" / "swa
 TARGETS = sorted(p.parent for p in ROOT.glob("targets/*/target.toml"))
 AREAS = ("scene", "scene text", "text fibers", ".hair fibers", "hair controls", "target")
 # Outcomes that pass; every other one is a failure.
-PASSING = ("error naming the input", "image", "image (black: geometry, light or camera changed)", "finite BSDF", "loaded")
+BLACK_ABSORBING = "image (black: the hair absorbs everything)"
+PASSING = ("error naming the input", "image", "image (black: geometry, light or camera changed)", BLACK_ABSORBING,
+           "finite BSDF", "loaded")
 # Renders of valid mutants are kept tiny: the fuzz is after failures, not pictures.
 RENDER_PIXELS, RENDER_SPP, RENDER_DEPTH = 16, 2, 6
 
@@ -348,7 +350,15 @@ def _run_scene(case, workdir):
         scene = scene_from_dict(case.data["scene"], base_dir=case.data["base"], where=where)
     except (ValueError, OSError) as error:
         return _named(error, where) if str(error).startswith(where) else ("unnamed error", str(error))
-    return _rendered(scene, may_be_black=case.data["table"] not in ("hair", "render"))
+    outcome = _rendered(scene, may_be_black=case.data["table"] not in ("hair", "render"))
+    if outcome[0] == "black image" and case.data["table"] == "hair":
+        # Black hair lit from behind is black: then the same scene with non-absorbing fibers must show them.
+        import dataclasses
+
+        white = dataclasses.replace(scene, hair=scene.hair.replace(sigma_a=0.0))
+        if _rendered(white, may_be_black=False)[0] == "image":
+            return (BLACK_ABSORBING, f"σ_a = {scene.hair.sigma_a.tolist()}")
+    return outcome
 
 
 def _run_scene_text(case, workdir):
@@ -466,8 +476,9 @@ def start_isolated(case: Case, workdir: Path, memory: int, seconds: int):
     pid = os.fork()
     if pid == 0:  # the child
         os.close(read_end)
-        # Libraries (OpenEXR) print their own complaints about damaged files; the outcome says what happened.
+        # Libraries (OpenEXR) print their own complaints, on stdout and stderr, about damaged files; the outcome says what happened.
         devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, 1)
         os.dup2(devnull, 2)
         try:
             limit = _mapped_bytes() + memory

@@ -9,8 +9,9 @@ command line) checks them here, and a value beyond these limits is an error nami
   LENGTH_LIMIT = 1e15 in magnitude, radii and widths at least LENGTH_MIN = 1e-15, so that squares and the
   ray-tube quadratic stay normal float32 numbers;
 - the scene's extent (the largest coordinate magnitude of the fibers and the camera) at most RESOLUTION_LIMIT
-  = 1e5 times the smallest fiber radius: float32 resolves a position to 6e-8 of its magnitude, and hits on a
-  tube thinner than that are noise;
+  = 3e4 times the smallest fiber radius: float32 resolves a position to 6e-8 of its magnitude, and the ray-tube
+  test loses the fiber's edges as that nears the radius (benchmarks/float32_scale.py: a swatch moved to 2.5e4
+  radii from the origin renders 1.4% darker, at 1e5 radii 4.5%);
 - radiance and irradiance (a constant, or an environment image times its scale): at most RADIANCE_LIMIT =
   1e12, which leaves room for the BSDF's peaks and the squares of the per-pixel error estimate;
 - counts (resolution, spp, max_depth, rr_depth, strands, vertices): int32; seeds below 2**32;
@@ -30,7 +31,7 @@ import numpy as np
 
 LENGTH_LIMIT = 1e15
 LENGTH_MIN = 1e-15
-RESOLUTION_LIMIT = 1e5
+RESOLUTION_LIMIT = 3e4
 RADIANCE_LIMIT = 1e12
 INT32_MAX = 2**31 - 1
 # Warp's random streams are seeded with a uint32.
