@@ -3,11 +3,10 @@ image. Values that pass Python's checks but overflow in float32 or wrap in int32
 
 import copy
 import json
-import math
 import struct
 import subprocess
 import sys
-import warnings
+import tomllib
 
 import numpy as np
 import pytest
@@ -18,24 +17,13 @@ from warp_hair.cli import main
 from warp_hair.fibers import FiberAssembly, load_fibers, save_fibers, swatch
 from warp_hair.io import write_exr
 from warp_hair.params import HairParams
-from warp_hair.scene import load_scene, scene_from_dict
+from warp_hair.scene import scene_from_dict
 
 import reference_model as reference
+from test_cli import TINY_SCENE
 
-BASE = {
-    "camera": {
-        "type": "orthographic",
-        "origin": [0.0, 0.0, 3.0],
-        "target": [0.0, 0.0, 0.0],
-        "up": [0.0, 1.0, 0.0],
-        "width": 0.2,
-        "resolution": [12, 8],
-    },
-    "lights": [{"type": "directional", "direction": [0.3, -0.4, -1.0], "irradiance": [3.0, 3.0, 3.0]}],
-    "fibers": {"generator": "swatch", "count": 40, "layers": 2},
-    "hair": {"eumelanin": 1.3},
-    "render": {"spp": 2, "max_depth": 8, "seed": 4},
-}
+# The command-line tests' tiny scene: 12×8 pixels, 40 fibers, 2 spp.
+BASE = tomllib.loads(TINY_SCENE)
 
 
 def scene_with(path, value):
@@ -288,34 +276,6 @@ def test_truth_json_errors_name_the_file(tmp_path, truth, message):
 # ---------------------------------------------------------------------------------------------------------------
 # Command line
 
-TINY_TOML = """
-[camera]
-type = "orthographic"
-origin = [0.0, 0.0, 3.0]
-target = [0.0, 0.0, 0.0]
-up = [0.0, 1.0, 0.0]
-width = 0.2
-resolution = [12, 8]
-
-[[lights]]
-type = "directional"
-direction = [0.3, -0.4, -1.0]
-irradiance = [3.0, 3.0, 3.0]
-
-[fibers]
-generator = "swatch"
-count = 40
-layers = 2
-
-[hair]
-eumelanin = 1.3
-
-[render]
-spp = 2
-max_depth = 8
-"""
-
-
 @pytest.mark.parametrize(
     "options,replace,message",
     [
@@ -333,7 +293,7 @@ max_depth = 8
 )
 def test_cli_errors_exit_2_with_one_line(tmp_path, capsys, options, replace, message):
     scene = tmp_path / "tiny.toml"
-    text = TINY_TOML if replace is None else TINY_TOML.replace(*replace)
+    text = TINY_SCENE if replace is None else TINY_SCENE.replace(*replace)
     scene.write_text(text)
     options = [str(tmp_path / "x.png") if o == "PNG" else o for o in options]
     assert main(["render", str(scene), "-o", str(tmp_path / "x.exr"), *options]) == 2
@@ -360,27 +320,30 @@ def test_unexpected_errors_are_short_unless_debug(tmp_path, capsys, monkeypatch)
     assert "Traceback" in capsys.readouterr().err
 
 
-def test_ctrl_c_stops_render_within_a_second(tmp_path):
-    """A real SIGINT to a real `warp-hair render`: it stops handing out tiles, prints one line, exits 130 and
-    leaves no output file."""
+@pytest.mark.parametrize("command", [["render", "SCENE", "-o", "OUT"], ["gradcheck", "SCENE", "--spp", "256", "--params", "beta_m"]],
+                         ids=["render", "gradcheck"])
+def test_ctrl_c_stops_within_a_second(tmp_path, command):
+    """A real SIGINT to a real `warp-hair render` or `gradcheck`: no new tiles start, one line, exit 130, and no
+    output file."""
     import signal
     import time
 
     scene = tmp_path / "slow.toml"
-    # 4096 spp: one 256-pixel range would take several seconds; ranges shrink with spp to stay short.
-    scene.write_text(TINY_TOML.replace("resolution = [12, 8]", "resolution = [160, 160]").replace("spp = 2", "spp = 4096"))
+    # 4096 spp: one 256-pixel range would take seconds; ranges shrink with spp to stay short.
+    scene.write_text(TINY_SCENE.replace("resolution = [12, 8]", "resolution = [160, 160]").replace("spp = 2", "spp = 4096"))
     out = tmp_path / "slow.exr"
+    arguments = [{"SCENE": str(scene), "OUT": str(out)}.get(a, a) for a in command] + ["--threads", "2"]
     code = (
-        "import importlib, sys\n"
-        "r = importlib.import_module('warp_hair.render')  # the module: warp_hair.render is also the function\n"
+        "import sys, threading, time, warp\n"
         "from optimize.cli import main\n"
-        "def tick(done, total):\n"
-        "    if done and not getattr(tick, 'said', False):\n"
-        "        tick.said = True; print('RENDERING', flush=True)\n"
-        "render = r.render\n"
-        "r.render = lambda *a, **k: render(*a, **{**k, 'progress': lambda d, t: (k['progress'](d, t), tick(d, t))})\n"
-        f"code = main(['render', {str(scene)!r}, '-o', {str(out)!r}, '--threads', '2'])\n"
-        "import time; print(time.monotonic(), flush=True)  # the interpreter's own teardown takes 0.2-2 s more\n"
+        "launch, said = warp.launch, threading.Event()\n"
+        "def announced(*args, **kwargs):  # says when the first range is done: the render is under way\n"
+        "    launch(*args, **kwargs)\n"
+        "    if not said.is_set():\n"
+        "        said.set(); print('RENDERING', flush=True)\n"
+        "warp.launch = announced\n"
+        f"code = main({arguments!r})\n"
+        "print(time.monotonic(), flush=True)  # the interpreter's own teardown takes 0.2-2 s more\n"
         "sys.exit(code)\n"
     )
     proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
@@ -388,7 +351,7 @@ def test_ctrl_c_stops_render_within_a_second(tmp_path):
         assert proc.stdout.readline().strip() == "RENDERING"
         sent = time.monotonic()
         proc.send_signal(signal.SIGINT)
-        out_text, err = proc.communicate(timeout=30)
+        out_text, err = proc.communicate(timeout=60)
         waited = float(out_text.split()[-1]) - sent  # CLOCK_MONOTONIC: the same clock in both processes
     finally:
         proc.kill()
