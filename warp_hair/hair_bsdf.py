@@ -100,13 +100,16 @@ def lobe_setup(c: HairCoefficients, wo: wp.vec3, h: float):
     # Refraction: θ_t by Snell, γ_t in the normal plane with the Bravais index η' (MODEL.md); the form
     # h cos θ_o / sqrt(η² − sin² θ_o) = h / η' has no division by cos θ_o. An η within float32 rounding of 1
     # makes both square roots 0 at grazing: the floors give the η → 1⁺ limits there (γ_t = 0, an infinitely
-    # long path that transmits nothing unless σ_a = 0) instead of 0/0; 1e-37 keeps 2/cos θ_t finite.
+    # long path that transmits nothing unless σ_a = 0) instead of 0/0. For η > 1 they change nothing.
     sin_t = sin_o / c.eta
     cos_t = wp.max(cos_from_sin(sin_t), 1.0e-37)
     sin_gamma_t = wp.clamp(h * cos_o / wp.max(wp.sqrt(c.eta * c.eta - sin_o * sin_o), 1.0e-37), -1.0, 1.0)
     cos_gamma_t = cos_from_sin(sin_gamma_t)
-    path = 2.0 * cos_gamma_t / cos_t
-    T = wp.vec3(wp.exp(-c.sigma_a[0] * path), wp.exp(-c.sigma_a[1] * path), wp.exp(-c.sigma_a[2] * path))
+    T = wp.vec3(
+        wp.exp(-c.sigma_a[0] * 2.0 * cos_gamma_t / cos_t),
+        wp.exp(-c.sigma_a[1] * 2.0 * cos_gamma_t / cos_t),
+        wp.exp(-c.sigma_a[2] * 2.0 * cos_gamma_t / cos_t),
+    )
     f = fresnel_dielectric(cos_o * cos_from_sin(h), c.eta)
 
     L = LobeSetup()
