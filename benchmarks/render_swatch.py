@@ -68,9 +68,12 @@ def import_mitsuba():
     return mi
 
 
-def mitsuba_scene(mi, scene, spp):
+def mitsuba_scene(mi, scene, spp, shape="linearcurve", fibers_file=None):
     """The warp-hair `scene` as a Mitsuba 3 scene. Only what the comparison needs is translated: an
-    orthographic or perspective camera, directional lights, a constant environment, fibers from a file."""
+    orthographic or perspective camera, directional lights, a constant environment, fibers from a file
+    (`fibers_file`, default the scene's) as `shape`, the hair as warp_hair.export.mitsuba writes it."""
+    from warp_hair.export.mitsuba import bsdf_dict
+
     cam = scene.camera
     width, height = cam.resolution
     T = mi.ScalarTransform4f
@@ -84,23 +87,13 @@ def mitsuba_scene(mi, scene, spp):
                       "pixel_format": "rgb"}
     sensor["sampler"] = {"type": "independent", "sample_count": spp}
 
-    fibers_file = scene.source["fibers"].get("file")  # absolute: the loader resolved it
+    fibers_file = fibers_file or scene.source["fibers"].get("file")  # absolute: the loader resolved it
     if fibers_file is None or scene.card is not None:
         raise ValueError("the Mitsuba comparison needs fibers from a file (linearcurve) and no backing card")
     hair = scene.hair
     if hair.r_roughness_scale != 1.0:
         raise ValueError("Mitsuba's hair BSDF has no R-roughness scale; set r_roughness_scale = 1")
-    bsdf = {
-        "type": "hair",
-        "sigma_a": {"type": "rgb", "value": [float(c) for c in hair.sigma_a]},  # per unit radius in both
-        # Ours renders roughness below 0.01 as 0.01 (warp_hair.params.BETA_FLOOR); Mitsuba does not clamp.
-        "longitudinal_roughness": max(hair.beta_m, 0.01),
-        "azimuthal_roughness": max(hair.beta_n, 0.01),
-        "scale_tilt": hair.alpha,  # degrees in both
-        # Mitsuba's eta is int_ior / ext_ior, and ext_ior defaults to air (1.000277): pin it to 1.
-        "int_ior": hair.eta,
-        "ext_ior": 1.0,
-    }
+    bsdf = bsdf_dict(hair)  # scale_tilt = −α: Mitsuba rotates the lobes opposite to the physical tilt
     result = {
         "type": "scene",
         "sensor": sensor,
@@ -108,7 +101,7 @@ def mitsuba_scene(mi, scene, spp):
         # scattering vertices (1: direct lighting), so our 16 are its 17. Both start Russian roulette once
         # rr_depth vertices are done (Mitsuba: depth >= rr_depth after its increment).
         "integrator": {"type": "path", "max_depth": scene.render.max_depth + 1, "rr_depth": scene.render.rr_depth},
-        "fibers": {"type": "linearcurve", "filename": fibers_file, "bsdf": bsdf},
+        "fibers": {"type": shape, "filename": str(fibers_file), "bsdf": bsdf},
     }
     for k, light in enumerate(scene.lights):
         if isinstance(light, DirectionalLight):

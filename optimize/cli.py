@@ -2,6 +2,7 @@
 
     warp-hair fit TARGET -o OUT_DIR [--fit albedo,beta_m,beta_n] [--iters N] [--spp N] [--loss l2]
                   [--lr LR] [--init NAME=V ...] [--fix NAME=V ...] [--seed S] [--patience P] [--refine K] [--threads T]
+                  [--export mitsuba,pbrt,cycles,materialx]
     warp-hair targets make [NAME ...] [--threads T]
     warp-hair targets list
 
@@ -86,6 +87,9 @@ def add_fit(subparsers) -> None:
                         help="Gauss-Newton steps after Adam (default 16, or more for a target rendered at more samples "
                         "per pixel than 16 steps render; 0 with --loss l1, which is not a sum of squares)")
     parser.add_argument("--threads", type=int, metavar="T", help="CPU threads (default: all cores)")
+    parser.add_argument("--export", metavar="RENDERERS",
+                        help="also write the fitted look for these renderers beside params.json (comma-separated: "
+                        "mitsuba, pbrt, cycles, materialx; files hair_<renderer>.*, as `warp-hair export` writes)")
     parser.set_defaults(run=run_fit)
 
 
@@ -95,6 +99,10 @@ def run_fit(args: argparse.Namespace) -> None:
     from .target import load_target
 
     render_cli.check_sampling_args(args)
+    from warp_hair.export import parse_renderers
+
+    # Checked before the fit, not after it.
+    renderers = [] if args.export is None else parse_renderers(args.export)
     target = load_target(resolve_target(args.target))
     names = [n.strip() for n in args.fit.split(",") if n.strip()]
     fixed = parse_assignments(args.fix, "--fix")
@@ -112,11 +120,21 @@ def run_fit(args: argparse.Namespace) -> None:
     if result.stop_reason == "interrupted":
         print("interrupted: saving the estimate so far (no uncertainties)")
     paths = write_outputs(args.output, result, target)
+    paths += _export(args.output / "params.json", renderers)
     print(format_table(result, true_values(target, result.values)))
     print(f"{result.iterations} iterations ({result.stop_reason}), {result.seconds:.0f} s, final loss {result.loss:.4g}")
     for warning in result.warnings:
         print(f"{render_cli.PROG}: warning: {warning}", file=sys.stderr)
     print("wrote " + ", ".join(str(p) for p in paths))
+
+
+def _export(params_json: Path, renderers) -> list[Path]:
+    from warp_hair.export import default_filename, export
+
+    paths = [params_json.parent / default_filename(name) for name in renderers]
+    for name, path in zip(renderers, paths):
+        export(params_json, to=name, path=path)
+    return paths
 
 
 def _fix_controls(target, fixed: dict) -> None:
@@ -140,7 +158,7 @@ def add_targets(subparsers) -> None:
 
 
 def run_targets(args: argparse.Namespace) -> None:
-    from .target import load_target, make_target, shipped_targets
+    from .target import load_target, make_target, shipped_targets, target_renderer
 
     render_cli.check_sampling_args(args)
     directories = [resolve_target(n) for n in args.names] if args.names else shipped_targets()
@@ -148,7 +166,12 @@ def run_targets(args: argparse.Namespace) -> None:
         if args.action == "list":
             target = load_target(directory)
             truth = "" if target.truth is None else " ".join(f"{k}={v}" for k, v in target.truth.to_dict().items())
-            print(f"{directory.name}: {', '.join(im.name for im in target.images)}; {truth}")
+            by = "" if target.renderer == "warp-hair" else f" (rendered by {target.renderer})"
+            print(f"{directory.name}: {', '.join(im.name for im in target.images)}{by}; {truth}")
+            continue
+        if not args.names and target_renderer(directory) != "warp-hair":
+            print(f"{directory.name}: rendered by {target_renderer(directory)}, left as it is "
+                  "(benchmarks/make_peer_targets.py re-renders it)")
             continue
         start = time.perf_counter()
         with render_cli.progress_bar(unit="px", desc=f"make {directory.name}") as progress:

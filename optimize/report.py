@@ -1,4 +1,8 @@
-"""What a fit leaves behind: params.json, convergence.png, comparison.png and the fitted-vs-true table."""
+"""What a fit leaves behind: params.json, convergence.png, comparison.png and the fitted-vs-true table.
+
+params.json's "look" holds every hair control of the result, the fitted ones and those fixed by the target's
+scenes: what `warp-hair export` (warp_hair.export) takes to other renderers.
+"""
 
 from __future__ import annotations
 
@@ -6,6 +10,8 @@ import json
 from pathlib import Path
 
 import numpy as np
+
+from warp_hair.params import HairParams
 
 from .controls import EXPOSURE, SPECS
 from .fit import FitResult
@@ -27,10 +33,20 @@ def errors(result: FitResult, truth: dict) -> dict:
     return {name: (np.asarray(result.values[name]) - np.asarray(truth[name])).tolist() for name in truth}
 
 
-def write_params(path: Path, result: FitResult, truth: dict) -> None:
+def fitted_look(result: FitResult, target: Target) -> HairParams:
+    """The hair of the target's scenes with the fitted controls put in (exposure is not a hair control)."""
+    controls = target.hair.to_dict()
+    # A fit's colour control is always the scenes' colour input (controls.parse_control_names), so a plain
+    # update keeps the other melanin when only one is fitted.
+    controls.update({name: value for name, value in result.values.items() if name != EXPOSURE})
+    return HairParams(**controls)
+
+
+def write_params(path: Path, result: FitResult, truth: dict, look: HairParams) -> None:
     data = {
         "target": result.target,
         "fitted": result.values,
+        "look": look.to_dict(),
         "uncertainty": result.uncertainties,
         "start": result.start,
         "loss": result.loss,
@@ -149,7 +165,7 @@ def write_outputs(out_dir, result: FitResult, target: Target) -> list[Path]:
     out_dir.mkdir(parents=True, exist_ok=True)
     truth = true_values(target, result.values)
     paths = [out_dir / "params.json", out_dir / "convergence.png", out_dir / "comparison.png"]
-    write_params(paths[0], result, truth)
+    write_params(paths[0], result, truth, fitted_look(result, target))
     plot_convergence(paths[1], result, truth)
     plot_comparison(paths[2], result, target)
     return paths

@@ -22,6 +22,10 @@ target.toml:
 All images of a target show the same fibers with the same hair: their scenes' [fibers] and [hair] must agree.
 `make_target` renders the images from their scenes (at the spp and seed of each scene's [render] table) and
 writes truth.json from the [hair] table: what the shipped targets are made with (`warp-hair targets make`).
+
+A target rendered by another renderer says so in target.toml, `renderer = "cycles"` or `"mitsuba"` (default
+"warp-hair"): its scene files describe for warp-hair what that renderer rendered, and `make_target` leaves its
+images alone (`python benchmarks/make_peer_targets.py NAME` re-renders them, with that renderer installed).
 """
 
 from __future__ import annotations
@@ -41,6 +45,8 @@ from warp_hair.scene import Scene, load_scene
 TARGET_FILE = "target.toml"
 TRUTH_FILE = "truth.json"
 IMAGE_KEYS = {"scene", "image", "mask"}
+# Who rendered a target's images: warp-hair itself, or a peer renderer (benchmarks/make_peer_targets.py).
+RENDERERS = ("warp-hair", "mitsuba", "cycles")
 # The shipped targets, next to the packages in the repository.
 SHIPPED_TARGETS = Path(__file__).resolve().parent.parent / "targets"
 
@@ -60,6 +66,7 @@ class Target:
     directory: Path
     images: list
     truth: HairParams | None
+    renderer: str = "warp-hair"
 
     @property
     def hair(self) -> HairParams:
@@ -69,6 +76,15 @@ class Target:
 
 def read_target_spec(directory) -> list[dict]:
     """The [[images]] entries of a target directory's target.toml, checked for shape (not for the files)."""
+    return _read_spec(directory)["images"]
+
+
+def target_renderer(directory) -> str:
+    """Which renderer made the target's images (target.toml's `renderer`, default "warp-hair")."""
+    return _read_spec(directory).get("renderer", "warp-hair")
+
+
+def _read_spec(directory) -> dict:
     directory = Path(directory)
     if not directory.is_dir():
         raise FileNotFoundError(f"{directory}: target directory not found")
@@ -81,9 +97,11 @@ def read_target_spec(directory) -> list[dict]:
         raise ValueError(f"{spec_path}: cannot read: {error}") from None
     except tomllib.TOMLDecodeError as error:
         raise ValueError(f"{spec_path}: TOML syntax error: {error}") from None
-    unknown = sorted(set(spec) - {"images"})
+    unknown = sorted(set(spec) - {"images", "renderer"})
     if unknown:
-        raise ValueError(f"{spec_path}: unknown key(s) {unknown}; a target file has only [[images]] tables")
+        raise ValueError(f"{spec_path}: unknown key(s) {unknown}; a target file has [[images]] tables and renderer")
+    if spec.get("renderer", "warp-hair") not in RENDERERS:
+        raise ValueError(f"{spec_path}: renderer = {spec['renderer']!r}; allowed: {list(RENDERERS)}")
     entries = spec.get("images")
     if not isinstance(entries, list) or not entries or not all(isinstance(e, dict) for e in entries):
         raise ValueError(f"{spec_path}: needs at least one [[images]] table with scene = ... and image = ...")
@@ -97,7 +115,7 @@ def read_target_spec(directory) -> list[dict]:
                 raise ValueError(f"{where}: needs {key} = \"<file name>\"")
         if "mask" in entry and not isinstance(entry["mask"], str):
             raise ValueError(f"{where}: mask must be a file name, got {entry['mask']!r}")
-    return entries
+    return spec
 
 
 def load_target(directory) -> Target:
@@ -113,7 +131,7 @@ def load_target(directory) -> Target:
         images.append(TargetImage(Path(entry["image"]).stem, scene, image, mask, image_path))
     _check_consistent(images)
     truth = _read_truth(directory / TRUTH_FILE)
-    return Target(directory.resolve().name, directory, images, truth)
+    return Target(directory.resolve().name, directory, images, truth, target_renderer(directory))
 
 
 def _read_target_image(path: Path, scene: Scene) -> np.ndarray:
@@ -190,6 +208,11 @@ def make_target(directory, threads=None, progress=None) -> list[Path]:
     """
     directory = Path(directory)
     entries = read_target_spec(directory)
+    renderer = target_renderer(directory)
+    if renderer != "warp-hair":
+        raise ValueError(f"{directory}: its images were rendered by {renderer}; re-render them with "
+                         f"`python benchmarks/make_peer_targets.py {directory.name}` (from a source checkout, with "
+                         f"{renderer} installed)")
     scenes = [load_scene(directory / entry["scene"]) for entry in entries]
     total = sum(s.camera.resolution[0] * s.camera.resolution[1] for s in scenes)
     written, done = [], 0

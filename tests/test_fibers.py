@@ -259,9 +259,10 @@ def test_text_reader_handles_comments_blank_runs_and_whitespace(tmp_path):
 def test_text_writer_format(tmp_path):
     save_fibers(mixed_assembly(), tmp_path / "f.txt")
     lines = (tmp_path / "f.txt").read_text().splitlines()
-    assert lines[0].startswith("#")
+    # Numbers only (Mitsuba's curve loaders take no comment lines): 4 a vertex, a blank line between strands.
     assert sum(not line for line in lines) == 2
-    assert all(len(line.split()) == 4 for line in lines[1:] if line)
+    assert all(len(line.split()) == 4 and all(float(v) == float(v) for v in line.split()) for line in lines if line)
+    assert sum(1 for line in lines if line) == mixed_assembly().num_vertices
 
 
 @pytest.mark.parametrize(

@@ -66,6 +66,12 @@ def small_target(tmp_path_factory):
     return directory
 
 
+def test_fit_rejects_an_unknown_export_before_fitting(small_target, tmp_path, capsys):
+    assert main(["fit", str(small_target), "-o", str(tmp_path / "o"), "--export", "mitsuba,arnold"]) == 2
+    assert "unknown renderer 'arnold'" in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()
+
+
 def test_reduced_fit_recovers_the_true_controls(small_target):
     target = load_target(small_target)
     result = fit(target, iters=80, spp=16, pool=4, progress=False)
@@ -87,11 +93,19 @@ def test_reduced_fit_recovers_the_true_controls(small_target):
 
 def test_fit_command_writes_its_outputs(small_target, tmp_path, capsys):
     out = tmp_path / "out"
-    assert main(["fit", str(small_target), "-o", str(out), "--iters", "6", "--spp", "4", "--fit", "albedo,beta_m"]) == 0
+    assert main(["fit", str(small_target), "-o", str(out), "--iters", "6", "--spp", "4", "--fit", "albedo,beta_m",
+                 "--export", "mitsuba,cycles"]) == 0
     printed = capsys.readouterr().out
     assert "fitted" in printed and "true" in printed and "beta_m" in printed
     params = json.loads((out / "params.json").read_text())
     assert set(params["fitted"]) == {"albedo", "beta_m"}
+    # The look: the fitted controls and the scenes' fixed ones, every control of the hair.
+    look = params["look"]
+    assert set(look) == {"albedo", "beta_m", "beta_n", "alpha", "eta", "r_roughness_scale"}
+    assert look["albedo"] == params["fitted"]["albedo"] and look["beta_m"] == params["fitted"]["beta_m"]
+    assert all(look[name] == TRUTH[name] for name in TRUTH if name not in params["fitted"])
+    assert "longitudinal_roughness" in (out / "hair_mitsuba.xml").read_text()
+    assert "ShaderNodeBsdfHairPrincipled" in (out / "hair_cycles.py").read_text()
     assert params["true"]["beta_m"] == TRUTH["beta_m"] and len(params["error"]["albedo"]) == 3
     assert params["iterations"] == 6 and np.isfinite(params["loss"])
     for picture in ("convergence.png", "comparison.png"):

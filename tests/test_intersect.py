@@ -652,3 +652,81 @@ def test_an_unbalanced_tree_agrees_with_the_float64_brute_force():
     both = robust & np.isfinite(t_ref)
     np.testing.assert_array_equal(hit["segment"][both], segment_ref[both])
     np.testing.assert_array_equal(occluded(bvh, origins, directions), np.isfinite(hit["t"]))
+
+
+# --- the shading frame ------------------------------------------------------------------------------------------
+
+
+def arc_fiber(segments=12, bend=np.pi / 2, curve_radius=1.0, radius=0.02):
+    """A strand on a circle of curve_radius in the x-y plane (centre at the origin), root at angle 0."""
+    angles = np.linspace(0.0, bend, segments + 1)
+    points = curve_radius * np.stack([np.cos(angles), np.sin(angles), np.zeros_like(angles)], axis=1)
+    return FiberAssembly.from_strands([(points, radius)]), bend / segments
+
+
+def rays_down_onto_the_arc(n, first, last, curve_radius=1.0):
+    """Rays along −z onto the arc, at angles spread from first to last."""
+    angles = np.linspace(first, last, n)
+    targets = curve_radius * np.stack([np.cos(angles), np.sin(angles), np.zeros_like(angles)], axis=1)
+    origins = targets + [0.0, 0.0, 1.0]
+    return origins, np.tile([0.0, 0.0, -1.0], (n, 1))
+
+
+def test_shading_tangent_follows_the_curve_and_is_continuous_at_joints():
+    """On a polyline through a circle, the shading tangent at a hit is within a small fraction of the
+    segments' turn of the circle's own tangent there, where the segment axis is up to half a turn off; along
+    the strand it turns smoothly, without a step at the joints. (The end segments, whose outer vertex has
+    only the segment's own axis as its tangent, are left out.)"""
+    fibers, turn = arc_fiber()
+    origins, directions = rays_down_onto_the_arc(2000, turn, np.pi / 2 - turn)
+    hit = intersect(FiberBVH(fibers), origins, directions)
+    assert np.all(hit["segment"] >= 0)
+    angle = np.arctan2(hit["position"][:, 1], hit["position"][:, 0])
+    circle_tangent = np.stack([-np.sin(angle), np.cos(angle), np.zeros_like(angle)], axis=1)
+
+    def error(t):
+        return np.arccos(np.clip(np.einsum("ij,ij->i", unit(t), circle_tangent), -1.0, 1.0))
+
+    assert error(hit["tangent"]).max() > 0.45 * turn  # the polyline's own axis: half a turn off at the joints
+    assert error(hit["shading_tangent"]).max() < 0.02 * turn
+    # Neighbouring rays are 1/2000 of the arc apart: the tangent moves by about that, never by a joint's step.
+    steps = np.arccos(np.clip(np.einsum("ij,ij->i", hit["shading_tangent"][1:], hit["shading_tangent"][:-1]), -1, 1))
+    assert steps.max() < 3.0 * (np.pi / 2 - 2 * turn) / 2000
+
+    flat = intersect(FiberBVH(fibers, smooth_tangents=False), origins, directions)
+    np.testing.assert_allclose(flat["shading_tangent"], flat["tangent"], atol=1e-6)
+
+
+def test_shading_frame_is_orthonormal_and_h_is_its_cos_phi():
+    """x ⊥ z, both unit, z the cylinder normal turned only as far as x requires, and h = −cos φ_o in that frame
+    (MODEL.md: the BSDF assumes frame and offset agree)."""
+    rng = np.random.default_rng(11)
+    fibers = wavy(count=12, layers=2, length=0.6, radius=0.01, amplitude=0.03, wavelength=0.15, seed=4)
+    lo, hi = fibers.points.min(axis=0), fibers.points.max(axis=0)
+    targets = lo + rng.random((4000, 3)) * (hi - lo)
+    origins, directions = rays_toward(rng, targets)
+    hit = intersect(FiberBVH(fibers), origins, directions)
+    got = hit["segment"] >= 0
+    assert got.sum() > 500
+    x, z, d = hit["shading_tangent"][got], hit["shading_normal"][got], unit(directions[got])
+    np.testing.assert_allclose(np.linalg.norm(x, axis=1), 1.0, atol=1e-5)
+    np.testing.assert_allclose(np.linalg.norm(z, axis=1), 1.0, atol=1e-5)
+    np.testing.assert_allclose(np.einsum("ij,ij->i", x, z), 0.0, atol=1e-5)
+    # z stays in the plane of the cylinder normal and x.
+    n = hit["normal"][got]
+    np.testing.assert_allclose(np.einsum("ij,ij->i", np.cross(n, x), z), 0.0, atol=1e-5)
+    y = np.cross(z, x)
+    wo_y, wo_z = -np.einsum("ij,ij->i", d, y), -np.einsum("ij,ij->i", d, z)
+    np.testing.assert_allclose(hit["shading_h"][got], -wo_y / np.hypot(wo_y, wo_z), atol=2e-5)
+
+
+def test_straight_strands_shade_with_their_own_axis():
+    fibers, _ = straight_fiber()
+    rng = np.random.default_rng(3)
+    origins, directions = rays_toward(rng, fibers.points.mean(axis=0) + rng.normal(0, 0.02, (500, 3)))
+    hit = intersect(FiberBVH(fibers), origins, directions)
+    got = hit["segment"] >= 0
+    assert got.sum() > 100
+    np.testing.assert_allclose(hit["shading_tangent"][got], hit["tangent"][got], atol=1e-6)
+    np.testing.assert_allclose(hit["shading_normal"][got], hit["normal"][got], atol=1e-6)
+    np.testing.assert_allclose(hit["shading_h"][got], hit["h"][got], atol=1e-5)

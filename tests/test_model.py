@@ -80,18 +80,53 @@ def lobe_peak_theta(params, lobe, theta_o_deg, dphi):
     return theta_i[np.argmax(values)]
 
 
+def scale_normal(alpha_deg):
+    """The outward normal of a cuticle scale at h = 0, in the fiber's local frame (x from root to tip, z the
+    cylinder's normal): the scales overlap like roof tiles with their free edges toward the tip, so their
+    normals lean toward the root (−x) by α."""
+    a = np.radians(alpha_deg)
+    return np.array([-np.sin(a), 0.0, np.cos(a)])
+
+
+def mirror_theta(wo, normal):
+    """θ (degrees) of wo's mirror reflection off a surface with that normal."""
+    reflected = 2.0 * (wo @ normal) * normal - wo
+    return np.degrees(np.arcsin(reflected[0]))
+
+
 @pytest.mark.parametrize("theta_o", [-30.0, 0.0, 25.0])
-def test_tilt_shifts_lobe_peaks(theta_o):
-    """R is evaluated at θ_o − 2α, TT at θ_o + α, TRT at θ_o + 4α: their peaks (near θ_i = −θ_o) move by
-    +2α, −α and −4α in θ_i. At h = 0 the lobes' azimuthal centres are Δφ = 0, π and 2π ≡ 0."""
+def test_tilt_moves_r_to_the_scales_mirror_and_tt_trt_toward_the_tip(theta_o):
+    """R peaks where a mirror reflection off the tilted scale sends wo (toward the root, by 2α); TT and TRT move
+    the other way, toward the tip, by α and 4α (d'Eon et al. 2011's magnitudes). At h = 0 the lobes' azimuthal
+    centres are Δφ = 0, π and 2π ≡ 0. The shifts are measured against the untilted fiber, which cancels the
+    small offset of M's peak from the mirror angle."""
     alpha = 3.0
-    # Narrow lobes: M peaks a little off its mirror angle, by an amount that grows with the variance
-    # and changes with θ_o; at β_m = 0.05 that drift stays below 0.05° for the TRT lobe's 4v.
+    # Narrow lobes: at β_m = 0.05 the drift of M's peak with θ_o stays below 0.05° for the TRT lobe's 4v.
     tilted = wh.HairParams(albedo=0.8, beta_m=0.05, beta_n=0.3, alpha=alpha)
     straight = tilted.replace(alpha=0.0)
-    for lobe, dphi, shift in ((0, 0.0, 2.0 * alpha), (1, np.pi, -alpha), (2, 0.0, -4.0 * alpha)):
-        moved = lobe_peak_theta(tilted, lobe, theta_o, dphi) - lobe_peak_theta(straight, lobe, theta_o, dphi)
-        assert abs(moved - shift) < 0.1, (lobe, moved, shift)
+    wo = from_angles(theta_o, 90.0)
+
+    def moved(lobe, dphi):
+        return lobe_peak_theta(tilted, lobe, theta_o, dphi) - lobe_peak_theta(straight, lobe, theta_o, dphi)
+
+    geometric_r = mirror_theta(wo, scale_normal(alpha)) - mirror_theta(wo, scale_normal(0.0))
+    assert geometric_r < 0.0  # toward the root
+    assert abs(moved(0, 0.0) - geometric_r) < 0.1
+    assert abs(moved(1, np.pi) - alpha) < 0.1
+    assert abs(moved(2, 0.0) - 4.0 * alpha) < 0.1
+
+
+def test_tilt_sampling_follows_the_scales_mirror():
+    """A black fiber (σ_a = 50) leaves only R, so the sampler's directions cluster about the mirror reflection
+    off the tilted scale: on the root side of the untilted mirror direction, by 2α."""
+    rng = np.random.default_rng(7)
+    alpha = 5.0
+    params = wh.HairParams(sigma_a=50.0, beta_m=0.05, beta_n=0.3, alpha=alpha)
+    wo = from_angles(20.0, 90.0)
+    wi, _, _ = wh.bsdf.sample(params, wo, 0.0, rng.random((200_000, 3)))
+    theta_i = np.degrees(np.arcsin(np.clip(wi[:, 0], -1.0, 1.0)))
+    expected = mirror_theta(wo, scale_normal(alpha))
+    assert abs(np.median(theta_i) - expected) < 0.3, (np.median(theta_i), expected)
 
 
 def test_r_roughness_scale_changes_the_r_lobe_only():

@@ -166,3 +166,19 @@ def test_image_orientation():
     image = render(scene).sum(axis=2)
     assert image[:9].sum() > 0 and image[11:].sum() == 0
     assert image[:, 11:].sum() > 0 and image[:, :9].sum() == 0
+
+
+def test_cuticle_tilt_puts_a_black_fibers_highlight_toward_the_root():
+    """A black fiber (σ_a = 50: only R is left) listed root first along +y, seen head-on. The scales' normals
+    lean toward the root by α, so the mirror direction of the view leans toward the root by 2α: a light there
+    lights the fiber brightly, and the same light mirrored toward the tip barely at all."""
+    alpha = 4.0
+    hair = {"sigma_a": 50.0, "beta_m": 0.1, "beta_n": 0.3, "alpha": alpha}
+    lean = np.radians(2.0 * alpha)
+
+    def brightness(toward):  # toward = −1: the light sits toward the root (−y); +1: toward the tip
+        to_light = np.array([0.0, toward * np.sin(lean), np.cos(lean)])
+        return render(single_fiber_scene(0.05, tuple(-to_light), (16, 4), hair), spp=64).mean()
+
+    root_side, tip_side = brightness(-1.0), brightness(+1.0)
+    assert root_side > 20.0 * tip_side, (root_side, tip_side)

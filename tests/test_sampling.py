@@ -17,6 +17,8 @@ CHI2_CASES = [
     (0.2, 0.6, 75.0, 0.6, dict(sigma_a=[0.1, 0.3, 0.9])),
     (1.0, 0.4, 10.0, -0.3, dict(albedo=[0.3, 0.2, 0.1])),
     (0.15, 0.35, -80.0, 0.99, dict(sigma_a=0.0)),
+    # A strong tilt: the sampler must rotate each lobe the way pdf does.
+    (0.1, 0.4, 15.0, -0.2, dict(albedo=[0.8, 0.6, 0.4], alpha=12.0)),
 ]
 SIGNIFICANCE = 0.01
 # Narrow lobes near the poles vary fastest in sin θ: more sub-cells along it.

@@ -17,6 +17,7 @@ import numpy as np
 import warp as wp
 
 from .hair_bsdf import (
+    FLOAT32_MIN_NORMAL,
     HairCoefficients,
     hair_coefficients,
     hair_pdf,
@@ -77,9 +78,9 @@ def _sample_kernel(
     wi = hair_sample(L, u[i])
     value, density = hair_value_pdf(L, wi)
     weight = wp.vec3(0.0)
-    # A direction whose density underflowed to 0 (the extreme tail of a very narrow lobe, with a
-    # probability near 2^-24) carries no weight rather than 0/0.
-    if density > 0.0:
+    # A direction whose density underflowed (the far tail of a very narrow lobe) carries no weight rather than
+    # an imprecise ratio of subnormals, or 0/0, as in the renderer.
+    if density >= FLOAT32_MIN_NORMAL:
         weight = value / density
     wi_out[i] = wi
     weight_out[i] = weight

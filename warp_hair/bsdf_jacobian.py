@@ -64,8 +64,8 @@ wp.set_module_options({"enable_backward": False})
 
 value_jacobian_mat = wp.types.matrix(shape=(3, CONTROL_COUNT), dtype=wp.float32)
 
-# ∂θ_o,p/∂α of the tilted angles (R: θ_o − 2α, TT: θ_o + α, TRT: θ_o + 4α, residual: θ_o), per degree of α.
-_TILT = wp.constant(wp.vec4(-2.0 * math.pi / 180.0, math.pi / 180.0, 4.0 * math.pi / 180.0, 0.0))
+# ∂θ_o,p/∂α of the tilted angles (R: θ_o + 2α, TT: θ_o − α, TRT: θ_o − 4α, residual: θ_o), per degree of α.
+_TILT = wp.constant(wp.vec4(2.0 * math.pi / 180.0, -math.pi / 180.0, -4.0 * math.pi / 180.0, 0.0))
 
 
 @wp.struct
@@ -183,7 +183,7 @@ def lobe_setup_grad(L: LobeSetup, wo: wp.vec3, h: float):
     # The signed cosines of the tilted angles, as lobe_setup forms them before taking |cos|.
     sa = L.c.sin_2k_alpha
     ca = L.c.cos_2k_alpha
-    signed_cos = wp.vec3(cos_o * ca[1] + sin_o * sa[1], cos_o * ca[0] - sin_o * sa[0], cos_o * ca[2] - sin_o * sa[2])
+    signed_cos = wp.vec3(cos_o * ca[1] - sin_o * sa[1], cos_o * ca[0] + sin_o * sa[0], cos_o * ca[2] + sin_o * sa[2])
     G.tilt = _TILT
     for p in range(3):
         if signed_cos[p] < 0.0:

@@ -9,6 +9,7 @@ and its traceback under `--debug`.
     warp-hair plot-bsdf -o lobes.png [hair controls] [--theta-o DEG ...] [--h H]
     warp-hair render SCENE.toml -o OUT.exr [--spp N] [--seed S] [--threads T] [--png PREVIEW.png]
     warp-hair gradcheck SCENE.toml [--spp N] [--seeds K] [--params albedo,eta,...] [--eps E] [--threads T]
+    warp-hair export LOOK --to mitsuba|pbrt|cycles|materialx [-o FILE]
 
 and, added by optimize/cli.py, `warp-hair fit` and `warp-hair targets make`.
 """
@@ -180,6 +181,33 @@ def gradcheck_scene(args: argparse.Namespace) -> None:
     print(f"{len(rows) - len(bad)}/{len(rows)} OK" + (f"; mismatched: {', '.join(bad)}" if bad else ""))
 
 
+def add_export(subparsers) -> None:
+    from .export import RENDERERS
+
+    parser = subparsers.add_parser(
+        "export",
+        help="write a look for Mitsuba 3, pbrt-v4, Blender Cycles or MaterialX",
+        description="Convert a look to another renderer's hair material: Mitsuba 3's hair BSDF (XML element), "
+        "pbrt-v4's Material \"hair\", a Blender bpy script building a Principled Hair BSDF (Chiang), or a "
+        "MaterialX document with chiang_hair_bsdf. Controls a renderer cannot express are reported as warnings.",
+    )
+    parser.add_argument("look", type=Path, metavar="LOOK",
+                        help="a fit's params.json, a JSON object of controls (truth.json), or a scene file ([hair])")
+    parser.add_argument("--to", required=True, metavar="RENDERER", help=f"one of {', '.join(RENDERERS)}")
+    parser.add_argument("-o", "--output", type=Path, metavar="FILE", help="the file to write (default: standard output)")
+    parser.set_defaults(run=export_look)
+
+
+def export_look(args: argparse.Namespace) -> None:
+    from .export import export
+
+    text = export(args.look, to=args.to, path=args.output)
+    if args.output is None:
+        sys.stdout.write(text)
+    else:
+        print(f"wrote {args.output}")
+
+
 @contextlib.contextmanager
 def progress_bar(**tqdm_args):
     """A tqdm bar as the library's progress(done, total) callback (the total may grow as work is found)."""
@@ -194,7 +222,7 @@ def progress_bar(**tqdm_args):
         yield progress
 
 
-SUBCOMMANDS = (add_plot_bsdf, add_render, add_gradcheck)
+SUBCOMMANDS = (add_plot_bsdf, add_render, add_gradcheck, add_export)
 
 
 def build_parser(extra=()) -> argparse.ArgumentParser:

@@ -1,8 +1,13 @@
 """Fiber geometry: strands of hair or fur as polylines with a radius per vertex.
 
 `FiberAssembly` is the container the renderer reads. Files load and save with `load_fibers` / `save_fibers`
-(Cem Yuksel's binary `.hair`, and the plain-text `x y z radius` format of Mitsuba 3's `linearcurve`), and
+(Cem Yuksel's binary `.hair`, the plain-text `x y z radius` format of Mitsuba 3's `linearcurve`, and USD
+BasisCurves through `warp_hair.usd`), and
 `swatch`, `wavy`, `curly` and `fur` build procedural test geometry. Plain NumPy throughout.
+
+Every strand is listed root first, in files (as `.hair`, Mitsuba's curve text and USD BasisCurves list them)
+and in the generators: the cuticle tilt α shifts the primary highlight toward a strand's first vertex, so a
+strand listed tip first would show it on the wrong side.
 """
 
 from __future__ import annotations
@@ -16,6 +21,7 @@ from typing import NamedTuple
 import numpy as np
 
 from . import validate
+from .usd import SUFFIXES as USD_SUFFIXES
 
 
 class FiberDataError(ValueError):
@@ -241,15 +247,26 @@ def _raise_at(v, problem, offsets, source):
 # Files
 
 
-def load_fibers(path):
-    """Load a fiber file, choosing the format by extension: `.hair` (Cem Yuksel's binary) or `.txt` (text)."""
+def load_fibers(path, **options):
+    """Load a fiber file, choosing the format by extension: `.hair` (Cem Yuksel's binary), `.txt` (text), or a USD
+    stage (`.usd`, `.usda`, `.usdc`: BasisCurves, `warp_hair.usd`, which takes `options` prim, radius, segments)."""
     path = Path(path)
+    if path.suffix.lower() in USD_SUFFIXES:
+        from .usd import read_usd
+
+        return read_usd(path, **options)
+    if options:
+        raise ValueError(f"{path}: {', '.join(sorted(options))} apply to USD files only")
     return _format_for(path)[0](path)
 
 
 def save_fibers(assembly, path):
-    """Save `assembly`, choosing the format by extension: `.hair` (Cem Yuksel's binary) or `.txt` (text)."""
+    """Save `assembly`, choosing the format by extension: `.hair`, `.txt`, or USD (linear BasisCurves)."""
     path = Path(path)
+    if path.suffix.lower() in USD_SUFFIXES:
+        from .usd import write_usd
+
+        return write_usd(assembly, path)
     _format_for(path)[1](assembly, path)
 
 
@@ -258,7 +275,7 @@ def _format_for(path):
     try:
         return formats[path.suffix.lower()]
     except KeyError:
-        known = ", ".join(formats)
+        known = ", ".join([*formats, *USD_SUFFIXES])
         raise ValueError(f"{path}: unknown fiber file extension {path.suffix!r}; expected one of {known}") from None
 
 
@@ -452,19 +469,16 @@ def read_text(path):
 
 def write_text(assembly, path):
     """Save `assembly` in the plain-text format: one `x y z radius` line per vertex, a blank line between
-    strands, after one `#` comment line. Values are written with 9 significant digits, which round-trips
-    float32 exactly."""
+    strands, and nothing else, so that Mitsuba 3's `linearcurve` and `bsplinecurve` load the file too (their
+    parser takes no comment lines). Values are written with 9 significant digits, which round-trips float32
+    exactly."""
     row = "%.9g %.9g %.9g %.9g\n"
     # One format string for the whole file: formatting it in one call is several times faster than per row.
     template = [row] * assembly.num_vertices
     for last in assembly.strand_offsets[1:-1] - 1:
         template[last] = row + "\n"
     values = np.column_stack([assembly.points, assembly.radii]).ravel().tolist()
-    comment = (
-        f"# {assembly.num_strands} strands, {assembly.num_vertices} vertices: "
-        "one 'x y z radius' line per vertex, a blank line between strands\n"
-    )
-    Path(path).write_text(comment + "".join(template) % tuple(values), encoding="utf-8")
+    Path(path).write_text("".join(template) % tuple(values), encoding="utf-8")
 
 
 def _parse_text(text, source):
@@ -557,7 +571,7 @@ def swatch(
 ):
     """A flat swatch of straight, parallel fibers, like a hair swatch card.
 
-    Fibers run along +y from y = −length/2 to +length/2 and spread across x, in `layers` layers stacked
+    Fibers run along +y from their roots at y = −length/2 to their tips at +length/2 and spread across x, in `layers` layers stacked
     towards −z: layer k lies near z = −k·layer_gap, so layer 0 (at z = 0) faces a camera on +z. Odd layers are
     offset by half a spacing to cover the gaps between the fibers of even ones, so the swatch has no
     see-through gaps. Strands are ordered layer by layer, left to right; when `layers` does not divide

@@ -72,11 +72,17 @@ def hair_coefficients(params: HairParams) -> HairCoefficients:
     return c
 
 
+# A sampled direction whose density is below this (subnormal) carries no weight: the ratio S/pdf of two
+# subnormals is off by up to a percent, and such a direction (the far tail of a very narrow lobe) is drawn with
+# a probability near 1e-38.
+FLOAT32_MIN_NORMAL = wp.constant(1.17549435e-38)
+
+
 @wp.struct
 class LobeSetup:
     """The wo- and h-dependent half of the model, shared by value, pdf and sample."""
 
-    sin_o: wp.vec4  # sin θ_o tilted per lobe (R: θ_o − 2α, TT: θ_o + α, TRT: θ_o + 4α, residual: θ_o)
+    sin_o: wp.vec4  # sin θ_o tilted per lobe (R: θ_o + 2α, TT: θ_o − α, TRT: θ_o − 4α, residual: θ_o)
     cos_o: wp.vec4  # |cos| of the same angles
     phi_o: wp.float64
     phi_center: wp.vec3d  # Φ(p) = 2pγ_t − 2γ_o + pπ, the azimuthal centre of R, TT, TRT
@@ -119,15 +125,17 @@ def lobe_setup(c: HairCoefficients, wo: wp.vec3, h: float):
         mean_a[p] = (L.A[p, 0] + L.A[p, 1] + L.A[p, 2]) / 3.0
     L.prob = mean_a / (mean_a[0] + mean_a[1] + mean_a[2] + mean_a[3])
 
-    # Cuticle tilt: rotate θ_o by −2α, +α, +4α (pbrt-v4, Mitsuba 3); |cos| keeps the rotated angle in
-    # [−π/2, π/2] when the rotation passes the pole.
+    # Cuticle tilt (MODEL.md "Cuticle tilt α"): the scales' normals lean toward the root (−x) by α, so R
+    # mirrors about θ_o + 2α (its peak moves toward the root) and the refracted lobes the other way: TT about
+    # θ_o − α, TRT about θ_o − 4α. pbrt-v4 and Mitsuba 3 rotate the opposite way. |cos| keeps the rotated
+    # angle in [−π/2, π/2] when the rotation passes the pole.
     sa = c.sin_2k_alpha
     ca = c.cos_2k_alpha
-    L.sin_o = wp.vec4(sin_o * ca[1] - cos_o * sa[1], sin_o * ca[0] + cos_o * sa[0], sin_o * ca[2] + cos_o * sa[2], sin_o)
+    L.sin_o = wp.vec4(sin_o * ca[1] + cos_o * sa[1], sin_o * ca[0] - cos_o * sa[0], sin_o * ca[2] - cos_o * sa[2], sin_o)
     L.cos_o = wp.vec4(
-        wp.abs(cos_o * ca[1] + sin_o * sa[1]),
-        wp.abs(cos_o * ca[0] - sin_o * sa[0]),
-        wp.abs(cos_o * ca[2] - sin_o * sa[2]),
+        wp.abs(cos_o * ca[1] - sin_o * sa[1]),
+        wp.abs(cos_o * ca[0] + sin_o * sa[0]),
+        wp.abs(cos_o * ca[2] + sin_o * sa[2]),
         cos_o,
     )
     # The azimuthal centres are formed in float64: a narrow logistic (s ≈ 2e-3 at β_n = 0) turns the

@@ -12,8 +12,8 @@ import warp as wp
 from .camera import CameraData, generate_ray
 from .card import NO_HIT, CardData, card_distance
 from .envmap import EnvironmentData, env_pdf, env_radiance, env_sample
-from .hair_bsdf import HairCoefficients, LobeSetup, hair_sample, hair_value_pdf, lobe_setup
-from .intersect import FiberGeometry, fibers_occluded, intersect_fibers
+from .hair_bsdf import FLOAT32_MIN_NORMAL, HairCoefficients, LobeSetup, hair_sample, hair_value_pdf, lobe_setup
+from .intersect import FiberGeometry, fibers_occluded, intersect_fibers, shading_frame
 from .bsdf_jacobian import (
     CoefficientDerivatives,
     LobeEvaluation,
@@ -30,7 +30,6 @@ from .lobes import TWO_PI
 wp.set_module_options({"enable_backward": False, "optimization_level": 3})
 
 INV_PI = wp.constant(0.31830988618379067)
-FLOAT32_MIN_NORMAL = wp.constant(1.17549435e-38)
 
 
 @wp.struct
@@ -224,11 +223,14 @@ def make_trace_path(differentiable: bool):
             if depth >= scene.max_depth:
                 break
 
-            # The shading frame: at a fiber, x along it and z its normal (MODEL.md); at the card, z its normal
-            # turned toward the incoming ray.
+            # The shading frame: at a fiber, x along it (turning smoothly along the strand) and z its normal
+            # (MODEL.md); at the card, z its normal turned toward the incoming ray.
             on_card = t_card < hit.t
             x = hit.tangent
             z = hit.normal
+            h = hit.h
+            if not on_card:
+                x, z, h = shading_frame(scene.fibers, hit, d)
             position = hit.position
             setup = LobeSetup()
             if wp.static(differentiable):
@@ -242,9 +244,9 @@ def make_trace_path(differentiable: bool):
             y = wp.cross(z, x)
             wo = to_local(-d, x, y, z)
             if not on_card:
-                setup = lobe_setup(scene.hair, wo, hit.h)
+                setup = lobe_setup(scene.hair, wo, h)
                 if wp.static(differentiable):
-                    d_setup = lobe_setup_grad(setup, wo, hit.h)
+                    d_setup = lobe_setup_grad(setup, wo, h)
 
             # Next-event estimation with one light.
             if num_emitters > 0:
@@ -301,7 +303,7 @@ def make_trace_path(differentiable: bool):
                 value, pdf, lobes = scatter_value_pdf_lobes(scene, on_card, setup, wi)
             else:
                 value, pdf = scatter_value_pdf(scene, on_card, setup, wi)
-            if pdf <= 0.0:
+            if pdf < FLOAT32_MIN_NORMAL:
                 break
             throughput = wp.cw_mul(throughput, value / pdf)
             prev_pdf = pdf

@@ -35,6 +35,17 @@ x = `tangent` (unit axis, root → tip), z = `normal` (outward cylinder normal, 
 h = −(wo·y) / sqrt((wo·y)² + (wo·z)²) = −cos φ_o with wo = −direction. For a ray perpendicular to the fiber,
 h is the signed offset of the ray from the axis along a × d, over r.
 
+Shading frame
+-------------
+A polyline's axis turns at every joint, and the BSDF frame with it: on a wave of 16 segments a period the
+tangent jumps by about 10°, as wide as the R lobe, and the highlight shows steps. `shading_frame` gives the
+BSDF a tangent that turns continuously along the strand instead: each vertex has a tangent (the mitre
+bisector at a joint, which is the direction of a Catmull-Rom curve through equally spaced vertices; the
+segment's own axis at strand ends and at joints clipped like ends), and a hit takes the normalised
+interpolation of its segment's two vertex tangents by its position along the axis. The normal is the
+cylinder's, made orthogonal to that tangent, and h is −cos φ_o in that frame, so that frame and offset stay
+consistent as the BSDF assumes. The geometry stays the mitred tubes.
+
 BVH traversal
 -------------
 The tubes' boxes go into a 4-wide BVH built in NumPy (`warp_hair.bvh`, which documents the layout): each
@@ -133,6 +144,12 @@ class FiberGeometry:
     segment: wp.array(dtype=wp.int32)  # index into FiberAssembly.segments() of each tube
     strand: wp.array(dtype=wp.int32)  # strand of each tube
     num_segments: int
+    # Per segment (FiberAssembly.segments() order), for `shading_frame`: its start p0, its axis over its
+    # length (so that (x − p0)·step runs 0 → 1 along it) and the unit tangents at its two vertices.
+    start: wp.array(dtype=wp.vec3)
+    step: wp.array(dtype=wp.vec3)
+    tangent0: wp.array(dtype=wp.vec3)
+    tangent1: wp.array(dtype=wp.vec3)
 
 
 @wp.struct
@@ -272,6 +289,24 @@ def _make_hit(g: FiberGeometry, i: int, t: float, origin: wp.vec3, direction: wp
 
 
 @wp.func
+def shading_frame(g: FiberGeometry, hit: FiberHit, direction: wp.vec3):
+    """(x, z, h) for the BSDF at a fiber hit: the tangent interpolated between the segment's vertex tangents,
+    the cylinder normal made orthogonal to it, and h = −cos φ_o in that frame (see the module docstring)."""
+    i = hit.segment
+    s = wp.clamp(wp.dot(hit.position - g.start[i], g.step[i]), 0.0, 1.0)
+    x = wp.normalize((1.0 - s) * g.tangent0[i] + s * g.tangent1[i])
+    z = wp.normalize(hit.normal - wp.dot(hit.normal, x) * x)
+    y = wp.cross(z, x)
+    wo_y = -wp.dot(direction, y)
+    wo_z = -wp.dot(direction, z)
+    den = wo_y * wo_y + wo_z * wo_z
+    h = hit.h
+    if den > 0.0:  # 0 only for a ray along the shading tangent, which the geometric h still describes
+        h = wp.clamp(-wo_y / wp.sqrt(den), -1.0, 1.0)
+    return x, z, h
+
+
+@wp.func
 def _no_hit():
     hit = FiberHit()
     hit.t = NO_HIT
@@ -368,10 +403,11 @@ class FiberBVH:
     """The tube data and 4-wide BVH of a `FiberAssembly` on a device; keeps them alive.
 
     `geometry` is the `FiberGeometry` that kernels take; `bounds` is (lo (3,), hi (3,)) float64, the box
-    around every tube. Segment indices are those of `assembly.segments()`.
+    around every tube. Segment indices are those of `assembly.segments()`. `smooth_tangents=False` gives
+    `shading_frame` each segment's own axis: the polyline's frame, with its jumps at the joints.
     """
 
-    def __init__(self, assembly, device="cpu"):
+    def __init__(self, assembly, device="cpu", smooth_tangents=True):
         self.device = device
         p0, p1, r0, r1, strand, _ = assembly.segments()
         seg = _segment_frames(p0, p1, r0, r1, strand)
@@ -400,6 +436,13 @@ class FiberBVH:
         g.segment = wp.array(order.astype(np.int32), dtype=wp.int32, device=device)
         g.strand = wp.array(np.asarray(strand, dtype=np.int32)[order], dtype=wp.int32, device=device)
         g.num_segments = len(p0)
+        length = np.linalg.norm(seg["p1"] - seg["p0"], axis=1)
+        step = seg["axis"] / np.where(length > 0.0, length, 1.0)[:, None]
+        tangent0, tangent1 = seg["tangent0"], seg["tangent1"]
+        if not smooth_tangents:
+            tangent0, tangent1 = seg["axis"], seg["axis"]
+        for name, values in (("start", seg["p0"]), ("step", step), ("tangent0", tangent0), ("tangent1", tangent1)):
+            setattr(g, name, wp.array(values.astype(np.float32), dtype=wp.vec3, device=device))
         self._geometry = g
 
     @property
@@ -437,6 +480,10 @@ def _segment_frames(p0, p1, r0, r1, strand):
     mitre0[joint + 1] = bisector
     overlap1[joint] = JOINT_OVERLAP * radius[joint]
     overlap0[joint + 1] = JOINT_OVERLAP * radius[joint + 1]
+    # Vertex tangents for the shading frame: the bisector at a mitred joint, the segment's axis elsewhere.
+    tangent0, tangent1 = axis.copy(), axis.copy()
+    tangent1[joint] = bisector
+    tangent0[joint + 1] = bisector
 
     clip = np.stack(
         [
@@ -454,6 +501,8 @@ def _segment_frames(p0, p1, r0, r1, strand):
         "mitre0": mitre0,
         "mitre1": mitre1,
         "clip": clip,
+        "tangent0": tangent0,
+        "tangent1": tangent1,
     }
 
 
@@ -493,6 +542,9 @@ def _intersect_kernel(
     tangent: wp.array(dtype=wp.vec3),
     normal: wp.array(dtype=wp.vec3),
     h: wp.array(dtype=float),
+    shading_tangent: wp.array(dtype=wp.vec3),
+    shading_normal: wp.array(dtype=wp.vec3),
+    shading_h: wp.array(dtype=float),
 ):
     k = wp.tid()
     hit = intersect_fibers(g, origins[k], directions[k], t_max[k])
@@ -503,6 +555,11 @@ def _intersect_kernel(
     tangent[k] = hit.tangent
     normal[k] = hit.normal
     h[k] = hit.h
+    if hit.segment >= 0:
+        x, z, hs = shading_frame(g, hit, directions[k])
+        shading_tangent[k] = x
+        shading_normal[k] = z
+        shading_h[k] = hs
 
 
 @wp.kernel
@@ -537,7 +594,8 @@ def intersect(bvh: FiberBVH, origins, directions, t_max=np.inf) -> dict:
     scalar or (N,)).
 
     Returns numpy arrays: t (N,) (np.inf on a miss), segment and strand (N,) (−1 on a miss), position,
-    tangent, normal (N, 3) and h (N,) (zeros on a miss).
+    tangent, normal (N, 3) and h (N,), and the BSDF's frame from `shading_frame`: shading_tangent,
+    shading_normal (N, 3) and shading_h (N,) (zeros on a miss).
     """
     o, d, limit = _rays(bvh, origins, directions, t_max)
     n = len(o)
@@ -550,6 +608,9 @@ def intersect(bvh: FiberBVH, origins, directions, t_max=np.inf) -> dict:
         "tangent": wp.empty(n, dtype=wp.vec3, device=device),
         "normal": wp.empty(n, dtype=wp.vec3, device=device),
         "h": wp.empty(n, dtype=float, device=device),
+        "shading_tangent": wp.zeros(n, dtype=wp.vec3, device=device),
+        "shading_normal": wp.zeros(n, dtype=wp.vec3, device=device),
+        "shading_h": wp.zeros(n, dtype=float, device=device),
     }
     if n:
         wp.launch(_intersect_kernel, dim=n, inputs=[bvh.geometry, o, d, limit, *out.values()], device=device)

@@ -38,7 +38,7 @@ class PreparedScene:
     def __init__(self, scene: Scene, device: str = "cpu"):
         check_scene(scene)  # a scene built in Python, not loaded, is checked here
         self.device = device
-        self.bvh = FiberBVH(scene.fibers, device=device)
+        self.bvh = FiberBVH(scene.fibers, device=device, smooth_tangents=scene.render.tangents == "smooth")
         directional = [light for light in scene.lights if isinstance(light, DirectionalLight)]
         environments = [light for light in scene.lights if isinstance(light, EnvironmentLight)]
         if len(environments) > 1:

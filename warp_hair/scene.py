@@ -23,13 +23,15 @@ import numpy as np
 
 from . import fibers as fiber_module
 from . import validate
-from .fibers import FiberAssembly, load_fibers
+from .fibers import USD_SUFFIXES, FiberAssembly, load_fibers
 from .io import read_exr
 from .params import CONTROL_NAMES, HairParams
 
 CAMERA_TYPES = ("orthographic", "perspective")
 TABLES = ("camera", "lights", "fibers", "hair", "render", "card")
 GENERATORS = {name: getattr(fiber_module, name) for name in ("swatch", "wavy", "curly", "fur")}
+# The [fibers] keys a USD file takes besides `file` (warp_hair.usd documents them).
+USD_FIBER_OPTIONS = ("prim", "radius", "segments")
 # Generator arguments that must be integers; `patch` takes one number or two; every other argument one number.
 INTEGER_GENERATOR_ARGS = frozenset({"count", "layers", "segments", "seed"})
 PAIR_GENERATOR_ARGS = frozenset({"patch"})
@@ -228,21 +230,29 @@ class Card:
         _set(self, "distance", distance)
 
 
+TANGENT_MODES = ("smooth", "segment")
+
+
 @dataclass(frozen=True, kw_only=True)
 class RenderSettings:
-    """Samples per pixel, the longest path (bounces), the seed, and the bounce after which Russian roulette
-    may end paths."""
+    """Samples per pixel, the longest path (bounces), the seed, the bounce after which Russian roulette
+    may end paths, and the fibers' shading tangents: "smooth" (turning continuously along each strand, as the
+    curve through its vertices does) or "segment" (each segment's own axis, the polyline's frame with its steps
+    at the joints; `warp_hair.intersect` explains both)."""
 
     spp: int = 64
     max_depth: int = 64
     seed: int = 0
     rr_depth: int = 8
+    tangents: str = "smooth"
 
     def __post_init__(self):
         _set(self, "spp", _integer("spp", self.spp, minimum=1))
         _set(self, "max_depth", _integer("max_depth", self.max_depth, minimum=1))
         _set(self, "rr_depth", _integer("rr_depth", self.rr_depth, minimum=0))
         _set(self, "seed", validate.seed("seed", self.seed))
+        if self.tangents not in TANGENT_MODES:
+            raise ValueError(f"tangents must be one of {list(TANGENT_MODES)}, got {self.tangents!r}")
 
 
 @dataclass
@@ -390,14 +400,15 @@ def _path(value, base_dir, name):
 
 def _fibers(table, prefix, base_dir, source):
     if ("file" in table) == ("generator" in table):
-        raise ValueError(f"{prefix} needs exactly one of file (a .txt or .hair file) and generator")
+        raise ValueError(f"{prefix} needs exactly one of file (a .txt, .hair or USD file) and generator")
     if "file" in table:
-        _check_keys(table, ["file"], prefix)
         path = _path(table["file"], base_dir, f"{prefix} file")
+        usd_options = USD_FIBER_OPTIONS if path.suffix.lower() in USD_SUFFIXES else []
+        _check_keys(table, ["file", *usd_options], prefix)
         source["fibers"]["file"] = str(path)
         try:
-            fibers = load_fibers(path)
-        except (OSError, ValueError) as error:
+            fibers = load_fibers(path, **{key: table[key] for key in usd_options if key in table})
+        except (OSError, ValueError, ImportError) as error:
             raise ValueError(f"{prefix} file: {error}") from None
     else:
         fibers = _generate(table, prefix)

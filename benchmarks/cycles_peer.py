@@ -1,0 +1,188 @@
+"""Blender Cycles as a reference renderer: a warp-hair scene rendered by `bpy` (Blender as a Python module).
+
+    from cycles_peer import import_bpy, render_cycles
+    image = render_cycles(bpy, scene, spp=256, threads=2)    # float32 (H, W, 3) linear radiance, row 0 on top
+
+`pip install "bpy==4.5.*"` (about 370 MB; Blender 4.5 LTS, Python 3.11) renders headless with no system
+packages. What the translation sets, and why (each one measured to matter, or Cycles' documented behaviour):
+- Strands become a hair `Curves` object (Catmull-Rom through the vertices, radius per vertex) drawn as THICK
+  curves: round tubes, as ours.
+- The material is the look as `warp-hair export --to cycles` writes it (`warp_hair.export.cycles` documents
+  the conversion), so this also checks the export.
+- An unbiased estimator: filter glossy 0, no clamping, light threshold 0, no denoising, no adaptive sampling,
+  caustics kept, every bounce kind allowed up to the scene's max_depth. Cycles counts the bounces after the
+  first hit (0 is direct lighting only), ours the scattering vertices (1 is direct lighting): ours − 1.
+- Film: a box pixel filter of width 1, the Standard view transform (the EXR holds scene-linear radiance).
+- Lights: a sun's strength is the irradiance on a surface facing it; the world colour × strength is the sky's
+  radiance. Orthographic and perspective cameras.
+"""
+
+from __future__ import annotations
+
+import math
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from warp_hair.export import export
+from warp_hair.io import read_exr
+from warp_hair.scene import DirectionalLight, EnvironmentLight
+
+
+def import_bpy():
+    """The bpy module, or None (with the reason printed)."""
+    try:
+        import bpy
+    except ImportError as error:
+        print(f"Cycles comparison skipped: {error}. Enable it with `pip install \"bpy==4.5.*\"`.")
+        return None
+    return bpy
+
+
+def _reset(bpy):
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    return bpy.context.scene
+
+
+def _look_at(bpy, obj, origin, target, up):
+    from mathutils import Vector
+
+    forward = Vector(target) - Vector(origin)
+    obj.location = Vector(origin)
+    # Blender cameras look down their local −Z with +Y up.
+    obj.rotation_euler = forward.to_track_quat("-Z", "Y").to_euler()
+    # to_track_quat picks the roll from world +Z; fix it so that local +Y follows `up`.
+    obj.rotation_mode = "QUATERNION"
+    z = -forward.normalized()
+    x = Vector(up).cross(z).normalized()
+    y = z.cross(x)
+    from mathutils import Matrix
+
+    obj.rotation_quaternion = Matrix((x, y, z)).transposed().to_quaternion()
+
+
+def _fibers(bpy, fibers, material):
+    counts = [int(c) for c in fibers.vertex_counts]
+    curves = bpy.data.hair_curves.new("fibers")
+    curves.add_curves(counts)
+    curves.position_data.foreach_set("vector", np.asarray(fibers.points, dtype=np.float32).ravel())
+    radius = curves.attributes.get("radius") or curves.attributes.new("radius", "FLOAT", "POINT")
+    radius.data.foreach_set("value", np.asarray(fibers.radii, dtype=np.float32))
+    curves.materials.append(material)
+    obj = bpy.data.objects.new("fibers", curves)
+    bpy.context.scene.collection.objects.link(obj)
+    return obj
+
+
+def _material(bpy, hair, workdir):
+    """The look's material exactly as `warp-hair export --to cycles` writes it: the exported script, run."""
+    import runpy
+
+    script = Path(workdir) / "hair_cycles.py"
+    export(hair, "cycles", script)
+    return runpy.run_path(str(script))["make_material"]()
+
+
+def _lights(bpy, scene, lights):
+    world = bpy.data.worlds.new("world")
+    world.use_nodes = True
+    background = world.node_tree.nodes["Background"]
+    background.inputs["Color"].default_value = (0.0, 0.0, 0.0, 1.0)
+    background.inputs["Strength"].default_value = 1.0
+    scene.world = world
+    for k, light in enumerate(lights):
+        if isinstance(light, DirectionalLight):
+            sun = bpy.data.lights.new(f"sun{k}", type="SUN")
+            # One strength and a colour: the irradiance's largest channel times the colour's ratios.
+            strength = max(light.irradiance)
+            sun.energy = float(strength)
+            sun.color = tuple(float(c) / strength for c in light.irradiance)
+            sun.angle = 0.0
+            obj = bpy.data.objects.new(f"sun{k}", sun)
+            direction = np.asarray(light.direction, dtype=np.float64)
+            # A sun shines along its local −Z.
+            _look_at(bpy, obj, (0.0, 0.0, 0.0), tuple(direction), _any_perpendicular(direction))
+            scene.collection.objects.link(obj)
+        elif isinstance(light, EnvironmentLight) and light.image is None:
+            background.inputs["Color"].default_value = (*[float(c) for c in light.radiance], 1.0)
+        else:
+            raise ValueError("the Cycles comparison does not translate environment maps")
+
+
+def _any_perpendicular(d):
+    helper = np.array([0.0, 1.0, 0.0]) if abs(d[1]) < 0.9 * np.linalg.norm(d) else np.array([1.0, 0.0, 0.0])
+    return tuple(np.cross(np.cross(d, helper), d))
+
+
+def _camera(bpy, scene, camera):
+    data = bpy.data.cameras.new("camera")
+    width, height = camera.resolution
+    if camera.type == "orthographic":
+        data.type = "ORTHO"
+        # Blender's ortho_scale spans the larger image side.
+        data.ortho_scale = camera.width * max(1.0, height / width)
+    else:
+        data.type = "PERSP"
+        data.sensor_fit = "HORIZONTAL"
+        data.angle = math.radians(camera.fov)
+    data.clip_start, data.clip_end = 1e-4, 1e4
+    obj = bpy.data.objects.new("camera", data)
+    _look_at(bpy, obj, camera.origin, camera.target, camera.up)
+    scene.collection.objects.link(obj)
+    scene.camera = obj
+    scene.render.resolution_x, scene.render.resolution_y = width, height
+    scene.render.resolution_percentage = 100
+
+
+def _settings(scene, spp, max_depth, seed, threads):
+    scene.render.engine = "CYCLES"
+    c = scene.cycles
+    c.device = "CPU"
+    c.samples = spp
+    c.use_adaptive_sampling = False
+    c.use_denoising = False
+    c.seed = seed
+    c.blur_glossy = 0.0  # "Filter Glossy"
+    c.sample_clamp_direct = 0.0
+    c.sample_clamp_indirect = 0.0
+    c.light_sampling_threshold = 0.0
+    c.caustics_reflective = True
+    c.caustics_refractive = True
+    c.max_bounces = max_depth - 1
+    for kind in ("diffuse", "glossy", "transmission", "volume", "transparent_max"):
+        setattr(c, f"{kind}_bounces", max_depth - 1)
+    c.pixel_filter_type = "BOX"
+    c.filter_width = 1.0
+    scene.cycles_curves.shape = "THICK"
+    scene.view_settings.view_transform = "Standard"
+    scene.view_settings.look = "None"
+    scene.view_settings.exposure = 0.0
+    scene.view_settings.gamma = 1.0
+    scene.render.film_transparent = False
+    if threads:
+        scene.render.threads_mode = "FIXED"
+        scene.render.threads = threads
+    settings = scene.render.image_settings
+    settings.file_format = "OPEN_EXR"
+    settings.color_depth = "32"
+    settings.color_mode = "RGB"
+    settings.exr_codec = "ZIP"
+
+
+def render_cycles(bpy, scene, spp, threads=None, seed=0, fibers=None):
+    """The warp-hair `scene` (its fibers, or `fibers`) rendered by Cycles: float32 (H, W, 3), row 0 on top."""
+    if scene.card is not None:
+        raise ValueError("the Cycles comparison does not translate the backing card")
+    fibers = scene.fibers if fibers is None else fibers
+    blender = _reset(bpy)
+    _settings(blender, spp, scene.render.max_depth, seed, threads)
+    _camera(bpy, blender, scene.camera)
+    _lights(bpy, blender, scene.lights)
+    with tempfile.TemporaryDirectory() as tmp:
+        _fibers(bpy, fibers, _material(bpy, scene.hair, tmp))
+        path = Path(tmp) / "cycles.exr"
+        blender.render.filepath = str(path)
+        bpy.ops.render.render(write_still=True)
+        image, _ = read_exr(path)
+    return image.astype(np.float32)

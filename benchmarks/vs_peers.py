@@ -1,0 +1,203 @@
+"""Benchmark: warp-hair against Mitsuba 3 on draped, non-overlapping swatches, front- and back-lit.
+
+    python benchmarks/vs_peers.py [--spp 256] [--resolution 64] [--segments 24] [--max-depth 100]
+                                  [--lightings front,back] [--threads N] [--out DIR]
+    python benchmarks/vs_peers.py --alpha 5      # the cuticle tilt's sign against Cycles instead
+
+The swatch is made here (`warp_hair.fibers.swatch` with `drape`): 4 layers of 38 straight fibers of radius
+0.004, 0.5 long, draped over a cylinder of radius 0.25 (2 radians of drape), spaced so that no two fibers
+touch: renderers legitimately disagree inside interpenetrating tubes, and real hair does not interpenetrate.
+The camera looks head-on at the middle of the drape, so the highlight band crosses the image. Lit by a
+directional light from the front (or from behind, through the swatch) and a dim constant sky; light-brown hair
+(albedo 0.55, 0.40, 0.25, β_m 0.3, β_n 0.35) at α = 0, all bounces (max depth 100).
+
+Mitsuba renders the same strands as a `bsplinecurve` with the polyline's vertices as control points, plus
+one mirrored control point at each end so that the curve reaches the end vertices (without them it stops about
+a segment short, and the swatch's ends, which shadow and light the visible part, differ); its `linearcurve`
+hands the hair BSDF a wrong frame on fibers not along y. At α = 0 (on both of its curve
+shapes the frame's tangent flips with the side of the fiber that is hit): see `docs/MODEL.md` or the
+project's model notes. warp-hair renders the strands twice: with smooth shading tangents (the default) and
+with each segment's own axis (`[render] tangents = "segment"`), which shows what a polyline's joints do to
+the highlight.
+
+Both peers render the look as `warp_hair.export` writes it for them (Mitsuba's `hair` dictionary, the Cycles
+bpy script), so this is also the check of the exporters. Cycles (the `blender` extra, bpy 4.5) renders THICK
+Catmull-Rom curves through the vertices (benchmarks/cycles_peer.py lists its settings).
+
+For each pair of images it prints the channel means and their ratio, and the RMS relative difference of
+8×8-pixel block means against the noise level: the same statistic between two warp-hair renders with
+independent seeds (what two renderers that agree exactly would show at this spp, if their noise were alike).
+Writes EXRs and `side_by_side_{peer}_{lighting}.png` (ours | peer | 5× block difference about grey) to --out.
+Mitsuba needs the `bench` extra (`pip install -e ".[bench]"`) and libLLVM (`apt-get install libllvm19`). A peer
+that is not installed is skipped, with the reason.
+
+`--alpha DEG` checks the tilt's sign instead (Cycles only: Mitsuba's curves flip the tangent with the side of the
+fiber hit). The strands run root first from the bottom of the image to the top, so a positive, physical tilt
+moves the highlight band down, toward the roots: it prints the band's centroid row (row 0 at the top) in
+warp-hair at +α and −α and in Cycles with the exported Offset.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from warp_hair.fibers import FiberAssembly, save_fibers, swatch
+from warp_hair.io import write_exr, write_png
+from warp_hair.parallel import default_threads
+from warp_hair.render import render
+from warp_hair.scene import scene_from_dict
+
+from cycles_peer import import_bpy, render_cycles
+from render_swatch import import_mitsuba, mitsuba_scene, time_mitsuba
+
+HERE = Path(__file__).resolve().parent
+BLOCK = 8
+HAIR = {"albedo": [0.55, 0.4, 0.25], "beta_m": 0.3, "beta_n": 0.35, "alpha": 0.0, "eta": 1.55}
+LIGHTINGS = {
+    # The direction the light travels: from the front (toward −z, away from the camera) or from behind.
+    "front": [0.2, -0.3, -1.0],
+    "back": [0.15, -0.25, 1.0],
+}
+
+
+def draped_swatch(segments):
+    return swatch(count=152, layers=4, length=0.5, radius=0.004, width=0.4, segments=segments, drape=0.25, seed=0)
+
+
+def scene_data(resolution, light_direction, spp, tangents="smooth", max_depth=100):
+    return {
+        "camera": {"type": "orthographic", "origin": [0.0, 0.0, 3.0], "target": [0.0, 0.0, -0.05],
+                   "up": [0.0, 1.0, 0.0], "width": 0.36, "resolution": [resolution, resolution]},
+        "lights": [
+            {"type": "directional", "direction": light_direction, "irradiance": [3.0, 3.0, 3.0]},
+            {"type": "environment", "radiance": [0.05, 0.05, 0.05]},
+        ],
+        # Replaced by the draped swatch below; the table only has to be valid.
+        "fibers": {"generator": "swatch", "count": 1, "layers": 1},
+        "hair": HAIR,
+        "render": {"spp": spp, "max_depth": max_depth, "seed": 0, "tangents": tangents},
+    }
+
+
+def bspline_control_points(fibers):
+    """The strands with one control point added at each end, mirrored through the end vertex (2·p0 − p1):
+    a uniform cubic B-spline over the vertices alone stops short of the end vertices by about a segment, and
+    with these it starts and ends exactly at them, so that Mitsuba's `bsplinecurve` spans the same fibers."""
+    strands = []
+    for k in range(fibers.num_strands):
+        points, radii = fibers.strand(k)
+        points = np.concatenate([[2 * points[0] - points[1]], points, [2 * points[-1] - points[-2]]])
+        strands.append((points, np.concatenate([radii[:1], radii, radii[-1:]])))
+    return FiberAssembly.from_strands(strands)
+
+
+def blocks(image):
+    h, w = (image.shape[0] // BLOCK) * BLOCK, (image.shape[1] // BLOCK) * BLOCK
+    return image[:h, :w].reshape(h // BLOCK, BLOCK, w // BLOCK, BLOCK, 3).mean(axis=(1, 3))
+
+
+def block_rmse(a, b):
+    """RMS of the relative difference of block means, over blocks the fibers cover (mean above 1% of the max)."""
+    ba, bb = blocks(a), blocks(b)
+    lit = bb.mean(axis=2) > 0.01 * bb.mean(axis=2).max()
+    return float(np.sqrt(np.mean((ba[lit] / bb[lit] - 1.0) ** 2)))
+
+
+def fmt(values, spec=".4f"):
+    return "(" + ", ".join(format(v, spec) for v in values) + ")"
+
+
+def highlight_row(image):
+    """The centroid row of the brightest fifth of the rows (each row's mean luminance)."""
+    profile = image.mean(axis=(1, 2))
+    bright = profile >= np.quantile(profile, 0.8)
+    rows = np.arange(len(profile))
+    return float(np.sum(rows[bright] * profile[bright]) / np.sum(profile[bright]))
+
+
+def tilt_check(args, fibers, threads):
+    bpy = import_bpy()
+    for alpha in (args.alpha, -args.alpha):
+        data = scene_data(args.resolution, LIGHTINGS["front"], args.spp, max_depth=args.max_depth)
+        data["hair"] = {**HAIR, "alpha": alpha}
+        scene = scene_from_dict(data)
+        scene.fibers = fibers
+        print(f"warp-hair alpha {alpha:+g} deg: highlight row {highlight_row(render(scene, threads=threads)):.2f}")
+        if bpy is not None and alpha == args.alpha:
+            cycles = render_cycles(bpy, scene, args.spp, threads=threads)
+            print(f"Cycles Offset {np.radians(alpha):+.5f} rad (exported): highlight row {highlight_row(cycles):.2f}")
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--spp", type=int, default=256)
+    parser.add_argument("--resolution", type=int, default=64)
+    parser.add_argument("--segments", type=int, default=24, help="segments per strand (default 24)")
+    parser.add_argument("--max-depth", type=int, default=100, help="scattering vertices a path may have")
+    parser.add_argument("--lightings", default="front,back", help="comma-separated: front, back")
+    parser.add_argument("--threads", type=int, default=None)
+    parser.add_argument("--alpha", type=float, help="check the tilt's sign at this alpha (degrees) against Cycles")
+    parser.add_argument("--out", type=Path, default=HERE / "out" / "vs_peers")
+    args = parser.parse_args(argv)
+    args.out.mkdir(parents=True, exist_ok=True)
+    fibers = draped_swatch(args.segments)
+    print(f"draped swatch: {fibers.num_strands} fibers x {args.segments} segments, {args.resolution}^2 px, "
+          f"{args.spp} spp, max depth {args.max_depth}, alpha 0")
+    threads = args.threads or default_threads()
+    if args.alpha is not None:
+        return tilt_check(args, fibers, threads)
+    mi = import_mitsuba()
+    bpy = import_bpy()
+    with tempfile.TemporaryDirectory() as tmp:
+        fibers_file = Path(tmp) / "draped.txt"
+        save_fibers(bspline_control_points(fibers), fibers_file)
+        for lighting in args.lightings.split(","):
+            direction = LIGHTINGS[lighting]
+            images = {}
+            for tangents in ("smooth", "segment"):
+                scene = scene_from_dict(scene_data(args.resolution, direction, args.spp, tangents, args.max_depth))
+                scene.fibers = fibers
+                start = time.perf_counter()
+                images[tangents] = render(scene, threads=threads)
+                print(f"[{lighting}] warp-hair ({tangents} tangents): {time.perf_counter() - start:.1f} s")
+            noise_scene = dataclasses.replace(scene, render=dataclasses.replace(scene.render, seed=1,
+                                                                                tangents="smooth"))
+            noise = block_rmse(render(noise_scene, threads=threads), images["smooth"])
+            write_exr(args.out / f"warp_hair_{lighting}.exr", images["smooth"])
+            print(f"[{lighting}] noise level (two warp-hair seeds): block RMSE {noise:.2%}")
+            print(f"[{lighting}] smooth vs segment tangents: block RMSE {block_rmse(images['segment'], images['smooth']):.2%}")
+            peers = {}
+            if mi is not None:
+                mi_scene = mitsuba_scene(mi, scene, args.spp, shape="bsplinecurve", fibers_file=fibers_file)
+                start = time.perf_counter()
+                peers[f"Mitsuba {mi.__version__}"] = time_mitsuba(mi, mi_scene, args.spp, 0, threads, 1)[2]
+                print(f"[{lighting}] Mitsuba bsplinecurve: {time.perf_counter() - start:.1f} s")
+            if bpy is not None:
+                start = time.perf_counter()
+                peers[f"Cycles {bpy.app.version_string}"] = render_cycles(bpy, scene, args.spp, threads=threads)
+                print(f"[{lighting}] Cycles: {time.perf_counter() - start:.1f} s")
+            for peer, theirs in peers.items():
+                tag = peer.split()[0].lower()
+                write_exr(args.out / f"{tag}_{lighting}.exr", theirs)
+                mean_theirs = theirs.mean(axis=(0, 1))
+                for tangents, ours in images.items():
+                    ratio = ours.mean(axis=(0, 1)) / mean_theirs
+                    print(f"[{lighting}] warp-hair ({tangents}) / {peer}: means {fmt(ours.mean(axis=(0, 1)))} / "
+                          f"{fmt(mean_theirs)} = {fmt(ratio)}; block RMSE {block_rmse(ours, theirs):.2%} "
+                          f"(noise level {noise:.2%})")
+                ours = images["smooth"]
+                diff = np.kron(blocks(ours) - blocks(theirs), np.ones((BLOCK, BLOCK, 1)))
+                diff = np.pad(diff, ((0, ours.shape[0] - diff.shape[0]), (0, ours.shape[1] - diff.shape[1]), (0, 0)))
+                write_png(args.out / f"side_by_side_{tag}_{lighting}.png",
+                          np.concatenate([ours, theirs, 0.2 + 5.0 * diff], axis=1))
+    print(f"images in {args.out}")
+
+
+if __name__ == "__main__":
+    main()
