@@ -23,6 +23,7 @@ import warp as wp
 import warp_hair
 from warp_hair import HairParams, bsdf
 from warp_hair.bsdf import _sample_kernel  # the kernel the batch API runs, timed without its NumPy work
+from warp_hair.cli import exit_on_interrupt
 from warp_hair.hair_bsdf import hair_coefficients
 from warp_hair.parallel import default_threads, launch_ranges
 
@@ -102,4 +103,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    exit_on_interrupt(main)

@@ -13,6 +13,7 @@ import dataclasses
 import time
 from pathlib import Path
 
+from warp_hair.cli import exit_on_interrupt
 from warp_hair.params import HairParams
 from warp_hair.render import render
 from warp_hair.scene import load_scene
@@ -43,4 +44,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    exit_on_interrupt(main)

@@ -20,6 +20,7 @@ import numpy as np
 from optimize.fit import fit
 from optimize.report import true_values, write_outputs
 from optimize.target import load_target, shipped_targets
+from warp_hair.cli import exit_on_interrupt
 
 HERE = Path(__file__).resolve().parent
 ALBEDO_BOUND, BETA_BOUND = 0.02, 0.03
@@ -57,6 +58,8 @@ def main() -> None:
             f"| {a_err:.3f} | {m_err:.3f} | {n_err:.3f} | {z:.1f} | {'yes' if ok else 'no'} | {result.seconds:.0f} s |"
         )
         print(rows[-1], flush=True)
+        if result.stop_reason == "interrupted":  # the fit saved its estimate; the other targets are not started
+            raise KeyboardInterrupt
     print()
     print("| target | rendered by | true albedo / β_m / β_n | fitted albedo / β_m / β_n | max albedo error | β_m error "
           "| β_n error | largest error / σ | within bounds | time |")
@@ -65,4 +68,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    exit_on_interrupt(main)

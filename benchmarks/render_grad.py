@@ -38,6 +38,7 @@ from pathlib import Path
 
 import numpy as np
 
+from warp_hair.cli import exit_on_interrupt
 from warp_hair.parallel import default_threads
 from warp_hair.render import render
 from warp_hair.render_grad import contract_crossed, named_gradients, render_grad
@@ -247,4 +248,4 @@ def main(argv=None):
 
 
 if __name__ == "__main__":
-    main()
+    exit_on_interrupt(main)

@@ -22,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
+from warp_hair.cli import exit_on_interrupt
 from warp_hair.io import write_exr, write_png
 from warp_hair.parallel import default_threads
 from warp_hair.render import render
@@ -157,4 +158,4 @@ def main(argv=None):
 
 
 if __name__ == "__main__":
-    main()
+    exit_on_interrupt(main)

@@ -98,6 +98,7 @@ def run_fit(args: argparse.Namespace) -> None:
     from .report import format_table, true_values, write_outputs
     from .target import load_target
 
+    render_cli.check_sampling_args(args)
     from warp_hair.export import parse_renderers
 
     # Checked before the fit, not after it.
@@ -159,6 +160,7 @@ def add_targets(subparsers) -> None:
 def run_targets(args: argparse.Namespace) -> None:
     from .target import load_target, make_target, shipped_targets, target_renderer
 
+    render_cli.check_sampling_args(args)
     directories = [resolve_target(n) for n in args.names] if args.names else shipped_targets()
     for directory in directories:
         if args.action == "list":

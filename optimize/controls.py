@@ -3,8 +3,8 @@
 Adam steps in latent space; each control is a fixed smooth map of its latent onto the open interval the
 control may take, so no step can leave the valid range and nothing is clipped:
 
-    bounded (lo, hi)      x = lo + (hi − lo) · sigmoid(z)     β_m, β_n, α
-    bounded below (lo, ∞) x = lo + exp(z)                     σ_a, melanins, η, r_roughness_scale, exposure
+    bounded (lo, hi)      x = lo + (hi − lo) · sigmoid(z)     β_m, β_n, α, η
+    bounded below (lo, ∞) x = lo + exp(z)                     σ_a, melanins, r_roughness_scale, exposure
     albedo, in (0, 1)     a = exp(−e^(z/2) · P(β_n))          z = log σ_a, the absorption it stands for
 
 The albedo's latent is the log of the absorption σ_a = (ln a / P(β_n))² the renderer derives from it (talk,
@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 import torch
 
-from warp_hair.params import ALPHA_RANGE_DEG, BETA_FLOOR, albedo_polynomial
+from warp_hair.params import ALPHA_RANGE_DEG, BETA_FLOOR, ETA_MAX, R_ROUGHNESS_SCALE_RANGE, albedo_polynomial
 
 EXPOSURE = "exposure"
 DEFAULT_FIT = ("albedo", "beta_m", "beta_n")
@@ -89,8 +89,9 @@ SPECS = {
         ControlSpec("beta_m", 1, BETA_FLOOR, 1.0, 0.5),
         ControlSpec("beta_n", 1, BETA_FLOOR, 1.0, 0.5),
         ControlSpec("alpha", 1, ALPHA_RANGE_DEG[0], ALPHA_RANGE_DEG[1], 2.0),
-        ControlSpec("eta", 1, 1.0, math.inf, 1.55),
-        ControlSpec("r_roughness_scale", 1, 0.0, math.inf, 1.0),
+        ControlSpec("eta", 1, 1.0, ETA_MAX, 1.55),
+        # Bounded below only: its upper limit (1e6) is far beyond any fit, and the log map suits a scale.
+        ControlSpec("r_roughness_scale", 1, R_ROUGHNESS_SCALE_RANGE[0], math.inf, 1.0),
         ControlSpec(EXPOSURE, 1, 0.0, math.inf, 1.0),
     )
 }

@@ -193,7 +193,11 @@ def _read_truth(path: Path) -> HairParams | None:
         raise ValueError(f"{path}: cannot read the true controls: {error}") from None
     if not isinstance(controls, dict):
         raise ValueError(f"{path}: must hold an object of control name -> value")
-    return HairParams.from_dict(controls, where=str(path))
+    try:
+        return HairParams.from_dict(controls, where=str(path))
+    except ValueError as error:
+        message = str(error)
+        raise ValueError(message if str(path) in message else f"{path}: {message}") from None
 
 
 def make_target(directory, threads=None, progress=None) -> list[Path]:

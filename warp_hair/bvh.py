@@ -145,7 +145,7 @@ def _build_binary(lowers, uppers, max_leaf, traversal_cost, threads=None) -> Tre
         _launch(_best_splits_kernel, k, [prims.lowers, prims.uppers, wp_start, wp_count, nb, *out.values()], threads)
         box_lo, box_hi = out["box_lo"].numpy(), out["box_hi"].numpy()
         extent = out["c_extent"].numpy()
-        best_cost, best_axis = out["cost"].numpy(), out["axis"].numpy()
+        best_cost = out["cost"].numpy()
         area = _half_area(np.concatenate([box_lo.T, -box_hi.T]))
         is_root = slot[:, 0] < 0
         leaf, median, split, node_id, num_nodes = _level_nodes(

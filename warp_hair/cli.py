@@ -2,7 +2,9 @@
 
 Each subcommand is an `add_*` function that declares its arguments and a function that runs it; the work
 itself lives in the library. Bad input (a control out of range, an unwritable path) ends with
-`warp-hair: error: <message>` on stderr and exit status 2, as argparse does for malformed arguments.
+`warp-hair: error: <message>` on stderr and exit status 2, as argparse does for malformed arguments; Ctrl-C
+with one line and exit status 130, leaving no partial output file; anything else (a bug) with a short message,
+and its traceback under `--debug`.
 
     warp-hair plot-bsdf -o lobes.png [hair controls] [--theta-o DEG ...] [--h H]
     warp-hair render SCENE.toml -o OUT.exr [--spp N] [--seed S] [--threads T] [--png PREVIEW.png]
@@ -18,10 +20,12 @@ from __future__ import annotations
 import argparse
 import contextlib
 import sys
+import traceback
 import warnings
 from pathlib import Path
 
-from .params import HairParams
+from . import validate
+from .params import ETA_MAX, R_ROUGHNESS_SCALE_RANGE, HairParams
 
 PROG = "warp-hair"
 DEFAULT_ALBEDO = (0.6, 0.4, 0.2)
@@ -42,9 +46,10 @@ def add_hair_controls(parser: argparse.ArgumentParser) -> None:
     add("--beta-m", type=float, default=0.3, metavar="B", help="longitudinal roughness in [0, 1] (default 0.3)")
     add("--beta-n", type=float, default=0.3, metavar="B", help="azimuthal roughness in [0, 1] (default 0.3)")
     add("--alpha", type=float, default=2.0, metavar="DEG", help="cuticle tilt in degrees, in [-30, 30] (default 2)")
-    add("--eta", type=float, default=1.55, metavar="E", help="index of refraction, > 1 (default 1.55)")
+    add("--eta", type=float, default=1.55, metavar="E", help=f"index of refraction, in (1, {ETA_MAX:g}] (default 1.55)")
     add("--r-roughness-scale", type=float, default=1.0, metavar="K",
-        help="factor on the primary reflection's longitudinal roughness, > 0 (default 1)")
+        help="factor on the primary reflection's longitudinal roughness, in [{:g}, {:g}] (default 1)".format(
+            *R_ROUGHNESS_SCALE_RANGE))
 
 
 def hair_params(args: argparse.Namespace) -> HairParams:
@@ -107,6 +112,11 @@ def render_scene(args: argparse.Namespace) -> None:
     from .render import render, render_metadata
     from .scene import load_scene
 
+    check_sampling_args(args)
+    if args.png is not None:
+        validate.real("--exposure", args.exposure)
+        if not args.exposure > 0:
+            raise ValueError(f"--exposure must be > 0, got {args.exposure!r}")
     scene = load_scene(args.scene)
     spp = scene.render.spp if args.spp is None else args.spp
     seed = scene.render.seed if args.seed is None else args.seed
@@ -146,10 +156,21 @@ def add_gradcheck(subparsers) -> None:
     parser.set_defaults(run=gradcheck_scene)
 
 
+def check_sampling_args(args: argparse.Namespace) -> None:
+    """The options that reach the kernels as int32 or uint32, checked as the scene file's [render] table is."""
+    if getattr(args, "spp", None) is not None:
+        validate.integer("--spp", args.spp, minimum=1)
+    if getattr(args, "seed", None) is not None:
+        validate.seed("--seed", args.seed)
+    if getattr(args, "threads", None) is not None:
+        validate.integer("--threads", args.threads, minimum=1, maximum=4096)
+
+
 def gradcheck_scene(args: argparse.Namespace) -> None:
     from .gradcheck import format_table, gradcheck
     from .scene import load_scene
 
+    check_sampling_args(args)
     scene = load_scene(args.scene)
     names = None if args.params is None else args.params.split(",")
     width, height = scene.camera.resolution
@@ -263,10 +284,23 @@ SUBCOMMANDS = (add_plot_bsdf, add_render, add_gradcheck, add_export, add_calibra
 def build_parser(extra=()) -> argparse.ArgumentParser:
     """The parser of the renderer's subcommands, plus `extra` ones (add_* functions) from packages built on it."""
     parser = argparse.ArgumentParser(prog=PROG, description="Hair and fur appearance (the Chiang et al. BSDF) in Warp.")
+    parser.add_argument("--debug", action="store_true", help="show the full traceback of an unexpected error")
     subparsers = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for add in SUBCOMMANDS + tuple(extra):
         add(subparsers)
+    for subparser in subparsers.choices.values():
+        # Also after the subcommand; SUPPRESS keeps the top-level value when it is not repeated there.
+        subparser.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help=argparse.SUPPRESS)
     return parser
+
+
+def exit_on_interrupt(run) -> None:
+    """Run `run()` (a script's main) and exit: on Ctrl-C with one line and status 130, as the command does."""
+    try:
+        run()
+    except KeyboardInterrupt:
+        print(f"{sys.argv[0]}: interrupted", file=sys.stderr)
+        sys.exit(130)
 
 
 def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
@@ -282,9 +316,26 @@ def main(argv: list[str] | None = None, extra=()) -> int:
         warnings.showwarning = _show_warning
         try:
             args.run(args)
+        except KeyboardInterrupt:
+            print(f"{PROG}: interrupted", file=sys.stderr)
+            return 130
+        # The library's errors: bad input (ValueError, FiberDataError) and files (OSError).
         except (ValueError, OSError) as error:
             print(f"{PROG}: error: {error}", file=sys.stderr)
             return 2
+        except MemoryError:
+            print(f"{PROG}: error: out of memory; lower the resolution, spp or fiber count", file=sys.stderr)
+            return 2
+        except Exception as error:
+            if args.debug:
+                traceback.print_exc()
+            print(
+                f"{PROG}: internal error: {type(error).__name__}: {error}\n"
+                f"{PROG}: this is a bug in warp-hair; please report it on the project's issue tracker with the "
+                "command line" + ("" if args.debug else ", and the traceback that --debug prints"),
+                file=sys.stderr,
+            )
+            return 1
     return 0
 
 

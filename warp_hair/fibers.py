@@ -20,6 +20,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from . import validate
 from .usd import SUFFIXES as USD_SUFFIXES
 
 
@@ -83,7 +84,8 @@ class FiberAssembly:
     @classmethod
     def from_arrays(cls, points, radii, *, source=None):
         """Strands of equal vertex count: `points` (S, N, 3); `radii` a scalar, (S,) per strand or (S, N)."""
-        points = np.asarray(points, dtype=np.float32)
+        with np.errstate(over="ignore"):  # beyond float32 range: inf, which construction reports by strand
+            points = np.asarray(points, dtype=np.float32)
         if points.ndim != 3 or points.shape[2] != 3:
             raise FiberDataError(f"points must have shape (S, N, 3), got {points.shape}", source=source)
         strands, per_strand = points.shape[:2]
@@ -230,9 +232,15 @@ def _check_strands(points, radii, offsets, source):
     for bad, describe in checks:
         hits = np.flatnonzero(bad)
         if hits.size:
-            v = int(hits[0])
-            k = int(np.searchsorted(offsets, v, side="right") - 1)
-            raise FiberDataError(describe(v), strand=k, vertex=v - int(offsets[k]), source=source)
+            _raise_at(int(hits[0]), describe(int(hits[0])), offsets, source)
+    beyond = validate.fiber_values(points, radii)
+    if beyond is not None:
+        _raise_at(*beyond, offsets, source)
+
+
+def _raise_at(v, problem, offsets, source):
+    k = int(np.searchsorted(offsets, v, side="right") - 1)
+    raise FiberDataError(problem, strand=k, vertex=v - int(offsets[k]), source=source)
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -292,7 +300,8 @@ def read_hair(path):
 
     The file's thickness is the fiber DIAMETER: the returned radii are thickness / 2. Absent segment or
     thickness arrays take the header's defaults. Transparency and colour arrays are checked but not kept.
-    A malformed file raises `FiberDataError` (a ValueError) naming the file and, where it applies, the strand.
+    A malformed file raises `FiberDataError` (a ValueError) naming the file and, where it applies, the strand;
+    so do bytes after the declared arrays (a file whose header does not describe its data).
     """
     path = Path(path)
     return _parse_hair(path.read_bytes(), path)
@@ -347,6 +356,14 @@ def _parse_hair(data, source):
     header = _read_hair_header(data, source)
     ends, position = _hair_strand_ends(data, header, source)
     arrays = _read_hair_point_arrays(data, position, header, ends, source)
+    end = position + sum(4 * width * header.points for flag, _, width in _HAIR_POINT_ARRAYS if header.flags & flag)
+    if len(data) > end:
+        # Bytes the header does not account for mean a header that disagrees with its data: refuse to guess.
+        raise FiberDataError(
+            f"{len(data) - end} bytes after the data the header declares ({end} bytes); the header's counts or "
+            "flags do not describe this file",
+            source=source,
+        )
     thickness = arrays.get("thickness")
     if thickness is None:
         thickness = np.full(header.points, header.default_thickness, dtype=np.float32)
@@ -440,11 +457,11 @@ def read_text(path):
     """Load the plain-text fiber format (Mitsuba 3's `linearcurve` files use it).
 
     One `x y z radius` line per vertex, a blank line between strands; lines starting with `#` are comments.
-    A malformed file raises `FiberDataError` (a ValueError) naming the file, line and strand.
+    UTF-8, with or without a byte-order mark. A malformed file raises `FiberDataError` (a ValueError) naming the file, line and strand.
     """
     path = Path(path)
     try:
-        text = path.read_text(encoding="utf-8")
+        text = path.read_text(encoding="utf-8-sig")
     except UnicodeDecodeError as error:
         raise FiberDataError(f"not a UTF-8 text file (byte {error.start}: {error.reason})", source=path) from None
     return _parse_text(text, path)
@@ -583,6 +600,7 @@ def swatch(
     With the default spacing and layer gap no two fibers intersect. A smaller spacing, or a `width` that
     implies one, packs them tighter and lets neighbours overlap.
     """
+    _check_size(count, segments)
     rng = np.random.default_rng(seed)
     y = _heights(length, segments)
     x, z = _swatch_axes(y, count, layers, radius, spacing, width, jitter, layer_gap, rng)
@@ -618,8 +636,10 @@ def wavy(
         segments: straight segments per fiber. Default: 12 per wavelength, ceil(12·length / wavelength).
     """
     _check_positive(amplitude=amplitude, wavelength=wavelength)
+    segments = _segments_per_period(segments, length, wavelength, 12, "wavelength")
+    _check_size(count, segments)
     rng = np.random.default_rng(seed)
-    y = _heights(length, _segments_per_period(segments, length, wavelength, 12))
+    y = _heights(length, segments)
     x, z = _swatch_axes(y, count, layers, radius, spacing, width, jitter, layer_gap, rng)
     angle = _fiber_phases(count, phase_jitter, rng)[:, None] + 2 * np.pi * y / wavelength
     return _swatch_assembly(x + amplitude * np.sin(angle), y, z, radius, drape)
@@ -657,8 +677,10 @@ def curly(
         segments: straight segments per fiber. Default: 16 per turn, ceil(16·length / pitch).
     """
     _check_positive(curl_radius=curl_radius, pitch=pitch)
+    segments = _segments_per_period(segments, length, pitch, 16, "pitch")
+    _check_size(count, segments)
     rng = np.random.default_rng(seed)
-    y = _heights(length, _segments_per_period(segments, length, pitch, 16))
+    y = _heights(length, segments)
     x, z = _swatch_axes(y, count, layers, radius, spacing, width, jitter, layer_gap, rng)
     angle = _fiber_phases(count, phase_jitter, rng)[:, None] + 2 * np.pi * y / pitch
     return _swatch_assembly(x + curl_radius * np.cos(angle), y, z + curl_radius * np.sin(angle), radius, drape)
@@ -697,7 +719,7 @@ def fur(
         segments: straight segments per fiber.
         seed: seed of the NumPy random generator; a seed always gives the same fur.
     """
-    _check_count(count=count, segments=segments)
+    _check_size(count, segments)
     _check_positive(length=length, root_radius=root_radius, tip_radius=tip_radius)
     if not (lean >= 0 and bend >= 0 and lean + bend < 90):
         raise ValueError(f"lean and bend must be >= 0 with lean + bend < 90 degrees, got {lean} and {bend}")
@@ -725,8 +747,33 @@ def _heights(length, segments):
     return np.linspace(-length / 2, length / 2, segments + 1)
 
 
-def _segments_per_period(segments, length, period, per_period):
-    return math.ceil(per_period * length / period) if segments is None else segments
+def _segments_per_period(segments, length, period, per_period, name):
+    if segments is not None:
+        return segments
+    _check_positive(length=length, **{name: period})
+    needed = per_period * length / period
+    if not needed <= validate.INT32_MAX:
+        raise ValueError(
+            f"{name} = {period!r} over length {length!r} needs {needed:.3g} segments per fiber ({per_period} per "
+            f"period), more than {validate.INT32_MAX}; give a longer {name} or set segments"
+        )
+    return math.ceil(needed)
+
+
+# Peak bytes per vertex while a generator builds its arrays (tracemalloc: 20 000 fibers of 20 segments, ~100).
+_GENERATOR_BYTES_PER_VERTEX = 128
+
+
+def _check_size(count, segments):
+    """Before allocating: count fibers of `segments` segments must fit int32 indices and the free memory."""
+    _check_count(count=count, segments=segments)
+    vertices = operator.index(count) * (operator.index(segments) + 1)
+    if vertices > validate.INT32_MAX:
+        raise ValueError(
+            f"{count} fibers of {segments} segments make {vertices} vertices, more than the {validate.INT32_MAX} a "
+            "fiber assembly indexes"
+        )
+    validate.memory(f"{count} fibers of {segments} segments ({vertices} vertices)", vertices * _GENERATOR_BYTES_PER_VERTEX)
 
 
 def _swatch_axes(y, count, layers, radius, spacing, width, jitter, layer_gap, rng):

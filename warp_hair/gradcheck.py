@@ -43,6 +43,7 @@ import numpy as np
 from .render import prepare, render
 from .render_grad import render_grad
 from .scene import Scene
+from .validate import SEED_LIMIT
 
 # The target's controls: (kind, amount) per control; "scale" multiplies, "add" adds.
 TARGET_PERTURBATION = {
@@ -259,7 +260,8 @@ def gradcheck(
     fds = {label: [] for label, _, _ in components}
     base = scene.render.seed + SEED_OFFSET
     for k in range(seeds):
-        seed_a, seed_b = base + 2 * k, base + 2 * k + 1
+        # Wrapped into the uint32 the random streams are seeded with (a scene seed near 2**32 would pass it).
+        seed_a, seed_b = (base + 2 * k) % SEED_LIMIT, (base + 2 * k + 1) % SEED_LIMIT
         # Symmetrized like the product L̂: 0.5 (grad with adjoint from I_a over paths b + the same with a, b
         # swapped). Then gradient and difference estimate the same quantity path by path, and their paired
         # difference per seed pair has a far smaller spread than either.

@@ -104,10 +104,12 @@ def lobe_setup(c: HairCoefficients, wo: wp.vec3, h: float):
     h = wp.clamp(h, -1.0, 1.0)
 
     # Refraction: θ_t by Snell, γ_t in the normal plane with the Bravais index η' (MODEL.md); the form
-    # h cos θ_o / sqrt(η² − sin² θ_o) = h / η' has no division by cos θ_o.
+    # h cos θ_o / sqrt(η² − sin² θ_o) = h / η' has no division by cos θ_o. An η within float32 rounding of 1
+    # makes both square roots 0 at grazing: the floors give the η → 1⁺ limits there (γ_t = 0, an infinitely
+    # long path that transmits nothing unless σ_a = 0) instead of 0/0. For η > 1 they change nothing.
     sin_t = sin_o / c.eta
-    cos_t = cos_from_sin(sin_t)
-    sin_gamma_t = h * cos_o / wp.sqrt(c.eta * c.eta - sin_o * sin_o)
+    cos_t = wp.max(cos_from_sin(sin_t), 1.0e-37)
+    sin_gamma_t = wp.clamp(h * cos_o / wp.max(wp.sqrt(c.eta * c.eta - sin_o * sin_o), 1.0e-37), -1.0, 1.0)
     cos_gamma_t = cos_from_sin(sin_gamma_t)
     T = wp.vec3(
         wp.exp(-c.sigma_a[0] * 2.0 * cos_gamma_t / cos_t),
@@ -143,7 +145,8 @@ def lobe_setup(c: HairCoefficients, wo: wp.vec3, h: float):
     eta_d = wp.float64(c.eta)
     h_d = wp.float64(h)
     gamma_o = wp.asin(h_d)
-    gamma_t = wp.asin(h_d * cos_o_d / wp.sqrt(eta_d * eta_d - sin_o_d * sin_o_d))
+    q_d = wp.max(wp.sqrt(eta_d * eta_d - sin_o_d * sin_o_d), wp.float64(1.0e-37))
+    gamma_t = wp.asin(wp.clamp(h_d * cos_o_d / q_d, wp.float64(-1.0), wp.float64(1.0)))
     L.phi_o = wp.atan2(wp.float64(wo[2]), wp.float64(wo[1]))
     L.phi_center = wp.vec3d(
         wp.float64(-2.0) * gamma_o,

@@ -5,12 +5,16 @@ Images are float32 (H, W, 3) arrays of linear RGB radiance, row 0 at the top.
 
 from __future__ import annotations
 
+import contextlib
 import json
+import os
 from pathlib import Path
 
 import numpy as np
 import OpenEXR
 from PIL import Image
+
+from . import validate
 
 # Every EXR file starts with these four bytes (0x762f3101, little-endian).
 EXR_MAGIC = b"\x76\x2f\x31\x01"
@@ -45,11 +49,26 @@ def write_exr(path, image, metadata=None):
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
     header.update(_metadata_attributes(metadata or {}))
     channels = {name: np.ascontiguousarray(image[..., c]) for c, name in enumerate("RGB")}
+    with _replaced(path) as partial:
+        try:
+            with OpenEXR.File(header, channels) as exr:
+                exr.write(str(partial))
+        except RuntimeError as error:
+            raise OSError(f"{path}: cannot write the EXR file: {error}") from None
+
+
+@contextlib.contextmanager
+def _replaced(path):
+    """A temporary name beside `path` to write to, renamed onto `path` once complete: an interrupted or failed
+    write leaves no partial file (and an existing file untouched)."""
+    partial = path.with_name(f".{path.name}.{os.getpid()}.partial")
     try:
-        with OpenEXR.File(header, channels) as exr:
-            exr.write(str(path))
-    except RuntimeError as error:
-        raise OSError(f"{path}: cannot write the EXR file: {error}") from None
+        yield partial
+        os.replace(partial, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            partial.unlink()
+        raise
 
 
 def _rgb_image(image):
@@ -121,9 +140,17 @@ def _decoded(text):
 
 def write_png(path, image, exposure=1.0):
     """Write linear radiance as an 8-bit sRGB PNG for people to look at: image × exposure, clipped to [0, 1],
-    sRGB-encoded. NaNs show black, +inf white."""
+    sRGB-encoded. NaNs show black, +inf white. `exposure` must be a finite number > 0."""
     image = _rgb_image(image)
+    exposure = validate.real("exposure", exposure)
+    if not exposure > 0:
+        raise ValueError(f"exposure must be > 0, got {exposure!r}")
     linear = np.clip(np.nan_to_num(image * np.float32(exposure), nan=0.0), 0.0, 1.0)
     encoded = np.where(linear <= 0.0031308, 12.92 * linear, 1.055 * linear ** (1 / 2.4) - 0.055)
     pixels = np.round(encoded * 255.0).astype(np.uint8)
-    Image.fromarray(pixels, mode="RGB").save(Path(path), format="PNG")
+    path = Path(path)
+    with _replaced(path) as partial:
+        try:
+            Image.fromarray(pixels, mode="RGB").save(partial, format="PNG")
+        except ValueError as error:
+            raise OSError(f"{path}: cannot write the PNG file: {error}") from None

@@ -173,6 +173,9 @@ def sample_longitudinal_sin(u_cone: float, u_rot: float, sin_o: float, cos_o: fl
 @wp.func
 def fresnel_dielectric(cos_i: float, eta: float):
     """Unpolarized Fresnel reflectance entering a dielectric of index eta > 1 (no total internal reflection)."""
+    if cos_i <= 0.0:
+        # Grazing: 1 for every eta > 1, and the formulas' 0/0 when eta rounds to 1 in float32.
+        return 1.0
     sin2_t = (1.0 - cos_i * cos_i) / (eta * eta)
     cos_t = wp.sqrt(wp.max(0.0, 1.0 - sin2_t))
     r_parl = (eta * cos_i - cos_t) / (eta * cos_i + cos_t)
@@ -229,6 +232,8 @@ def sample_trimmed_logistic(u: float, s: float, tail: float):
 @wp.func
 def fresnel_dielectric_d_eta(cos_i: float, eta: float):
     """∂/∂η of `fresnel_dielectric(cos_i, eta)` (η > 1, so cos θ_t > 0)."""
+    if cos_i <= 0.0:
+        return 0.0  # the reflectance is 1 at grazing for every η
     sin2_t = (1.0 - cos_i * cos_i) / (eta * eta)
     cos_t = wp.sqrt(wp.max(0.0, 1.0 - sin2_t))
     d_cos_t = sin2_t / (eta * cos_t)

@@ -8,7 +8,10 @@ not depend on how many threads there are.
 
 from __future__ import annotations
 
+import contextlib
 import os
+import signal
+import threading
 from concurrent.futures import ThreadPoolExecutor, as_completed
 
 import warp as wp
@@ -31,7 +34,8 @@ def launch_ranges(
 
     Without `chunk`, one range per thread (for uniform work). With `chunk`, ranges of that many items
     handed out as threads free up, which balances uneven work (pixels on fibers cost more than background).
-    `progress(done, total)` is called after each range.
+    `progress(done, total)` is called after each range. On Ctrl-C (or an error in a range) no further range
+    starts: the running ones finish, and the KeyboardInterrupt (or the error) propagates within one range's time.
     """
     if n == 0:
         return
@@ -48,14 +52,47 @@ def launch_ranges(
     # Compile (or fetch from the cache) once, before the threads race to do it each.
     wp.load_module(kernel.module, device=device)
 
+    stop = threading.Event()
+
     def run(first_count):
+        if stop.is_set():
+            return 0
         first, count = first_count
         wp.launch(kernel, dim=count, inputs=[*inputs, first], device=device)
         return count
 
     done = 0
-    with ThreadPoolExecutor(threads) as pool:
-        for future in as_completed([pool.submit(run, r) for r in ranges]):
-            done += future.result()
-            if progress is not None:
-                progress(done, n)
+    with _stop_on_sigint(stop) as interrupted, ThreadPoolExecutor(threads) as pool:
+        try:
+            for future in as_completed([pool.submit(run, r) for r in ranges]):
+                done += future.result()
+                if progress is not None and not stop.is_set():
+                    progress(done, n)
+        except BaseException:
+            stop.set()  # the queued ranges return at once; the pool's exit waits for the running ones only
+            raise
+    if interrupted:
+        raise KeyboardInterrupt
+
+
+@contextlib.contextmanager
+def _stop_on_sigint(stop: threading.Event):
+    """While ranges run, Ctrl-C sets `stop` (and is recorded in the yielded list) instead of raising: a
+    KeyboardInterrupt raised inside the pool's locks can leave them broken ("release unlocked lock"). The caller
+    raises it once the running ranges are done. Only in the main thread, and only over Python's own handler."""
+    received = []
+    if threading.current_thread() is not threading.main_thread() or (
+        signal.getsignal(signal.SIGINT) is not signal.default_int_handler
+    ):
+        yield received
+        return
+
+    def handler(signum, frame):
+        received.append(signum)
+        stop.set()
+
+    previous = signal.signal(signal.SIGINT, handler)
+    try:
+        yield received
+    finally:
+        signal.signal(signal.SIGINT, previous)

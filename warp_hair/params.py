@@ -13,6 +13,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from . import validate
+
 # Below this roughness the lobes are narrower than float32 angles can resolve, and at 0 the mappings give
 # v = s = 0 (a delta lobe no path tracer can sample). pbrt, Mitsuba and Cycles clamp the same way.
 BETA_FLOOR = 0.01
@@ -22,6 +24,13 @@ EUMELANIN_SIGMA_A = np.array([0.419, 0.697, 1.37])
 PHEOMELANIN_SIGMA_A = np.array([0.187, 0.4, 1.05])
 
 ALPHA_RANGE_DEG = (-30.0, 30.0)
+# η: above 1 (a fiber that refracts); 10 is beyond every dielectric in visible light (diamond 2.4, silicon ~4).
+ETA_MAX = 10.0
+# The R lobe's variance factor: 1e-6 to 1e6 spans any species by far, and the lobes are tested finite there.
+R_ROUGHNESS_SCALE_RANGE = (1e-6, 1e6)
+# Absorption (σ_a, or a melanin concentration) beyond this is black to float32 precision, and σ_a times a path
+# length must stay finite.
+ABSORPTION_MAX = 1e30
 
 # The [hair] key of the albedo inversion's table (not a control: see HairParams).
 ALBEDO_INVERSION_KEY = "albedo_inversion"
@@ -123,13 +132,7 @@ def sigma_a_from_melanin(eumelanin, pheomelanin):
 
 
 def _real(name, value):
-    try:
-        x = float(value)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name} must be a number, got {value!r}") from None
-    if not math.isfinite(x):
-        raise ValueError(f"{name} must be finite, got {x}")
-    return x
+    return validate.real(name, value)
 
 
 def _rgb(name, value):
@@ -161,8 +164,9 @@ class HairParams:
       - ``eumelanin`` and/or ``pheomelanin``: pigment concentrations ≥ 0 (blonde ≈ 0.3, brown ≈ 1.3, black ≈ 8).
     Roughness ``beta_m`` (longitudinal) and ``beta_n`` (azimuthal) in [0, 1]; values below 0.01 are rendered
     as 0.01 (with a warning), because a zero-width lobe cannot be sampled. ``alpha`` is the cuticle tilt in
-    degrees, ``eta`` the index of refraction (> 1), ``r_roughness_scale`` the species control: a factor on the
-    primary reflection (R) lobe's longitudinal variance only.
+    degrees, in [-30, 30], ``eta`` the index of refraction, in (1, 10], ``r_roughness_scale`` the species
+    control, in [1e-6, 1e6]: a factor on the primary reflection (R) lobe's longitudinal variance only. σ_a and
+    the melanins are at most 1e30. Every control is a number: a bool or a string is an error.
 
     ``albedo_inversion`` is not a control but the calibration behind the albedo input: the coefficients
     p_0 ... p_5 of P(β_n) in σ_a = (ln c / P(β_n))², by default the talk's (TALK_ALBEDO_INVERSION); P must be
@@ -211,12 +215,12 @@ class HairParams:
         if sigma_a is not None:
             sigma_a = _rgb("sigma_a", sigma_a)
             for c, s in zip("rgb", sigma_a):
-                _check_range(f"sigma_a[{c}]", s, 0.0, math.inf, hi_open=True)
+                _check_range(f"sigma_a[{c}]", s, 0.0, ABSORPTION_MAX)
         if eumelanin is not None or pheomelanin is not None:
             eumelanin = _real("eumelanin", 0.0 if eumelanin is None else eumelanin)
             pheomelanin = _real("pheomelanin", 0.0 if pheomelanin is None else pheomelanin)
-            _check_range("eumelanin", eumelanin, 0.0, math.inf, hi_open=True)
-            _check_range("pheomelanin", pheomelanin, 0.0, math.inf, hi_open=True)
+            _check_range("eumelanin", eumelanin, 0.0, ABSORPTION_MAX)
+            _check_range("pheomelanin", pheomelanin, 0.0, ABSORPTION_MAX)
         beta_m, beta_n = _real("beta_m", beta_m), _real("beta_n", beta_n)
         for name, b in (("beta_m", beta_m), ("beta_n", beta_n)):
             _check_range(name, b, 0.0, 1.0)
@@ -229,9 +233,9 @@ class HairParams:
         alpha = _real("alpha", alpha)
         _check_range("alpha", alpha, *ALPHA_RANGE_DEG)
         eta = _real("eta", eta)
-        _check_range("eta", eta, 1.0, math.inf, lo_open=True, hi_open=True)
+        _check_range("eta", eta, 1.0, ETA_MAX, lo_open=True)
         r_roughness_scale = _real("r_roughness_scale", r_roughness_scale)
-        _check_range("r_roughness_scale", r_roughness_scale, 0.0, math.inf, lo_open=True, hi_open=True)
+        _check_range("r_roughness_scale", r_roughness_scale, *R_ROUGHNESS_SCALE_RANGE)
 
         set_(self, "albedo", albedo)
         set_(self, "sigma_a_input", sigma_a)

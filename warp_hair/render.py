@@ -20,12 +20,20 @@ from .integrator import DirectionalLightData, SceneData, render_kernel
 from .intersect import FiberBVH
 from .params import HairParams
 from .parallel import launch_ranges
-from .scene import DirectionalLight, EnvironmentLight, Scene
+from . import validate
+from .scene import DirectionalLight, EnvironmentLight, Scene, check_scene
 
 
 # Pixels per range handed to a thread: fiber pixels cost far more than background ones, and small ranges
 # balance the threads at a negligible cost per launch (a fit's 48×48 targets are 9 ranges, not one core's work).
 TILE_PIXELS = 256
+# Above this spp a range holds proportionally fewer pixels, so that one range stays a fraction of a second and
+# Ctrl-C, which lets the running ranges finish, stops a render at any spp within about a second.
+TILE_SPP = 64
+
+
+def tile_pixels(spp: int) -> int:
+    return max(1, TILE_PIXELS * TILE_SPP // max(spp, TILE_SPP))
 
 
 class PreparedScene:
@@ -36,6 +44,7 @@ class PreparedScene:
     """
 
     def __init__(self, scene: Scene, device: str = "cpu"):
+        check_scene(scene)  # a scene built in Python, not loaded, is checked here
         self.scene = scene
         self.device = device
         self.bvh = FiberBVH(scene.fibers, device=device, smooth_tangents=scene.render.tangents == "smooth")
@@ -138,12 +147,10 @@ def render_metadata(scene: Scene, spp: int, seed: int) -> dict:
 
 
 def sampling(scene: Scene | PreparedScene, spp=None, seed=None) -> tuple:
-    """(spp, seed): the given ones, else the scene's [render] table's; spp must be at least 1."""
+    """(spp, seed): the given ones, else the scene's [render] table's; spp in [1, 2**31), seed in [0, 2**32)."""
     scene = scene_of(scene)
-    spp = scene.render.spp if spp is None else int(spp)
-    seed = scene.render.seed if seed is None else int(seed)
-    if spp < 1:
-        raise ValueError(f"spp must be at least 1, got {spp}")
+    spp = scene.render.spp if spp is None else validate.integer("spp", spp, minimum=1)
+    seed = scene.render.seed if seed is None else validate.seed("seed", seed)
     return spp, seed
 
 
@@ -176,7 +183,7 @@ def render(
         [prepared.data, spp, seed, image, stderr],
         threads=threads,
         device=device,
-        chunk=TILE_PIXELS,
+        chunk=tile_pixels(spp),
         progress=progress,
     )
     image = image.numpy().reshape(height, width, 3)

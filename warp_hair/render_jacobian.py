@@ -18,7 +18,7 @@ from .bsdf_jacobian import CoefficientDerivatives, coefficient_derivatives, valu
 from .camera import generate_ray
 from .integrator import SceneData, pixel_start, rand2, standard_error, trace_path_grad
 from .parallel import launch_ranges
-from .render import TILE_PIXELS, PreparedScene, prepare, sampling
+from .render import PreparedScene, prepare, sampling, tile_pixels
 from .scene import Scene
 
 wp.set_module_options({"enable_backward": False, "optimization_level": 3})
@@ -73,7 +73,7 @@ def render_jacobian(scene: Scene | PreparedScene, spp: int | None = None, seed: 
         [prepared.data, coefficient_derivatives(prepared.scene.hair), spp, seed, image, stderr, jacobian],
         threads=threads,
         device=device,
-        chunk=TILE_PIXELS,
+        chunk=tile_pixels(spp),
     )
     return (
         jacobian.numpy().reshape(height, width, 3, -1),

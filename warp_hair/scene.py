@@ -22,52 +22,38 @@ from pathlib import Path
 import numpy as np
 
 from . import fibers as fiber_module
+from . import validate
 from .fibers import USD_SUFFIXES, FiberAssembly, load_fibers
 from .io import read_exr
-from .params import HairParams
+from .params import CONTROL_NAMES, HairParams
 
 CAMERA_TYPES = ("orthographic", "perspective")
 TABLES = ("camera", "lights", "fibers", "hair", "render", "card")
 GENERATORS = {name: getattr(fiber_module, name) for name in ("swatch", "wavy", "curly", "fur")}
-# Generator arguments that must be integers; every other argument takes a number or a list of numbers.
 # The [fibers] keys a USD file takes besides `file` (warp_hair.usd documents them).
 USD_FIBER_OPTIONS = ("prim", "radius", "segments")
+# Generator arguments that must be integers; `patch` takes one number or two; every other argument one number.
 INTEGER_GENERATOR_ARGS = frozenset({"count", "layers", "segments", "seed"})
-# Warp's random streams are seeded with a uint32.
-SEED_LIMIT = 2**32
+PAIR_GENERATOR_ARGS = frozenset({"patch"})
 # Below this sine of the angle between up and the view direction, the camera frame is undefined.
 PARALLEL_TOLERANCE = 1e-6
 
 
 # ---------------------------------------------------------------------------------------------------------------
-# Value checks shared by the dataclasses. Each returns the cleaned value or raises a ValueError naming the key.
-
-
-def _is_number(value):
-    return isinstance(value, numbers.Real) and not isinstance(value, bool)
+# Value checks shared by the dataclasses (the limits themselves are warp_hair.validate's). Each returns the
+# cleaned value or raises a ValueError naming the key.
 
 
 def _number(name, value):
-    if not _is_number(value) or not math.isfinite(value):
-        raise ValueError(f"{name} must be a finite number, got {value!r}")
-    return float(value)
+    return validate.real(name, value)
 
 
 def _integer(name, value, minimum=None):
-    if not isinstance(value, numbers.Integral) or isinstance(value, bool):
-        raise ValueError(f"{name} must be an integer, got {value!r}")
-    if minimum is not None and value < minimum:
-        raise ValueError(f"{name} must be at least {minimum}, got {value!r}")
-    return int(value)
+    return validate.integer(name, value, minimum=minimum)
 
 
 def _vec3(name, value):
-    sequence = isinstance(value, (list, tuple, np.ndarray))
-    if not sequence or len(value) != 3 or not all(_is_number(v) for v in value):
-        raise ValueError(f"{name} must be three numbers, got {value!r}")
-    if not all(math.isfinite(v) for v in value):
-        raise ValueError(f"{name} must be finite, got {value!r}")
-    return tuple(float(v) for v in value)
+    return validate.triple(name, value)
 
 
 def _colour(name, value, upper=math.inf):
@@ -79,11 +65,7 @@ def _colour(name, value, upper=math.inf):
 
 
 def _unit(name, value):
-    v = np.array(_vec3(name, value))
-    length = np.linalg.norm(v)
-    if length == 0.0:
-        raise ValueError(f"{name} must be a nonzero vector, got {value!r}")
-    return tuple(float(c) for c in v / length)
+    return tuple(float(c) for c in validate.unit(name, value))
 
 
 def _set(instance, name, value):
@@ -116,11 +98,13 @@ class Camera:
     def __post_init__(self):
         if self.type not in CAMERA_TYPES:
             raise ValueError(f"type must be one of {list(CAMERA_TYPES)}, got {self.type!r}")
-        for name in ("origin", "target", "up"):
-            _set(self, name, _vec3(name, getattr(self, name)))
+        for name in ("origin", "target"):
+            _set(self, name, validate.position(name, getattr(self, name)))
+        _set(self, "up", _vec3("up", self.up))
         _set(self, "resolution", _resolution(self.resolution))
         if self.type == "orthographic":
             _set(self, "width", self._lens("width", "fov", lambda w: w > 0, "> 0"))
+            validate.length("width", self.width, positive=True)
         else:
             _set(self, "fov", self._lens("fov", "width", lambda f: 0 < f < 180, "in (0, 180) degrees"))
         self._check_frame()
@@ -140,19 +124,25 @@ class Camera:
     def _check_frame(self):
         if self.origin == self.target:
             raise ValueError(f"target must differ from origin, both are {list(self.origin)}")
-        up = np.array(self.up)
-        if not np.any(up):
-            raise ValueError(f"up must be a nonzero vector, got {list(self.up)}")
+        # Checked on the unit vectors the kernels get: a tiny or huge `up` has a norm that under- or overflows.
+        forward, up = self._directions()
+        sine = np.linalg.norm(np.cross(forward, up))
+        if not sine >= PARALLEL_TOLERANCE:
+            raise ValueError(
+                f"up {list(self.up)} must not be parallel to the view direction {np.subtract(self.target, self.origin).tolist()}"
+            )
+
+    def _directions(self):
+        """Unit forward and unit up, float64."""
         view = np.subtract(self.target, self.origin)
-        sine = np.linalg.norm(np.cross(view, up)) / (np.linalg.norm(view) * np.linalg.norm(up))
-        if sine < PARALLEL_TOLERANCE:
-            raise ValueError(f"up {list(self.up)} must not be parallel to the view direction {view.tolist()}")
+        if not np.isfinite(view).all() or not view.any():
+            raise ValueError(f"target - origin must be a finite nonzero vector, got {view.tolist()}")
+        return validate.unit("target - origin", view), validate.unit("up", self.up)
 
     def frame(self):
         """(forward, right, up): the camera's orthonormal frame, float64 (3,) each, as the docstring orients it."""
-        forward = np.subtract(self.target, self.origin)
-        forward = forward / np.linalg.norm(forward)
-        right = np.cross(forward, self.up)
+        forward, up = self._directions()
+        right = np.cross(forward, up)
         right /= np.linalg.norm(right)
         return forward, right, np.cross(right, forward)
 
@@ -161,10 +151,13 @@ def _resolution(value):
     if (
         not isinstance(value, (list, tuple, np.ndarray))
         or len(value) != 2
-        or not all(isinstance(v, numbers.Integral) and not isinstance(v, bool) and v > 0 for v in value)
+        or not all(isinstance(v, numbers.Integral) and not isinstance(v, (bool, np.bool_)) and v > 0 for v in value)
     ):
         raise ValueError(f"resolution must be two positive integers, got {value!r}")
-    return (int(value[0]), int(value[1]))
+    width, height = int(value[0]), int(value[1])
+    if width * height > validate.INT32_MAX:
+        raise ValueError(f"resolution {width}x{height} has more than {validate.INT32_MAX} pixels, the most a render indexes")
+    return (width, height)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -177,7 +170,7 @@ class DirectionalLight:
 
     def __post_init__(self):
         _set(self, "direction", _unit("direction", self.direction))
-        _set(self, "irradiance", _colour("irradiance", self.irradiance))
+        _set(self, "irradiance", validate.radiance("irradiance", self.irradiance))
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -204,7 +197,7 @@ class EnvironmentLight:
         if self.radiance is not None:
             if scale != 1.0:
                 raise ValueError("scale applies to an image file only; scale the radiance itself")
-            _set(self, "radiance", _colour("radiance", self.radiance))
+            _set(self, "radiance", validate.radiance("radiance", self.radiance))
         else:
             _set(self, "file", Path(self.file))
             _set(self, "image", _environment_image(self.file, scale))
@@ -217,7 +210,10 @@ def _environment_image(path, scale):
         raise ValueError(f"file: {error}") from None
     if not np.isfinite(image).all() or (image < 0).any():
         raise ValueError(f"file: {path} holds negative or non-finite radiance")
-    return image * np.float32(scale)
+    with np.errstate(over="ignore"):
+        image = image * np.float32(scale)
+    validate.radiance_image(f"file: {path} times scale {scale:g}", image)
+    return image
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -230,9 +226,7 @@ class Card:
 
     def __post_init__(self):
         _set(self, "albedo", _colour("albedo", self.albedo, upper=1.0))
-        distance = _number("distance", self.distance)
-        if distance <= 0:
-            raise ValueError(f"distance must be > 0, got {distance!r}")
+        distance = validate.length("distance", self.distance, positive=True)
         _set(self, "distance", distance)
 
 
@@ -256,9 +250,7 @@ class RenderSettings:
         _set(self, "spp", _integer("spp", self.spp, minimum=1))
         _set(self, "max_depth", _integer("max_depth", self.max_depth, minimum=1))
         _set(self, "rr_depth", _integer("rr_depth", self.rr_depth, minimum=0))
-        _set(self, "seed", _integer("seed", self.seed, minimum=0))
-        if self.seed >= SEED_LIMIT:
-            raise ValueError(f"seed must be below 2**32, got {self.seed!r}")
+        _set(self, "seed", validate.seed("seed", self.seed))
         if self.tangents not in TANGENT_MODES:
             raise ValueError(f"tangents must be one of {list(TANGENT_MODES)}, got {self.tangents!r}")
 
@@ -316,7 +308,19 @@ def scene_from_dict(data: dict, base_dir=None, where: str = "scene") -> Scene:
     hair = _hair(_table(data, "hair", where), where)
     render = _build(RenderSettings, _table(data, "render", where, required=False), f"{where}: [render]")
     card = _build(Card, _table(data, "card", where), f"{where}: [card]") if "card" in data else None
-    return Scene(camera, lights, fibers, hair, render, card, source)
+    scene = Scene(camera, lights, fibers, hair, render, card, source)
+    try:
+        check_scene(scene)
+    except ValueError as error:
+        raise ValueError(f"{where}: {error}") from None
+    return scene
+
+
+def check_scene(scene: Scene) -> None:
+    """What the parts cannot check alone: float32 must resolve the fibers at the scene's extent, and the
+    renderer's buffers must fit in memory (see warp_hair.validate)."""
+    validate.scene_scale(scene.fibers, scene.camera)
+    validate.render_memory(scene.fibers.num_segments, scene.camera.resolution)
 
 
 def _table(data, name, where, required=True):
@@ -430,20 +434,26 @@ def _generate(table, prefix):
 
 
 def _check_generator_arg(key, value, prefix):
-    if key in INTEGER_GENERATOR_ARGS:
-        if not isinstance(value, int) or isinstance(value, bool):
-            raise ValueError(f"{prefix} {key} must be an integer, got {value!r}")
-        return
-    values = value if isinstance(value, (list, tuple)) else [value]
-    if not values or not all(_is_number(v) for v in values):
-        raise ValueError(f"{prefix} {key} must be a number or a list of numbers, got {value!r}")
+    try:
+        if key == "seed":
+            validate.integer(key, value, minimum=0, maximum=None)
+        elif key in INTEGER_GENERATOR_ARGS:
+            validate.integer(key, value)
+        elif key in PAIR_GENERATOR_ARGS and isinstance(value, (list, tuple)):
+            if len(value) != 2:
+                raise ValueError(f"{key} must be one number or two, got {value!r}")
+            for v in value:
+                validate.length(key, v)
+        else:
+            validate.real(key, value)
+    except ValueError as error:
+        raise ValueError(f"{prefix} {error}") from None
 
 
 def _hair(table, where):
-    table_where = f"{where} [hair]"
+    # Checked here, not by from_dict, so that the message starts with the file like every other scene error.
+    _check_keys(table, list(CONTROL_NAMES), f"{where}: [hair]")
     try:
-        return HairParams.from_dict(table, where=table_where)
+        return HairParams.from_dict(table)
     except ValueError as error:
-        message = str(error)
-        # from_dict names `where` itself for unknown keys; the range checks of HairParams do not.
-        raise ValueError(message if table_where in message else f"{where}: [hair] {message}") from None
+        raise ValueError(f"{where}: [hair] {error}") from None
