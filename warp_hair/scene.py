@@ -25,7 +25,7 @@ from . import fibers as fiber_module
 from . import validate
 from .fibers import USD_SUFFIXES, FiberAssembly, load_fibers
 from .io import read_exr
-from .params import CONTROL_NAMES, HairParams
+from .params import ALBEDO_INVERSION_KEY, CONTROL_NAMES, HairParams
 
 CAMERA_TYPES = ("orthographic", "perspective")
 TABLES = ("camera", "lights", "fibers", "hair", "render", "card")
@@ -451,9 +451,12 @@ def _check_generator_arg(key, value, prefix):
 
 
 def _hair(table, where):
-    # Checked here, not by from_dict, so that the message starts with the file like every other scene error.
-    _check_keys(table, list(CONTROL_NAMES), f"{where}: [hair]")
+    # Keys checked here, not by from_dict, so that the message starts with the file like every other scene error.
+    _check_keys(table, [*CONTROL_NAMES, ALBEDO_INVERSION_KEY], f"{where}: [hair]")
+    table_where = f"{where} [hair]"
     try:
-        return HairParams.from_dict(table)
+        return HairParams.from_dict(table, where=table_where)
     except ValueError as error:
-        raise ValueError(f"{where}: [hair] {error}") from None
+        message = str(error)
+        # The albedo inversion's checks name `where` themselves; the range checks of HairParams do not.
+        raise ValueError(message if table_where in message else f"{where}: [hair] {message}") from None
