@@ -46,20 +46,15 @@ def _reset(bpy):
 
 
 def _look_at(bpy, obj, origin, target, up):
-    from mathutils import Vector
+    """Place obj at origin looking at target with `up` up: Blender cameras and suns look down their local −Z
+    with +Y up, so the rotation's columns are (x, y, z) = (up × z, z × x, −forward)."""
+    from mathutils import Matrix, Vector
 
-    forward = Vector(target) - Vector(origin)
-    obj.location = Vector(origin)
-    # Blender cameras look down their local −Z with +Y up.
-    obj.rotation_euler = forward.to_track_quat("-Z", "Y").to_euler()
-    # to_track_quat picks the roll from world +Z; fix it so that local +Y follows `up`.
-    obj.rotation_mode = "QUATERNION"
-    z = -forward.normalized()
+    z = -(Vector(target) - Vector(origin)).normalized()
     x = Vector(up).cross(z).normalized()
-    y = z.cross(x)
-    from mathutils import Matrix
-
-    obj.rotation_quaternion = Matrix((x, y, z)).transposed().to_quaternion()
+    obj.location = Vector(origin)
+    obj.rotation_mode = "QUATERNION"
+    obj.rotation_quaternion = Matrix((x, z.cross(x), z)).transposed().to_quaternion()
 
 
 def _fibers(bpy, fibers, material):
