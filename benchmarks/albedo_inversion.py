@@ -34,7 +34,7 @@ from warp_hair.calibrate import (
     measured_pixels,
     white_radiance,
 )
-from warp_hair.params import TALK_ALBEDO_INVERSION, HairParams
+from warp_hair.model.params import TALK_ALBEDO_INVERSION, HairParams
 
 REQUESTED = (0.2, 0.5, 0.8)
 BETA_N = (0.3, 0.9)

@@ -22,9 +22,9 @@ import warp as wp
 
 import warp_hair
 from warp_hair import HairParams, bsdf
-from warp_hair.bsdf import _sample_kernel  # the kernel the batch API runs, timed without its NumPy work
+from warp_hair.model.bsdf import _sample_kernel
 from warp_hair.cli import exit_on_interrupt
-from warp_hair.hair_bsdf import hair_coefficients
+from warp_hair.model.hair_bsdf import hair_coefficients
 from warp_hair.parallel import default_threads, launch_ranges
 
 MATERIAL = HairParams(albedo=(0.6, 0.4, 0.2), beta_m=0.3, beta_n=0.3)

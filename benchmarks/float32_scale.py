@@ -19,8 +19,8 @@ from pathlib import Path
 import numpy as np
 
 from warp_hair.cli import exit_on_interrupt
-from warp_hair.fibers import FiberAssembly
-from warp_hair.render import render
+from warp_hair.geometry.assembly import FiberAssembly
+from warp_hair.renderer.forward import render
 from warp_hair.scene import scene_from_dict
 from warp_hair.validate import RESOLUTION_LIMIT
 

@@ -144,13 +144,13 @@ def _scene_text_case(index, rng):
 
 
 def _fiber_strands(rng):
-    from warp_hair.fibers import swatch
+    from warp_hair.geometry.generators import swatch
 
     return swatch(count=rng.randint(2, 8), layers=1, segments=rng.randint(1, 4), seed=rng.randrange(100))
 
 
 def _text_fiber_case(index, rng):
-    from warp_hair.fibers import write_text
+    from warp_hair.geometry.formats import write_text
 
     fibers = _fiber_strands(rng)
     path = Path(os.environ.get("TMPDIR", "/tmp")) / f"fuzz-{os.getpid()}-{index}.txt"
@@ -191,7 +191,7 @@ HAIR_FIELDS = {"strands": (4, "<I"), "points": (8, "<I"), "flags": (12, "<I"), "
 
 
 def _hair_fiber_case(index, rng):
-    from warp_hair.fibers import write_hair
+    from warp_hair.geometry.formats import write_hair
 
     fibers = _fiber_strands(rng)
     path = Path(os.environ.get("TMPDIR", "/tmp")) / f"fuzz-{os.getpid()}-{index}.hair"
@@ -381,7 +381,7 @@ def _run_scene_text(case, workdir):
 
 
 def _run_fibers(case, workdir):
-    from warp_hair.fibers import load_fibers
+    from warp_hair.geometry.formats import load_fibers
     from warp_hair.scene import scene_from_dict
 
     path = workdir / f"mutant-{case.index}{case.data['suffix']}"
@@ -413,7 +413,7 @@ _AXES = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0
 
 def _run_hair_controls(case, workdir):
     import warp_hair as wh
-    from warp_hair.params import HairParams
+    from warp_hair.model.params import HairParams
 
     try:
         params = HairParams(**case.data["controls"])

@@ -23,7 +23,7 @@ import time
 from pathlib import Path
 
 from optimize.target import SHIPPED_TARGETS, TRUTH_FILE, read_target_spec, target_renderer
-from warp_hair.fibers import save_fibers
+from warp_hair.geometry.formats import save_fibers
 from warp_hair.io import write_exr
 from warp_hair.parallel import default_threads
 from warp_hair.scene import load_scene

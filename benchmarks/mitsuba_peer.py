@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from warp_hair.fibers import FiberAssembly
+from warp_hair.geometry.assembly import FiberAssembly
 from warp_hair.scene import DirectionalLight, EnvironmentLight
 
 LIBLLVM = Path("/usr/lib/x86_64-linux-gnu/libLLVM-19.so")

@@ -31,24 +31,17 @@ from pathlib import Path
 import numpy as np
 import warp as wp
 
-from warp_hair.bvh import build_bvh
-from warp_hair.camera import generate_ray
-from warp_hair.envmap import env_sample
-from warp_hair.hair_bsdf import hair_sample, hair_value_pdf, lobe_setup
-from warp_hair.integrator import SceneData, pixel_start, rand2, to_local, to_world
-from warp_hair.intersect import (
-    MAX_LEAF,
-    NO_HIT,
-    TRAVERSAL_COST,
-    _segment_boxes,
-    _segment_frames,
-    intersect,
-    intersect_fibers,
-    occluded,
-)
+from warp_hair.geometry.bvh import build_bvh
+from warp_hair.renderer.camera import generate_ray
+from warp_hair.renderer.envmap import env_sample
+from warp_hair.model.hair_bsdf import hair_sample, hair_value_pdf, lobe_setup
+from warp_hair.renderer.integrator import SceneData, pixel_start, rand2, to_local, to_world
+from warp_hair.geometry.intersect import MAX_LEAF, NO_HIT, TRAVERSAL_COST, intersect_fibers
+from warp_hair.geometry.tubes import _segment_boxes, _segment_frames
+from warp_hair.geometry.rays import intersect, occluded
 from warp_hair.parallel import default_threads
-from warp_hair.render import prepare, render
-from warp_hair.render_jacobian import render_jacobian
+from warp_hair.renderer.forward import prepare, render
+from warp_hair.renderer.jacobian import render_jacobian
 from warp_hair.scene import load_scene
 
 HERE = Path(__file__).resolve().parent

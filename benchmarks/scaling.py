@@ -65,7 +65,7 @@ def with_settings(scene, resolution, depth):
 
 def sweep_swatch(threads) -> list:
     """[(parameter, value, wall s, cpu s, rays)] of the standard swatch's renders, one parameter varied at a time."""
-    from warp_hair.render import prepare, render
+    from warp_hair.renderer.forward import prepare, render
     from warp_hair.scene import load_scene
 
     swatch = load_scene(SWATCH)
@@ -104,8 +104,8 @@ def draped_swatch(segments: int):
 
 def sah_cost(nodes: np.ndarray) -> float:
     """The surface area heuristic cost of a 4-wide fiber BVH (its BvhNode records), relative to its root box."""
-    from warp_hair.bvh import leaf_range
-    from warp_hair.intersect import TRAVERSAL_COST
+    from warp_hair.geometry.bvh import leaf_range
+    from warp_hair.geometry.intersect import TRAVERSAL_COST
 
     lo = np.stack([nodes[f"lo_{a}"] for a in "xyz"], axis=-1).astype(np.float64)
     hi = np.stack([nodes[f"hi_{a}"] for a in "xyz"], axis=-1).astype(np.float64)
@@ -124,7 +124,7 @@ def segments_case(segments: int, threads, numpy_build: bool) -> dict:
     """One size of the segments sweep, in this process: preparation, BVH size and cost, render time, peak memory."""
     import warp as wp
 
-    from warp_hair.render import prepare, render
+    from warp_hair.renderer.forward import prepare, render
 
     wp.init()
     render(draped_swatch(1000), spp=1, threads=threads)  # compile or load the kernels
@@ -146,8 +146,9 @@ def build_times(scene, threads) -> dict:
     sys.path.insert(0, str(HERE.parent / "tests"))
     import reference_bvh
 
-    from warp_hair.bvh import build_bvh
-    from warp_hair.intersect import MAX_LEAF, TRAVERSAL_COST, _segment_boxes, _segment_frames
+    from warp_hair.geometry.bvh import build_bvh
+    from warp_hair.geometry.intersect import MAX_LEAF, TRAVERSAL_COST
+    from warp_hair.geometry.tubes import _segment_boxes, _segment_frames
 
     p0, p1, r0, r1, strand, _ = scene.fibers.segments()
     lowers, uppers = _segment_boxes(_segment_frames(p0, p1, r0, r1, strand))

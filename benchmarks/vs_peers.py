@@ -4,7 +4,7 @@
                                   [--lightings front,back] [--threads N] [--out DIR]
     python benchmarks/vs_peers.py --alpha 5      # the cuticle tilt's sign against Cycles instead
 
-The swatch is made here (`warp_hair.fibers.swatch` with `drape`): 4 layers of 38 straight fibers of radius
+The swatch is made here (`warp_hair.geometry.swatch` with `drape`): 4 layers of 38 straight fibers of radius
 0.004, 0.5 long, draped over a cylinder of radius 0.25 (2 radians of drape), spaced so that no two fibers
 touch: renderers legitimately disagree inside interpenetrating tubes, and real hair does not interpenetrate.
 The camera looks head-on at the middle of the drape, so the highlight band crosses the image. Lit by a
@@ -47,10 +47,11 @@ from pathlib import Path
 
 import numpy as np
 
-from warp_hair.fibers import save_fibers, swatch
+from warp_hair.geometry.formats import save_fibers
+from warp_hair.geometry.generators import swatch
 from warp_hair.io import write_exr, write_png
 from warp_hair.parallel import default_threads
-from warp_hair.render import render
+from warp_hair.renderer.forward import render
 from warp_hair.scene import scene_from_dict
 
 from cycles_peer import import_bpy, render_cycles

@@ -19,9 +19,9 @@ import time
 from pathlib import Path
 
 from warp_hair import cli as render_cli
-from warp_hair.params import HairParams
+from warp_hair.model.params import HairParams
 
-from .controls import DEFAULT_FIT, SPECS, as_values
+from .latents import DEFAULT_FIT, SPECS, as_values
 from .fit import FitSettings
 
 

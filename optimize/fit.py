@@ -34,11 +34,11 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from warp_hair.params import effective_beta
-from warp_hair.render import prepare
+from warp_hair.model.params import effective_beta
+from warp_hair.renderer.forward import prepare
 from warp_hair.torch import render_torch_pair
 
-from .controls import DEFAULT_FIT, EXPOSURE, SPECS, as_values, parse_control_names
+from .latents import DEFAULT_FIT, EXPOSURE, SPECS, as_values, parse_control_names
 from .linearize import linearize
 from .losses import LOSSES, image_loss
 from .refine import REFINABLE_LOSSES, refine

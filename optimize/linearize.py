@@ -27,16 +27,16 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from warp_hair.render import prepare
-from warp_hair.render_jacobian import render_jacobian
+from warp_hair.renderer.forward import prepare
+from warp_hair.renderer.jacobian import render_jacobian
 from warp_hair.torch import default_grad_seed, scene_with_controls
 
-from .controls import EXPOSURE
+from .latents import EXPOSURE
 from .losses import REL_EPSILON, block_mean
 
 CHANNELS = 3  # consecutive residuals of one pixel (or pooled block): R, G, B
 
-# θ columns of render_jacobian (warp_hair.bsdf_grad's ordering).
+# θ columns of render_jacobian (warp_hair.testing.bsdf_grad's ordering).
 COLUMNS = {"beta_m": [3], "beta_n": [4], "alpha": [5], "eta": [6], "r_roughness_scale": [7],
            "albedo": [0, 1, 2], "sigma_a": [0, 1, 2], "eumelanin": [0], "pheomelanin": [1]}
 

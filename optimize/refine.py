@@ -32,7 +32,7 @@ import dataclasses
 
 import numpy as np
 
-from .controls import SPECS, by_control
+from .latents import SPECS, by_control
 from .linearize import Linearization, linearize
 
 LAMBDA_START = 1e-3

@@ -11,9 +11,9 @@ from pathlib import Path
 
 import numpy as np
 
-from warp_hair.params import HairParams
+from warp_hair.model.params import HairParams
 
-from .controls import EXPOSURE, SPECS
+from .latents import EXPOSURE, SPECS
 from .fit import FitResult
 from .target import Target
 

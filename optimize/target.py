@@ -38,8 +38,8 @@ from pathlib import Path
 import numpy as np
 
 from warp_hair.io import read_exr, write_exr
-from warp_hair.params import HairParams
-from warp_hair.render import render, render_metadata
+from warp_hair.model.params import HairParams
+from warp_hair.renderer.forward import render, render_metadata
 from warp_hair.scene import Scene, load_scene
 
 TARGET_FILE = "target.toml"

@@ -27,7 +27,7 @@ import itertools
 
 import numpy as np
 
-from .controls import SPECS, by_control
+from .latents import SPECS, by_control
 from .linearize import Linearization
 
 CORRELATION_WARNING = 0.95

@@ -1,15 +1,15 @@
 """The binned-SAH binary BVH build in NumPy, level by level: the reference the Warp-kernel build of
-`warp_hair.bvh` must reproduce exactly (the same tree: order, boxes, children, levels)."""
+`warp_hair.geometry.bvh` must reproduce exactly (the same tree: order, boxes, children, levels)."""
 
 import math
 
 import numpy as np
 
-from warp_hair.bvh import BINS, MAX_DEPTH, Tree, _half_area, _level_nodes, _round_down, _round_up, leaf_code
+from warp_hair.geometry.bvh import BINS, MAX_DEPTH, Tree, _half_area, _level_nodes, _round_down, _round_up, leaf_code
 
 
 def build_binary(lowers, uppers, max_leaf, traversal_cost) -> Tree:
-    """The binary tree of two or more boxes, built level by level (warp_hair.bvh's docstring); node ids are
+    """The binary tree of two or more boxes, built level by level (warp_hair.geometry.bvh's docstring); node ids are
     assigned in level order. (The build's argument checks and its trees of 0 and 1 boxes are not repeated here.)"""
     lowers = np.asarray(lowers, dtype=np.float64).reshape(-1, 3)
     uppers = np.asarray(uppers, dtype=np.float64).reshape(-1, 3)

@@ -1,4 +1,4 @@
-"""The closed-form ∂S/∂θ of warp_hair.bsdf_jacobian (the gradient tracer's) against Warp's reverse mode
+"""The closed-form ∂S/∂θ of warp_hair.model.jacobian (the gradient tracer's) against Warp's reverse mode
 (bsdf_grad, wp.grad through the same model) and against five-point finite differences of the float64 reference.
 
 Both Warp derivatives are float32, and each is within test_bsdf_grad's allowance of the float64 reference
@@ -44,8 +44,8 @@ from test_bsdf_grad import (
 )
 
 import warp_hair as wh
-from warp_hair import bsdf_grad
-from warp_hair.bsdf_jacobian import (
+from warp_hair.testing import bsdf_grad
+from warp_hair.model.jacobian import (
     CoefficientDerivatives,
     coefficient_derivatives,
     hair_value_jacobian,
@@ -53,9 +53,9 @@ from warp_hair.bsdf_jacobian import (
     lobe_setup_grad,
     value_jacobian_mat,
 )
-from warp_hair.hair_bsdf import HairCoefficients, hair_coefficients, lobe_setup
-from warp_hair.lobes import bessel_i0e_with_log_slope, logistic_norm, longitudinal_norm
-from warp_hair.params import BETA_FLOOR
+from warp_hair.model.hair_bsdf import HairCoefficients, hair_coefficients, lobe_setup
+from warp_hair.model.lobes import bessel_i0e_with_log_slope, logistic_norm, longitudinal_norm
+from warp_hair.model.params import BETA_FLOOR
 
 wp.set_module_options({"enable_backward": False})
 
@@ -326,5 +326,5 @@ def test_custom_albedo_inversion_matches_finite_differences():
         k = coefficient_derivatives(params)
         expected = _central(lambda p: p.sigma_a, controls, "beta_n")
         np.testing.assert_allclose(np.array(k.d_sigma_d_beta_n), expected, rtol=1e-5, atol=1e-9)
-        talk = coefficient_derivatives(params.replace(albedo_inversion=wh.params.TALK_ALBEDO_INVERSION))
+        talk = coefficient_derivatives(params.replace(albedo_inversion=wh.model.params.TALK_ALBEDO_INVERSION))
         assert not np.allclose(np.array(talk.d_sigma_d_beta_n), expected, rtol=1e-2)

@@ -8,9 +8,10 @@ import numpy as np
 import pytest
 import reference_bvh
 
-from warp_hair import bvh
-from warp_hair.fibers import load_fibers, wavy
-from warp_hair.intersect import _segment_boxes, _segment_frames
+from warp_hair.geometry import bvh
+from warp_hair.geometry.formats import load_fibers
+from warp_hair.geometry.generators import wavy
+from warp_hair.geometry.tubes import _segment_boxes, _segment_frames
 
 BENCH_FIBERS = Path(__file__).parents[1] / "benchmarks" / "standard_swatch_fibers.txt"
 

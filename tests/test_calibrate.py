@@ -27,7 +27,7 @@ from warp_hair.calibrate import (
     write_calibrated_scene,
 )
 from warp_hair.cli import main
-from warp_hair.params import TALK_ALBEDO_INVERSION, HairParams, check_albedo_inversion
+from warp_hair.model.params import TALK_ALBEDO_INVERSION, HairParams, check_albedo_inversion
 from warp_hair.scene import DirectionalLight, load_scene, scene_from_dict
 
 wp.config.quiet = True

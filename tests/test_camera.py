@@ -1,11 +1,11 @@
-"""Tests of warp_hair.camera: where rays go, checked against brute-force projection of world points."""
+"""Tests of warp_hair.renderer.camera: where rays go, checked against brute-force projection of world points."""
 
 import math
 
 import numpy as np
 import pytest
 
-from warp_hair.camera import camera_rays
+from warp_hair.renderer.camera import camera_rays
 from warp_hair.scene import Camera
 
 RESOLUTION = (48, 32)  # not square, to tell the horizontal extent from the vertical one

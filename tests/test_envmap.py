@@ -7,7 +7,7 @@ import pytest
 import warp as wp
 from scipy.stats import chi2, kstest
 
-from warp_hair.envmap import (
+from warp_hair.renderer.envmap import (
     EnvironmentData,
     direction_to_uv,
     env_pdf,

@@ -19,7 +19,7 @@ from scipy.special import i0e
 from warp_hair.cli import main
 from warp_hair.export import LossyExportWarning, export, load_look
 from warp_hair.export.cycles import coat_from_r_roughness_scale, node_settings
-from warp_hair.params import HairParams, lobe_variances, logistic_scale
+from warp_hair.model.params import HairParams, lobe_variances, logistic_scale
 
 LOOKS = {
     "albedo": HairParams(albedo=(0.6, 0.4, 0.2), beta_m=0.25, beta_n=0.4, alpha=2.5, eta=1.6),

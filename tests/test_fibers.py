@@ -1,4 +1,4 @@
-"""Tests of warp_hair.fibers: the fiber container, its two file formats and the procedural generators."""
+"""Tests of warp_hair.geometry: the fiber container, its two file formats and the procedural generators."""
 
 import struct
 from pathlib import Path
@@ -6,16 +6,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from warp_hair.fibers import (
-    FiberAssembly,
-    FiberDataError,
-    curly,
-    fur,
-    load_fibers,
-    save_fibers,
-    swatch,
-    wavy,
-)
+from warp_hair.geometry.assembly import FiberAssembly, FiberDataError
+from warp_hair.geometry.generators import curly, fur, swatch, wavy
+from warp_hair.geometry.formats import load_fibers, save_fibers
 
 BENCH_FIBERS = Path(__file__).parents[1] / "benchmarks" / "standard_swatch_fibers.txt"
 GENERATORS = [swatch, wavy, curly, fur]
@@ -423,7 +416,7 @@ def test_fur_rejects_fibers_that_would_not_rise():
 def test_draped_swatch_lies_on_its_cylinder():
     """drape bends the flat swatch over a cylinder (axis along x at z = −R): each fiber keeps its distance to the
     axis (R + its flat z) and its length along y becomes arc length."""
-    from warp_hair.fibers import swatch
+    from warp_hair.geometry.generators import swatch
 
     flat = swatch(count=12, layers=2, length=0.5, width=0.2, segments=48, jitter=0.0, seed=2)
     draped = swatch(count=12, layers=2, length=0.5, width=0.2, segments=48, jitter=0.0, seed=2, drape=0.25)

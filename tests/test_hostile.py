@@ -14,9 +14,11 @@ import pytest
 import warp_hair as wh
 from warp_hair import validate
 from warp_hair.cli import main
-from warp_hair.fibers import FiberAssembly, load_fibers, save_fibers, swatch
+from warp_hair.geometry.assembly import FiberAssembly
+from warp_hair.geometry.formats import load_fibers, save_fibers
+from warp_hair.geometry.generators import swatch
 from warp_hair.io import write_exr
-from warp_hair.params import HairParams
+from warp_hair.model.params import HairParams
 from warp_hair.scene import scene_from_dict
 
 import reference_model as reference

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import warp_hair as wh
-from warp_hair.params import HairParams
+from warp_hair.model.params import HairParams
 
 
 @pytest.mark.parametrize(

@@ -1,4 +1,4 @@
-"""Tests of warp_hair.intersect: exact entering hits on mitred, open-ended fiber tubes.
+"""Tests of warp_hair.geometry.intersect: exact entering hits on mitred, open-ended fiber tubes.
 
 The reference is a float64 NumPy brute force of the same definition, written independently of the module:
 for every tube the ray–cylinder quadratic, its entering root, and the two clip planes (mitre planes at
@@ -10,9 +10,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from warp_hair import bvh as bvh_module
-from warp_hair.fibers import FiberAssembly, load_fibers, wavy
-from warp_hair.intersect import STACK_SIZE, FiberBVH, intersect, occluded
+from warp_hair.geometry import bvh as bvh_module
+from warp_hair.geometry.assembly import FiberAssembly
+from warp_hair.geometry.formats import load_fibers
+from warp_hair.geometry.generators import wavy
+from warp_hair.geometry.intersect import STACK_SIZE
+from warp_hair.geometry.tubes import FiberBVH
+from warp_hair.geometry.rays import intersect, occluded
 
 BENCH_FIBERS = Path(__file__).parents[1] / "benchmarks" / "standard_swatch_fibers.txt"
 T_MIN_RADII = 1e-3
@@ -546,7 +550,7 @@ def test_benchmark_swatch_orthographic_grid():
 
 
 def check_tree(tree, lowers, uppers, max_leaf):
-    """The invariants of warp_hair.bvh's layout: every primitive in exactly one leaf of at most max_leaf, every
+    """The invariants of warp_hair.geometry.bvh's layout: every primitive in exactly one leaf of at most max_leaf, every
     child box (float32) enclosing what lies below it, children numbered after their parents, the depth."""
     m = len(lowers)
     assert sorted(tree.order.tolist()) == list(range(m))

@@ -5,7 +5,7 @@ import pytest
 from sphere import direction, from_angles, midpoint_grid, random_directions
 
 import warp_hair as wh
-from warp_hair.params import EUMELANIN_SIGMA_A, PHEOMELANIN_SIGMA_A
+from warp_hair.model.params import EUMELANIN_SIGMA_A, PHEOMELANIN_SIGMA_A
 
 
 def test_residual_lobe_is_the_series_sum():

@@ -12,7 +12,7 @@ import pytest
 import torch
 
 from optimize.cli import main
-from optimize.controls import SPECS, parse_control_names
+from optimize.latents import SPECS, parse_control_names
 from optimize.fit import FitSettings, check_settings, spp_at
 from optimize.linearize import Linearization, linearize
 from optimize.losses import image_loss
@@ -20,8 +20,8 @@ from optimize.refine import inside, mean_covariance
 from optimize.uncertainty import estimate_uncertainty
 from optimize.target import SHIPPED_TARGETS, load_target, make_target, shipped_targets
 from warp_hair.io import read_exr, write_exr
-from warp_hair.params import TALK_ALBEDO_INVERSION
-from warp_hair.render import render
+from warp_hair.model.params import TALK_ALBEDO_INVERSION
+from warp_hair.renderer.forward import render
 from warp_hair.torch import default_grad_seed, scene_with_controls
 
 SCENE = """
@@ -92,7 +92,7 @@ def test_latent_round_trip_stays_inside_the_interval(name):
 @pytest.mark.parametrize("inversion", [TALK_ALBEDO_INVERSION, (4.0, 3.0, -6.0, 2.0, 1.0, -0.5)])
 def test_albedo_latent_is_log_sigma_a_of_the_inversion(inversion):
     """With the talk's coefficients and with custom ones: the latent follows the material's own inversion."""
-    from warp_hair.params import sigma_a_from_albedo
+    from warp_hair.model.params import sigma_a_from_albedo
 
     albedo = torch.tensor([0.05, 0.5, 0.95], dtype=torch.float64)
     for beta_n in (0.01, 0.3, 0.9):

@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 import reference_model as ref
 
-from warp_hair.fibers import FiberAssembly
-from warp_hair.render import render
+from warp_hair.geometry.assembly import FiberAssembly
+from warp_hair.renderer.forward import render
 from warp_hair.scene import EnvironmentLight, scene_from_dict
 
 

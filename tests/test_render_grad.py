@@ -1,4 +1,4 @@
-"""Render-level gradients (warp_hair.render_grad) against finite differences of `render`.
+"""Render-level gradients (warp_hair.renderer.gradients) against finite differences of `render`.
 
 The scene is a sparse single layer of fibers (24 strands over a 16×16 view) under a directional light and a
 constant sky, max_depth 8 without roulette. Sparse on purpose: a central difference of `render` with common
@@ -12,8 +12,8 @@ difference of their means. One test compares them without common random numbers,
 import numpy as np
 import pytest
 
-from warp_hair.render import render
-from warp_hair.render_grad import render_grad
+from warp_hair.renderer.forward import render
+from warp_hair.renderer.gradients import render_grad
 from warp_hair.scene import scene_from_dict
 
 HAIR = {"albedo": [0.7, 0.5, 0.3], "beta_m": 0.3, "beta_n": 0.35, "alpha": 2.0, "eta": 1.55, "r_roughness_scale": 1.5}

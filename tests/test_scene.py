@@ -8,7 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from warp_hair.fibers import save_fibers, swatch
+from warp_hair.geometry.formats import save_fibers
+from warp_hair.geometry.generators import swatch
 from warp_hair.io import write_exr
 from warp_hair.scene import (
     Camera,

@@ -9,9 +9,10 @@ import pytest
 pxr = pytest.importorskip("pxr", reason="usd-core is the `usd` extra")
 from pxr import Gf, Usd, UsdGeom  # noqa: E402
 
-from warp_hair.fibers import load_fibers, save_fibers, swatch  # noqa: E402
+from warp_hair.geometry.formats import load_fibers, save_fibers
+from warp_hair.geometry.generators import swatch
 from warp_hair.scene import load_scene  # noqa: E402
-from warp_hair.usd import UsdCurveError, read_usd  # noqa: E402
+from warp_hair.geometry.usd import UsdCurveError, read_usd
 
 RNG = np.random.default_rng(7)
 SEGMENTS = 5

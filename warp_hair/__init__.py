@@ -12,10 +12,11 @@ import warp as wp
 # Warp logs every module load at INFO; users want warnings and errors only.
 wp.config.log_level = wp.LOG_WARNING
 
-from . import bsdf, fibers, io  # noqa: E402
-from .params import HairParams  # noqa: E402
-from .render import render  # noqa: E402  (the function; the module stays importable as warp_hair.render)
+from . import geometry, io  # noqa: E402
+from .model import bsdf  # noqa: E402
+from .model.params import HairParams  # noqa: E402
+from .renderer.forward import prepare, render  # noqa: E402
 from .scene import load_scene, scene_from_dict  # noqa: E402
 
-__all__ = ["HairParams", "bsdf", "fibers", "io", "load_scene", "render", "scene_from_dict"]
+__all__ = ["HairParams", "bsdf", "geometry", "io", "load_scene", "prepare", "render", "scene_from_dict"]
 __version__ = "0.1.0"

@@ -32,9 +32,10 @@ from pathlib import Path
 
 import numpy as np
 
-from .camera import camera_rays
-from .intersect import FiberBVH, occluded
-from .params import (
+from .renderer.camera import camera_rays
+from .geometry.tubes import FiberBVH
+from .geometry.rays import occluded
+from .model.params import (
     ALBEDO_INVERSION_DEGREE,
     ALBEDO_INVERSION_KEY,
     ALBEDO_INVERSION_RANGE,
@@ -42,7 +43,7 @@ from .params import (
     check_albedo_inversion,
     effective_beta,
 )
-from .render import render
+from .renderer.forward import render
 from .scene import DirectionalLight, EnvironmentLight, Scene, scene_from_dict
 
 DEFAULT_SIGMA_A = (0.002, 0.01, 0.04, 0.12, 0.35)

@@ -25,7 +25,7 @@ import warnings
 from pathlib import Path
 
 from . import validate
-from .params import ETA_MAX, R_ROUGHNESS_SCALE_RANGE, HairParams
+from .model.params import ETA_MAX, R_ROUGHNESS_SCALE_RANGE, HairParams
 
 PROG = "warp-hair"
 DEFAULT_ALBEDO = (0.6, 0.4, 0.2)
@@ -109,7 +109,7 @@ def render_scene(args: argparse.Namespace) -> None:
     import time
 
     from .io import write_exr, write_png
-    from .render import render, render_metadata
+    from .renderer.forward import render, render_metadata
     from .scene import load_scene
 
     check_sampling_args(args)
@@ -243,7 +243,7 @@ def calibrate_scene(args: argparse.Namespace) -> None:
         inversion_toml,
         write_calibrated_scene,
     )
-    from .render import sampling
+    from .renderer.forward import sampling
     from .scene import load_scene
 
     sigma_a, beta_n = check_grid(args.sigma_a or DEFAULT_SIGMA_A, args.beta_n or DEFAULT_BETA_N)

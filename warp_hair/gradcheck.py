@@ -40,8 +40,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .render import prepare, render
-from .render_grad import render_grad
+from .renderer.forward import prepare, render
+from .renderer.gradients import render_grad
 from .scene import Scene
 from .validate import SEED_LIMIT
 

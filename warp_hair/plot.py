@@ -19,7 +19,7 @@ from matplotlib.figure import Figure
 from matplotlib.ticker import NullLocator
 
 from . import bsdf
-from .params import HairParams
+from .model.params import HairParams
 
 LOBE_NAMES = ("R", "TT", "TRT", "residual")
 LOBE_COLOURS = ("tab:blue", "tab:orange", "tab:green", "tab:purple")

@@ -21,16 +21,18 @@ from pathlib import Path
 
 import numpy as np
 
-from . import fibers as fiber_module
+from . import geometry as fiber_module
 from . import validate
-from .fibers import USD_SUFFIXES, FiberAssembly, load_fibers
+from .geometry.assembly import FiberAssembly
+from .geometry.formats import load_fibers
+from .geometry.usd import SUFFIXES as USD_SUFFIXES
 from .io import read_exr
-from .params import ALBEDO_INVERSION_KEY, CONTROL_NAMES, HairParams
+from .model.params import ALBEDO_INVERSION_KEY, CONTROL_NAMES, HairParams
 
 CAMERA_TYPES = ("orthographic", "perspective")
 TABLES = ("camera", "lights", "fibers", "hair", "render", "card")
 GENERATORS = {name: getattr(fiber_module, name) for name in ("swatch", "wavy", "curly", "fur")}
-# The [fibers] keys a USD file takes besides `file` (warp_hair.usd documents them).
+# The [fibers] keys a USD file takes besides `file` (warp_hair.geometry.usd documents them).
 USD_FIBER_OPTIONS = ("prim", "radius", "segments")
 # Generator arguments that must be integers; `patch` takes one number or two; every other argument one number.
 INTEGER_GENERATOR_ARGS = frozenset({"count", "layers", "segments", "seed"})
@@ -238,7 +240,7 @@ class RenderSettings:
     """Samples per pixel, the longest path (bounces), the seed, the bounce after which Russian roulette
     may end paths, and the fibers' shading tangents: "smooth" (turning continuously along each strand, as the
     curve through its vertices does) or "segment" (each segment's own axis, the polyline's frame with its steps
-    at the joints; `warp_hair.intersect` explains both)."""
+    at the joints; `warp_hair.geometry.intersect` explains both)."""
 
     spp: int = 64
     max_depth: int = 64

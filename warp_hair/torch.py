@@ -63,10 +63,10 @@ import dataclasses
 import numpy as np
 import torch
 
-from .params import CONTROL_NAMES
-from .render import PreparedScene, render, sampling, scene_of
-from .render_grad import contract, contract_crossed, named_gradients
-from .render_jacobian import render_jacobian
+from .model.params import CONTROL_NAMES
+from .renderer.forward import PreparedScene, render, sampling, scene_of
+from .renderer.gradients import contract, contract_crossed, named_gradients
+from .renderer.jacobian import render_jacobian
 from .scene import Scene
 
 COLOUR_CONTROLS = {"albedo": ("albedo",), "sigma_a": ("sigma_a",), "melanin": ("eumelanin", "pheomelanin")}

@@ -18,7 +18,7 @@ import json
 import tomllib
 from pathlib import Path
 
-from ..params import CONTROL_NAMES, HairParams
+from ..model.params import CONTROL_NAMES, HairParams
 from . import cycles, materialx, mitsuba, pbrt
 from .common import LossyExportWarning
 

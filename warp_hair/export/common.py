@@ -13,7 +13,7 @@ import warnings
 
 import numpy as np
 
-from ..params import HairParams, effective_beta
+from ..model.params import HairParams, effective_beta
 
 # The sign each renderer's tilt parameter takes relative to ours (see the module docstring).
 TILT_SIGN = {"mitsuba": -1.0, "pbrt": -1.0, "cycles": 1.0, "materialx": 1.0}

@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import math
 
-from ..params import TALK_ALBEDO_INVERSION, HairParams
+from ..model.params import TALK_ALBEDO_INVERSION, HairParams
 from .common import fmt, lossy, roughness, sigma_a, tilt_degrees
 
 NAME = "cycles"

@@ -22,7 +22,7 @@ from __future__ import annotations
 import math
 import xml.etree.ElementTree as ET
 
-from ..params import HairParams
+from ..model.params import HairParams
 from .common import fmt, lossy, roughness, sigma_a, tilt_degrees
 
 NAME = "materialx"

@@ -5,7 +5,7 @@
 
 Conversion (Mitsuba 3.9, src/bsdfs/hair.cpp, class Hair: the constructor's properties and `update()`):
 - `sigma_a` (rgb): Mitsuba has no albedo input, so an albedo look is inverted here with the talk's formula at
-  the fitted β_n (`warp_hair.params.sigma_a_from_albedo`); melanin looks are given as their σ_a too. Mitsuba's
+  the fitted β_n (`warp_hair.model.params.sigma_a_from_albedo`); melanin looks are given as their σ_a too. Mitsuba's
   σ_a is per unit fiber radius (`absorption()` uses it unscaled, with `scale` 1), as ours. Exact in the RGB
   variants; spectral variants upsample the RGB coefficient.
 - `longitudinal_roughness`, `azimuthal_roughness` = β_m, β_n: `update()` applies the talk's mappings, with
@@ -24,7 +24,7 @@ from __future__ import annotations
 
 from xml.sax.saxutils import quoteattr
 
-from ..params import HairParams
+from ..model.params import HairParams
 from .common import fmt, no_r_roughness_scale, roughness, sigma_a, tilt_degrees
 
 NAME = "mitsuba"

@@ -3,7 +3,7 @@
 Conversion (pbrt-v4 src/pbrt/materials.cpp `HairMaterial::Create`, materials.h `HairMaterial::GetBxDF`,
 bxdfs.cpp `HairBxDF::HairBxDF`):
 - `"rgb sigma_a"`: the absorption per unit fiber radius, as ours; an albedo look is inverted here at the fitted
-  β_n (`warp_hair.params.sigma_a_from_albedo`). This is the exact one: pbrt's own `reflectance` (alias `color`)
+  β_n (`warp_hair.model.params.sigma_a_from_albedo`). This is the exact one: pbrt's own `reflectance` (alias `color`)
   is an albedo *spectrum*, clamped to [0, 1] and upsampled from RGB, and `HairBxDF::SigmaAFromReflectance`
   inverts it per wavelength: that is not the per-channel inversion of the RGB albedo ours does. (pbrt renders
   spectrally either way: the RGB coefficient itself is upsampled as an unbounded spectrum.)
@@ -18,7 +18,7 @@ pbrt reads the fiber offset h from the curve's v coordinate: use it on `Shape "c
 
 from __future__ import annotations
 
-from ..params import HairParams
+from ..model.params import HairParams
 from .common import fmt, no_r_roughness_scale, roughness, sigma_a, tilt_degrees
 
 NAME = "pbrt"

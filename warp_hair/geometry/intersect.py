@@ -48,7 +48,7 @@ consistent as the BSDF assumes. The geometry stays the mitred tubes.
 
 BVH traversal
 -------------
-The tubes' boxes go into a 4-wide BVH (`warp_hair.bvh`, which documents the layout and the build): each
+The tubes' boxes go into a 4-wide BVH (`warp_hair.geometry.bvh`, which documents the layout and the build): each
 `BvhNode` holds the boxes of its four children as six vec4 (one per bound, children 0..3) and their
 references, and the per-tube data sits in one `Tube` struct array in leaf order, so that a leaf reads one
 contiguous block. A traversal keeps a fixed-size local stack (`NodeStack`, a Warp vector of STACK_SIZE ints;
@@ -70,10 +70,9 @@ of the visit.
 
 from __future__ import annotations
 
-import numpy as np
 import warp as wp
 
-from .bvh import LEAF_BITS, MAX_LEAF_SIZE, build_bvh
+from .bvh import LEAF_BITS, MAX_LEAF_SIZE
 
 wp.set_module_options({"enable_backward": False})
 
@@ -86,10 +85,6 @@ SURFACE_BAND2 = wp.constant(1.002001)
 MIN_SIN2 = wp.constant(1.0e-12)
 # Stand-in for zero direction components in the BVH slab test.
 TINY = wp.constant(1.0e-30)
-# Tubes per BVH leaf, at most, and the cost of a node visit relative to a tube test (for the surface area
-# heuristic). Measured on the benchmark swatch: leaves of 1 or 2 tubes are a few percent faster than of 4 or 7.
-MAX_LEAF = 2
-TRAVERSAL_COST = 1.0
 # Slots of the traversal stack. A 4-wide node leaves at most 3 children pending and a traversal writes up to
 # 3 slots past those, so a tree of depth D needs 3·D slots; `build_bvh` keeps D <= bvh.MAX_DEPTH / 2 = 20.
 STACK_SIZE = 64
@@ -100,13 +95,6 @@ LEAF_SHIFT = wp.constant(LEAF_BITS)
 LEAF_MASK = wp.constant(MAX_LEAF_SIZE)
 # The traversal's "no node left".
 DONE = wp.constant(2**31 - 1)
-
-# Mitre joints overlap by this many radii past the mitre plane (see the module docstring).
-JOINT_OVERLAP = 1.0e-3
-# Joints bent further than this (cos of the angle between the segments) are clipped like strand ends.
-MIN_JOINT_COS = -0.9
-# Segments shorter than this many radii are treated as zero-length.
-MIN_LENGTH_RADII = 1.0e-6
 
 
 @wp.struct
@@ -123,7 +111,7 @@ class Tube:
 
 @wp.struct
 class BvhNode:
-    """A node of the 4-wide fiber BVH (`warp_hair.bvh`): the boxes of its four children, one vec4 (children
+    """A node of the 4-wide fiber BVH (`warp_hair.geometry.bvh`): the boxes of its four children, one vec4 (children
     0..3) per bound, and what the children are."""
 
     lo_x: wp.vec4
@@ -397,232 +385,3 @@ def fibers_occluded(g: FiberGeometry, origin: wp.vec3, direction: wp.vec3, t_max
             sp -= 1
             ref = int(stack[sp])
     return False
-
-
-class FiberBVH:
-    """The tube data and 4-wide BVH of a `FiberAssembly` on a device; keeps them alive.
-
-    `geometry` is the `FiberGeometry` that kernels take; `bounds` is (lo (3,), hi (3,)) float64, the box
-    around every tube. Segment indices are those of `assembly.segments()`. `smooth_tangents=False` gives
-    `shading_frame` each segment's own axis: the polyline's frame, with its jumps at the joints.
-    """
-
-    def __init__(self, assembly, device="cpu", smooth_tangents=True):
-        self.device = device
-        p0, p1, r0, r1, strand, _ = assembly.segments()
-        seg = _segment_frames(p0, p1, r0, r1, strand)
-        lowers, uppers = _segment_boxes(seg)
-        if len(lowers):
-            self.bounds = (lowers.min(axis=0), uppers.max(axis=0))
-        else:
-            self.bounds = (np.zeros(3), np.zeros(3))
-
-        tree = build_bvh(lowers, uppers, max_leaf=MAX_LEAF, width=4, traversal_cost=TRAVERSAL_COST)
-        if 3 * tree.depth > STACK_SIZE:
-            raise ValueError(f"BVH depth {tree.depth} is too deep for the traversal stack ({STACK_SIZE})")
-        order = tree.order
-        nodes = np.zeros(len(tree.child), dtype=BvhNode.numpy_dtype())
-        for k, axis in enumerate("xyz"):
-            nodes[f"lo_{axis}"] = tree.lo[:, :, k]
-            nodes[f"hi_{axis}"] = tree.hi[:, :, k]
-        nodes["child"] = tree.child
-        tubes = np.zeros(len(order), dtype=Tube.numpy_dtype())
-        for name in ("center", "axis", "mitre0", "mitre1", "clip", "radius"):
-            tubes[name] = seg[name][order]
-
-        g = FiberGeometry()
-        g.nodes = wp.array(nodes, dtype=BvhNode, device=device)
-        g.tubes = wp.array(tubes, dtype=Tube, device=device)
-        g.segment = wp.array(order.astype(np.int32), dtype=wp.int32, device=device)
-        g.strand = wp.array(np.asarray(strand, dtype=np.int32)[order], dtype=wp.int32, device=device)
-        g.num_segments = len(p0)
-        length = np.linalg.norm(seg["p1"] - seg["p0"], axis=1)
-        step = seg["axis"] / np.where(length > 0.0, length, 1.0)[:, None]
-        tangent0, tangent1 = seg["tangent0"], seg["tangent1"]
-        if not smooth_tangents:
-            tangent0, tangent1 = seg["axis"], seg["axis"]
-        for name, values in (("start", seg["p0"]), ("step", step), ("tangent0", tangent0), ("tangent1", tangent1)):
-            setattr(g, name, wp.array(values.astype(np.float32), dtype=wp.vec3, device=device))
-        self._geometry = g
-
-    @property
-    def geometry(self) -> FiberGeometry:
-        return self._geometry
-
-    @property
-    def num_segments(self) -> int:
-        return self._geometry.num_segments
-
-
-def _segment_frames(p0, p1, r0, r1, strand):
-    """Per-segment centre, unit axis, radius, clip-plane normals and offsets, in float64."""
-    p0 = np.asarray(p0, dtype=np.float64)
-    p1 = np.asarray(p1, dtype=np.float64)
-    radius = (np.asarray(r0, dtype=np.float64) + np.asarray(r1, dtype=np.float64)) / 2
-    center = (p0 + p1) / 2
-    length = np.linalg.norm(p1 - p0, axis=1)
-    solid = length > MIN_LENGTH_RADII * radius
-    axis = np.zeros_like(p0)
-    axis[solid] = (p1 - p0)[solid] / length[solid, None]
-
-    mitre0, mitre1 = axis.copy(), -axis
-    overlap0, overlap1 = np.zeros_like(radius), np.zeros_like(radius)
-    # Joint k sits between segments k and k + 1 of the same strand.
-    joint = np.flatnonzero(
-        (strand[1:] == strand[:-1])
-        & solid[1:]
-        & solid[:-1]
-        & (np.einsum("ij,ij->i", axis[1:], axis[:-1]) > MIN_JOINT_COS)
-    )
-    bisector = axis[joint] + axis[joint + 1]
-    bisector /= np.linalg.norm(bisector, axis=1, keepdims=True)
-    mitre1[joint] = -bisector
-    mitre0[joint + 1] = bisector
-    overlap1[joint] = JOINT_OVERLAP * radius[joint]
-    overlap0[joint + 1] = JOINT_OVERLAP * radius[joint + 1]
-    # Vertex tangents for the shading frame: the bisector at a mitred joint, the segment's axis elsewhere.
-    tangent0, tangent1 = axis.copy(), axis.copy()
-    tangent1[joint] = bisector
-    tangent0[joint + 1] = bisector
-
-    clip = np.stack(
-        [
-            np.einsum("ij,ij->i", p0 - center, mitre0) - overlap0,
-            np.einsum("ij,ij->i", p1 - center, mitre1) - overlap1,
-        ],
-        axis=1,
-    )
-    return {
-        "p0": p0,
-        "p1": p1,
-        "center": center,
-        "axis": axis,
-        "radius": radius,
-        "mitre0": mitre0,
-        "mitre1": mitre1,
-        "clip": clip,
-        "tangent0": tangent0,
-        "tangent1": tangent1,
-    }
-
-
-def _segment_boxes(seg):
-    """Boxes around each clipped tube: the union of the boxes of its two end ellipses, padded for rounding."""
-    axis, radius = seg["axis"], seg["radius"]
-    # Rows k of the projector I − a aᵀ: the unit axis e_k with its component along the tube axis removed.
-    projector = np.eye(3)[None] - axis[:, :, None] * axis[:, None, :]
-    lowers, uppers = [], []
-    for end, mitre in ((seg["p0"], seg["mitre0"]), (seg["p1"], seg["mitre1"])):
-        cos = np.einsum("ij,ij->i", axis, mitre)
-        cos = np.where(cos != 0, cos, 1.0)  # zero-length segments (zero axis and normals): a point
-        mitre_perp = mitre - cos[:, None] * axis
-        # The ellipse is end + r·(u − (u·m)/(a·m)·a) over unit u ⊥ a: its extent along e_k is
-        # r·|e_k⊥ − (a_k / (a·m))·m⊥|.
-        spread = projector - (axis / cos[:, None])[:, :, None] * mitre_perp[:, None, :]
-        half = radius[:, None] * np.linalg.norm(spread, axis=2)
-        lowers.append(end - half)
-        uppers.append(end + half)
-    lo = np.minimum(*lowers)
-    hi = np.maximum(*uppers)
-    # The joint overlap reaches a few 1e-3·r past the plane; float32 rounding of the corners is relative.
-    pad = 0.01 * radius[:, None] + 1e-6 * np.maximum(np.abs(lo), np.abs(hi))
-    return lo - pad, hi + pad
-
-
-@wp.kernel
-def _intersect_kernel(
-    g: FiberGeometry,
-    origins: wp.array(dtype=wp.vec3),
-    directions: wp.array(dtype=wp.vec3),
-    t_max: wp.array(dtype=float),
-    t: wp.array(dtype=float),
-    segment: wp.array(dtype=wp.int32),
-    strand: wp.array(dtype=wp.int32),
-    position: wp.array(dtype=wp.vec3),
-    tangent: wp.array(dtype=wp.vec3),
-    normal: wp.array(dtype=wp.vec3),
-    h: wp.array(dtype=float),
-    shading_tangent: wp.array(dtype=wp.vec3),
-    shading_normal: wp.array(dtype=wp.vec3),
-    shading_h: wp.array(dtype=float),
-):
-    k = wp.tid()
-    hit = intersect_fibers(g, origins[k], directions[k], t_max[k])
-    t[k] = hit.t
-    segment[k] = wp.int32(hit.segment)
-    strand[k] = wp.int32(hit.strand)
-    position[k] = hit.position
-    tangent[k] = hit.tangent
-    normal[k] = hit.normal
-    h[k] = hit.h
-    if hit.segment >= 0:
-        x, z, hs = shading_frame(g, hit, directions[k])
-        shading_tangent[k] = x
-        shading_normal[k] = z
-        shading_h[k] = hs
-
-
-@wp.kernel
-def _occluded_kernel(
-    g: FiberGeometry,
-    origins: wp.array(dtype=wp.vec3),
-    directions: wp.array(dtype=wp.vec3),
-    t_max: wp.array(dtype=float),
-    blocked: wp.array(dtype=wp.int32),
-):
-    k = wp.tid()
-    blocked[k] = wp.where(fibers_occluded(g, origins[k], directions[k], t_max[k]), 1, 0)
-
-
-def _rays(bvh, origins, directions, t_max):
-    """Device arrays of origins, unit directions and t_max (a scalar or one per ray, capped at NO_HIT)."""
-    origins = np.asarray(origins, dtype=np.float64).reshape(-1, 3)
-    directions = np.asarray(directions, dtype=np.float64).reshape(-1, 3)
-    if origins.shape != directions.shape:
-        raise ValueError(f"origins {origins.shape} and directions {directions.shape} differ in shape")
-    directions = directions / np.linalg.norm(directions, axis=1, keepdims=True)
-    t_max = np.minimum(np.broadcast_to(np.asarray(t_max, dtype=np.float64), len(origins)), 1.0e30)
-    return (
-        wp.array(origins.astype(np.float32), dtype=wp.vec3, device=bvh.device),
-        wp.array(directions.astype(np.float32), dtype=wp.vec3, device=bvh.device),
-        wp.array(t_max.astype(np.float32), dtype=float, device=bvh.device),
-    )
-
-
-def intersect(bvh: FiberBVH, origins, directions, t_max=np.inf) -> dict:
-    """Closest entering hits of N rays (origins, directions (N, 3); directions are normalized here; t_max a
-    scalar or (N,)).
-
-    Returns numpy arrays: t (N,) (np.inf on a miss), segment and strand (N,) (−1 on a miss), position,
-    tangent, normal (N, 3) and h (N,), and the BSDF's frame from `shading_frame`: shading_tangent,
-    shading_normal (N, 3) and shading_h (N,) (zeros on a miss).
-    """
-    o, d, limit = _rays(bvh, origins, directions, t_max)
-    n = len(o)
-    device = bvh.device
-    out = {
-        "t": wp.empty(n, dtype=float, device=device),
-        "segment": wp.empty(n, dtype=wp.int32, device=device),
-        "strand": wp.empty(n, dtype=wp.int32, device=device),
-        "position": wp.empty(n, dtype=wp.vec3, device=device),
-        "tangent": wp.empty(n, dtype=wp.vec3, device=device),
-        "normal": wp.empty(n, dtype=wp.vec3, device=device),
-        "h": wp.empty(n, dtype=float, device=device),
-        "shading_tangent": wp.zeros(n, dtype=wp.vec3, device=device),
-        "shading_normal": wp.zeros(n, dtype=wp.vec3, device=device),
-        "shading_h": wp.zeros(n, dtype=float, device=device),
-    }
-    if n:
-        wp.launch(_intersect_kernel, dim=n, inputs=[bvh.geometry, o, d, limit, *out.values()], device=device)
-    result = {key: value.numpy() for key, value in out.items()}
-    result["t"] = np.where(result["segment"] >= 0, result["t"].astype(np.float64), np.inf)
-    return result
-
-
-def occluded(bvh: FiberBVH, origins, directions, t_max=np.inf) -> np.ndarray:
-    """(N,) bool: whether each ray has an entering hit before t_max (`fibers_occluded`, batched)."""
-    o, d, limit = _rays(bvh, origins, directions, t_max)
-    blocked = wp.zeros(len(o), dtype=wp.int32, device=bvh.device)
-    if len(o):
-        wp.launch(_occluded_kernel, dim=len(o), inputs=[bvh.geometry, o, d, limit, blocked], device=bvh.device)
-    return blocked.numpy().astype(bool)

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 import torch
 
-from warp_hair.params import ALPHA_RANGE_DEG, BETA_FLOOR, ETA_MAX, R_ROUGHNESS_SCALE_RANGE, albedo_polynomial
+from warp_hair.model.params import ALPHA_RANGE_DEG, BETA_FLOOR, ETA_MAX, R_ROUGHNESS_SCALE_RANGE, albedo_polynomial
 
 EXPOSURE = "exposure"
 DEFAULT_FIT = ("albedo", "beta_m", "beta_n")

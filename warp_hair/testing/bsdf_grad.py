@@ -55,10 +55,10 @@ import math
 import numpy as np
 import warp as wp
 
-from .bsdf import _check_params, _directions, _launch, _offsets
-from .hair_bsdf import HairCoefficients, hair_value_pdf, lobe_setup
-from .lobes import PI
-from .params import ALBEDO_INVERSION_DEGREE, BETA_FLOOR, EUMELANIN_SIGMA_A, PHEOMELANIN_SIGMA_A, HairParams
+from ..model.bsdf import _check_params, _directions, _launch, _offsets
+from ..model.hair_bsdf import HairCoefficients, hair_value_pdf, lobe_setup
+from ..model.lobes import PI
+from ..model.params import ALBEDO_INVERSION_DEGREE, BETA_FLOOR, EUMELANIN_SIGMA_A, PHEOMELANIN_SIGMA_A, HairParams
 
 # wp.grad runs forward only: the kernels here need no backward pass of their own.
 wp.set_module_options({"enable_backward": False})

@@ -1,6 +1,6 @@
 """USD grooms: `UsdGeom.BasisCurves` in and out (needs the `usd` extra: `pip install -e ".[usd]"`, usd-core).
 
-    from warp_hair.fibers import load_fibers, save_fibers
+    from warp_hair.geometry import load_fibers, save_fibers
     fibers = load_fibers("groom.usda")                              # every BasisCurves prim on the stage
     fibers = load_fibers("groom.usd", prim="/Groom/hair", radius=0.004, segments=8)
     save_fibers(fibers, "groom.usdc")                               # one linear BasisCurves prim, /Groom/hair
@@ -70,7 +70,7 @@ def _pxr(path):
 
 def read_usd(path, *, prim=None, radius=None, segments=DEFAULT_SEGMENTS):
     """A FiberAssembly from the BasisCurves of a USD stage (see the module docstring)."""
-    from .fibers import FiberAssembly, FiberDataError
+    from .assembly import FiberAssembly, FiberDataError
 
     path = Path(path)
     Usd, UsdGeom = _pxr(path)

@@ -12,7 +12,7 @@ import math
 import numpy as np
 import warp as wp
 
-from .scene import Camera
+from ..scene import Camera
 
 
 @wp.struct

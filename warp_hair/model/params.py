@@ -2,7 +2,7 @@
 
 Everything here is plain float64 NumPy: it runs once per material, not per sample. The Warp kernels read
 the derived coefficients (σ_a, per-lobe longitudinal variance, logistic scale, tilt) from
-`warp_hair.hair_bsdf.HairCoefficients`.
+`warp_hair.model.hair_bsdf.HairCoefficients`.
 """
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import validate
+from .. import validate
 
 # Below this roughness the lobes are narrower than float32 angles can resolve, and at 0 the mappings give
 # v = s = 0 (a delta lobe no path tracer can sample). pbrt, Mitsuba and Cycles clamp the same way.

@@ -10,11 +10,11 @@ sampling combined with the power heuristic) and an optional diffuse backing card
 import warp as wp
 
 from .camera import CameraData, generate_ray
-from .card import NO_HIT, CardData, card_distance
+from ..geometry.card import NO_HIT, CardData, card_distance
 from .envmap import EnvironmentData, env_pdf, env_radiance, env_sample
-from .hair_bsdf import FLOAT32_MIN_NORMAL, HairCoefficients, LobeSetup, hair_sample, hair_value_pdf, lobe_setup
-from .intersect import FiberGeometry, fibers_occluded, intersect_fibers, shading_frame
-from .bsdf_jacobian import (
+from ..model.hair_bsdf import FLOAT32_MIN_NORMAL, HairCoefficients, LobeSetup, hair_sample, hair_value_pdf, lobe_setup
+from ..geometry.intersect import FiberGeometry, fibers_occluded, intersect_fibers, shading_frame
+from ..model.jacobian import (
     CoefficientDerivatives,
     LobeEvaluation,
     LobeSetupGrad,
@@ -23,7 +23,7 @@ from .bsdf_jacobian import (
     lobe_setup_grad,
     value_jacobian_mat,
 )
-from .lobes import TWO_PI
+from ..model.lobes import TWO_PI
 
 # Forward only (the gradient tracer carries its derivatives forward itself, see `make_trace_path`); -O3 for the
 # renderer's hot loop.

@@ -13,15 +13,15 @@ import numpy as np
 import warp as wp
 
 from .camera import camera_data
-from .card import card_data
+from ..geometry.card import card_data
 from .envmap import environment_data
-from .hair_bsdf import hair_coefficients
+from ..model.hair_bsdf import hair_coefficients
 from .integrator import DirectionalLightData, SceneData, render_kernel
-from .intersect import FiberBVH
-from .params import HairParams
-from .parallel import launch_ranges
-from . import validate
-from .scene import DirectionalLight, EnvironmentLight, Scene, check_scene
+from ..geometry.tubes import FiberBVH
+from ..model.params import HairParams
+from ..parallel import launch_ranges
+from .. import validate
+from ..scene import DirectionalLight, EnvironmentLight, Scene, check_scene
 
 
 # Pixels per range handed to a thread: fiber pixels cost far more than background ones, and small ranges
@@ -132,7 +132,7 @@ def scene_of(scene: Scene | PreparedScene) -> Scene:
 
 def render_metadata(scene: Scene, spp: int, seed: int) -> dict:
     """What an image's EXR header records of how it was made."""
-    from . import __version__
+    from .. import __version__
 
     return {
         "warp_hair": {

@@ -27,7 +27,7 @@ from .hair_bsdf import (
     lobe_densities,
     lobe_setup,
 )
-from .parallel import launch_ranges
+from ..parallel import launch_ranges
 from .params import HairParams
 
 # The batch API only runs forward; gradients have their own kernels.

@@ -43,10 +43,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from .bsdf_grad import SCALAR_CONTROLS
-from .render import PreparedScene, scene_of
-from .render_jacobian import render_jacobian
-from .scene import Scene
+from ..testing.bsdf_grad import SCALAR_CONTROLS
+from .forward import PreparedScene, scene_of
+from .jacobian import render_jacobian
+from ..scene import Scene
 
 
 def _check_adjoint(adjoint, shape) -> np.ndarray:

@@ -14,12 +14,12 @@ from __future__ import annotations
 
 import warp as wp
 
-from .bsdf_jacobian import CoefficientDerivatives, coefficient_derivatives, value_jacobian_mat
+from ..model.jacobian import CoefficientDerivatives, coefficient_derivatives, value_jacobian_mat
 from .camera import generate_ray
 from .integrator import SceneData, pixel_start, rand2, standard_error, trace_path_grad
-from .parallel import launch_ranges
-from .render import PreparedScene, prepare, sampling, tile_pixels
-from .scene import Scene
+from ..parallel import launch_ranges
+from .forward import PreparedScene, prepare, sampling, tile_pixels
+from ..scene import Scene
 
 wp.set_module_options({"enable_backward": False, "optimization_level": 3})
 

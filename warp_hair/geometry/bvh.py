@@ -41,7 +41,7 @@ from typing import NamedTuple
 import numpy as np
 import warp as wp
 
-from .parallel import launch_ranges
+from ..parallel import launch_ranges
 
 wp.set_module_options({"enable_backward": False, "optimization_level": 3})
 

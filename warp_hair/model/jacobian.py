@@ -38,7 +38,7 @@ import math
 import numpy as np
 import warp as wp
 
-from .bsdf_grad import CONTROL_COUNT, controls_vec
+from ..testing.bsdf_grad import CONTROL_COUNT, controls_vec
 from .hair_bsdf import LobeSetup, cos_from_sin
 from .lobes import (
     INV_TWO_PI,

@@ -1,0 +1,112 @@
+"""NumPy front of the device ray queries: `intersect` (the closest entering hit and its shading frame) and
+`occluded` over batches of rays against a `FiberBVH`, for tests, the calibration's visibility and users' own
+probes."""
+
+from __future__ import annotations
+
+import numpy as np
+import warp as wp
+
+from .intersect import FiberGeometry, fibers_occluded, intersect_fibers, shading_frame
+from .tubes import FiberBVH
+
+wp.set_module_options({"enable_backward": False})
+
+
+@wp.kernel
+def _intersect_kernel(
+    g: FiberGeometry,
+    origins: wp.array(dtype=wp.vec3),
+    directions: wp.array(dtype=wp.vec3),
+    t_max: wp.array(dtype=float),
+    t: wp.array(dtype=float),
+    segment: wp.array(dtype=wp.int32),
+    strand: wp.array(dtype=wp.int32),
+    position: wp.array(dtype=wp.vec3),
+    tangent: wp.array(dtype=wp.vec3),
+    normal: wp.array(dtype=wp.vec3),
+    h: wp.array(dtype=float),
+    shading_tangent: wp.array(dtype=wp.vec3),
+    shading_normal: wp.array(dtype=wp.vec3),
+    shading_h: wp.array(dtype=float),
+):
+    k = wp.tid()
+    hit = intersect_fibers(g, origins[k], directions[k], t_max[k])
+    t[k] = hit.t
+    segment[k] = wp.int32(hit.segment)
+    strand[k] = wp.int32(hit.strand)
+    position[k] = hit.position
+    tangent[k] = hit.tangent
+    normal[k] = hit.normal
+    h[k] = hit.h
+    if hit.segment >= 0:
+        x, z, hs = shading_frame(g, hit, directions[k])
+        shading_tangent[k] = x
+        shading_normal[k] = z
+        shading_h[k] = hs
+
+
+@wp.kernel
+def _occluded_kernel(
+    g: FiberGeometry,
+    origins: wp.array(dtype=wp.vec3),
+    directions: wp.array(dtype=wp.vec3),
+    t_max: wp.array(dtype=float),
+    blocked: wp.array(dtype=wp.int32),
+):
+    k = wp.tid()
+    blocked[k] = wp.where(fibers_occluded(g, origins[k], directions[k], t_max[k]), 1, 0)
+
+
+def _rays(bvh, origins, directions, t_max):
+    """Device arrays of origins, unit directions and t_max (a scalar or one per ray, capped at NO_HIT)."""
+    origins = np.asarray(origins, dtype=np.float64).reshape(-1, 3)
+    directions = np.asarray(directions, dtype=np.float64).reshape(-1, 3)
+    if origins.shape != directions.shape:
+        raise ValueError(f"origins {origins.shape} and directions {directions.shape} differ in shape")
+    directions = directions / np.linalg.norm(directions, axis=1, keepdims=True)
+    t_max = np.minimum(np.broadcast_to(np.asarray(t_max, dtype=np.float64), len(origins)), 1.0e30)
+    return (
+        wp.array(origins.astype(np.float32), dtype=wp.vec3, device=bvh.device),
+        wp.array(directions.astype(np.float32), dtype=wp.vec3, device=bvh.device),
+        wp.array(t_max.astype(np.float32), dtype=float, device=bvh.device),
+    )
+
+
+def intersect(bvh: FiberBVH, origins, directions, t_max=np.inf) -> dict:
+    """Closest entering hits of N rays (origins, directions (N, 3); directions are normalized here; t_max a
+    scalar or (N,)).
+
+    Returns numpy arrays: t (N,) (np.inf on a miss), segment and strand (N,) (−1 on a miss), position,
+    tangent, normal (N, 3) and h (N,), and the BSDF's frame from `shading_frame`: shading_tangent,
+    shading_normal (N, 3) and shading_h (N,) (zeros on a miss).
+    """
+    o, d, limit = _rays(bvh, origins, directions, t_max)
+    n = len(o)
+    device = bvh.device
+    out = {
+        "t": wp.empty(n, dtype=float, device=device),
+        "segment": wp.empty(n, dtype=wp.int32, device=device),
+        "strand": wp.empty(n, dtype=wp.int32, device=device),
+        "position": wp.empty(n, dtype=wp.vec3, device=device),
+        "tangent": wp.empty(n, dtype=wp.vec3, device=device),
+        "normal": wp.empty(n, dtype=wp.vec3, device=device),
+        "h": wp.empty(n, dtype=float, device=device),
+        "shading_tangent": wp.zeros(n, dtype=wp.vec3, device=device),
+        "shading_normal": wp.zeros(n, dtype=wp.vec3, device=device),
+        "shading_h": wp.zeros(n, dtype=float, device=device),
+    }
+    if n:
+        wp.launch(_intersect_kernel, dim=n, inputs=[bvh.geometry, o, d, limit, *out.values()], device=device)
+    result = {key: value.numpy() for key, value in out.items()}
+    result["t"] = np.where(result["segment"] >= 0, result["t"].astype(np.float64), np.inf)
+    return result
+
+
+def occluded(bvh: FiberBVH, origins, directions, t_max=np.inf) -> np.ndarray:
+    """(N,) bool: whether each ray has an entering hit before t_max (`fibers_occluded`, batched)."""
+    o, d, limit = _rays(bvh, origins, directions, t_max)
+    blocked = wp.zeros(len(o), dtype=wp.int32, device=bvh.device)
+    if len(o):
+        wp.launch(_occluded_kernel, dim=len(o), inputs=[bvh.geometry, o, d, limit, blocked], device=bvh.device)
+    return blocked.numpy().astype(bool)

@@ -1,0 +1,150 @@
+"""`FiberBVH`: a `FiberAssembly` turned into the tubes the device ray test reads (mitred joints, open clipped ends,
+vertex tangents for the shading frame) and their 4-wide BVH, kept alive on one device. intersect.py's
+docstring explains the tube geometry."""
+
+from __future__ import annotations
+
+import numpy as np
+import warp as wp
+
+from .bvh import TRAVERSAL_COST, build_bvh
+from .intersect import STACK_SIZE, BvhNode, FiberGeometry, Tube
+
+# Tubes per BVH leaf, at most (the cost of a node visit relative to a tube test is bvh.TRAVERSAL_COST). Measured on the benchmark swatch: leaves of 1 or 2 tubes are a few percent faster than of 4 or 7.
+MAX_LEAF = 2
+# Mitre joints overlap by this many radii past the mitre plane (see the module docstring).
+JOINT_OVERLAP = 1.0e-3
+# Joints bent further than this (cos of the angle between the segments) are clipped like strand ends.
+MIN_JOINT_COS = -0.9
+# Segments shorter than this many radii are treated as zero-length.
+MIN_LENGTH_RADII = 1.0e-6
+
+
+class FiberBVH:
+    """The tube data and 4-wide BVH of a `FiberAssembly` on a device; keeps them alive.
+
+    `geometry` is the `FiberGeometry` that kernels take; `bounds` is (lo (3,), hi (3,)) float64, the box
+    around every tube. Segment indices are those of `assembly.segments()`. `smooth_tangents=False` gives
+    `shading_frame` each segment's own axis: the polyline's frame, with its jumps at the joints.
+    """
+
+    def __init__(self, assembly, device="cpu", smooth_tangents=True):
+        self.device = device
+        p0, p1, r0, r1, strand, _ = assembly.segments()
+        seg = _segment_frames(p0, p1, r0, r1, strand)
+        lowers, uppers = _segment_boxes(seg)
+        if len(lowers):
+            self.bounds = (lowers.min(axis=0), uppers.max(axis=0))
+        else:
+            self.bounds = (np.zeros(3), np.zeros(3))
+
+        tree = build_bvh(lowers, uppers, max_leaf=MAX_LEAF, width=4, traversal_cost=TRAVERSAL_COST)
+        if 3 * tree.depth > STACK_SIZE:
+            raise ValueError(f"BVH depth {tree.depth} is too deep for the traversal stack ({STACK_SIZE})")
+        order = tree.order
+        nodes = np.zeros(len(tree.child), dtype=BvhNode.numpy_dtype())
+        for k, axis in enumerate("xyz"):
+            nodes[f"lo_{axis}"] = tree.lo[:, :, k]
+            nodes[f"hi_{axis}"] = tree.hi[:, :, k]
+        nodes["child"] = tree.child
+        tubes = np.zeros(len(order), dtype=Tube.numpy_dtype())
+        for name in ("center", "axis", "mitre0", "mitre1", "clip", "radius"):
+            tubes[name] = seg[name][order]
+
+        g = FiberGeometry()
+        g.nodes = wp.array(nodes, dtype=BvhNode, device=device)
+        g.tubes = wp.array(tubes, dtype=Tube, device=device)
+        g.segment = wp.array(order.astype(np.int32), dtype=wp.int32, device=device)
+        g.strand = wp.array(np.asarray(strand, dtype=np.int32)[order], dtype=wp.int32, device=device)
+        g.num_segments = len(p0)
+        length = np.linalg.norm(seg["p1"] - seg["p0"], axis=1)
+        step = seg["axis"] / np.where(length > 0.0, length, 1.0)[:, None]
+        tangent0, tangent1 = seg["tangent0"], seg["tangent1"]
+        if not smooth_tangents:
+            tangent0, tangent1 = seg["axis"], seg["axis"]
+        for name, values in (("start", seg["p0"]), ("step", step), ("tangent0", tangent0), ("tangent1", tangent1)):
+            setattr(g, name, wp.array(values.astype(np.float32), dtype=wp.vec3, device=device))
+        self._geometry = g
+
+    @property
+    def geometry(self) -> FiberGeometry:
+        return self._geometry
+
+    @property
+    def num_segments(self) -> int:
+        return self._geometry.num_segments
+
+
+def _segment_frames(p0, p1, r0, r1, strand):
+    """Per-segment centre, unit axis, radius, clip-plane normals and offsets, in float64."""
+    p0 = np.asarray(p0, dtype=np.float64)
+    p1 = np.asarray(p1, dtype=np.float64)
+    radius = (np.asarray(r0, dtype=np.float64) + np.asarray(r1, dtype=np.float64)) / 2
+    center = (p0 + p1) / 2
+    length = np.linalg.norm(p1 - p0, axis=1)
+    solid = length > MIN_LENGTH_RADII * radius
+    axis = np.zeros_like(p0)
+    axis[solid] = (p1 - p0)[solid] / length[solid, None]
+
+    mitre0, mitre1 = axis.copy(), -axis
+    overlap0, overlap1 = np.zeros_like(radius), np.zeros_like(radius)
+    # Joint k sits between segments k and k + 1 of the same strand.
+    joint = np.flatnonzero(
+        (strand[1:] == strand[:-1])
+        & solid[1:]
+        & solid[:-1]
+        & (np.einsum("ij,ij->i", axis[1:], axis[:-1]) > MIN_JOINT_COS)
+    )
+    bisector = axis[joint] + axis[joint + 1]
+    bisector /= np.linalg.norm(bisector, axis=1, keepdims=True)
+    mitre1[joint] = -bisector
+    mitre0[joint + 1] = bisector
+    overlap1[joint] = JOINT_OVERLAP * radius[joint]
+    overlap0[joint + 1] = JOINT_OVERLAP * radius[joint + 1]
+    # Vertex tangents for the shading frame: the bisector at a mitred joint, the segment's axis elsewhere.
+    tangent0, tangent1 = axis.copy(), axis.copy()
+    tangent1[joint] = bisector
+    tangent0[joint + 1] = bisector
+
+    clip = np.stack(
+        [
+            np.einsum("ij,ij->i", p0 - center, mitre0) - overlap0,
+            np.einsum("ij,ij->i", p1 - center, mitre1) - overlap1,
+        ],
+        axis=1,
+    )
+    return {
+        "p0": p0,
+        "p1": p1,
+        "center": center,
+        "axis": axis,
+        "radius": radius,
+        "mitre0": mitre0,
+        "mitre1": mitre1,
+        "clip": clip,
+        "tangent0": tangent0,
+        "tangent1": tangent1,
+    }
+
+
+def _segment_boxes(seg):
+    """Boxes around each clipped tube: the union of the boxes of its two end ellipses, padded for rounding."""
+    axis, radius = seg["axis"], seg["radius"]
+    # Rows k of the projector I − a aᵀ: the unit axis e_k with its component along the tube axis removed.
+    projector = np.eye(3)[None] - axis[:, :, None] * axis[:, None, :]
+    lowers, uppers = [], []
+    for end, mitre in ((seg["p0"], seg["mitre0"]), (seg["p1"], seg["mitre1"])):
+        cos = np.einsum("ij,ij->i", axis, mitre)
+        cos = np.where(cos != 0, cos, 1.0)  # zero-length segments (zero axis and normals): a point
+        mitre_perp = mitre - cos[:, None] * axis
+        # The ellipse is end + r·(u − (u·m)/(a·m)·a) over unit u ⊥ a: its extent along e_k is
+        # r·|e_k⊥ − (a_k / (a·m))·m⊥|.
+        spread = projector - (axis / cos[:, None])[:, :, None] * mitre_perp[:, None, :]
+        half = radius[:, None] * np.linalg.norm(spread, axis=2)
+        lowers.append(end - half)
+        uppers.append(end + half)
+    lo = np.minimum(*lowers)
+    hi = np.maximum(*uppers)
+    # The joint overlap reaches a few 1e-3·r past the plane; float32 rounding of the corners is relative.
+    pad = 0.01 * radius[:, None] + 1e-6 * np.maximum(np.abs(lo), np.abs(hi))
+    return lo - pad, hi + pad
