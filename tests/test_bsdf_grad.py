@@ -46,6 +46,7 @@ import warp as wp
 from sphere import random_directions
 
 import warp_hair as wh
+from warp_hair.controls import COLOUR_INPUTS as COLOUR_MODES
 from warp_hair.testing import bsdf_grad
 from warp_hair.model.hair_bsdf import HairCoefficients, hair_coefficients
 from warp_hair.model.params import (
@@ -64,7 +65,6 @@ UNDERFLOW = 1e-30
 FD_STEP = 1e-5
 MATERIALS_PER_MODE = 48
 CONFIGS_PER_MATERIAL = 96  # 4608 configurations per colour mode
-COLOUR_MODES = ("albedo", "sigma_a", "melanin")
 
 # The smallest step scale per control: σ_a, melanin and α may be 0.
 STEP_FLOOR = {"sigma_a": 1e-2, "eumelanin": 1e-2, "pheomelanin": 1e-2, "alpha": 1.0}

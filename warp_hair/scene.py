@@ -27,7 +27,8 @@ from .geometry.assembly import FiberAssembly
 from .geometry.formats import load_fibers
 from .geometry.usd import SUFFIXES as USD_SUFFIXES
 from .io import read_exr
-from .model.params import ALBEDO_INVERSION_KEY, CONTROL_NAMES, HairParams
+from .controls import CONTROL_NAMES
+from .model.params import ALBEDO_INVERSION_KEY, HairParams
 
 CAMERA_TYPES = ("orthographic", "perspective")
 TABLES = ("camera", "lights", "fibers", "hair", "render", "card")

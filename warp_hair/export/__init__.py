@@ -18,7 +18,8 @@ import json
 import tomllib
 from pathlib import Path
 
-from ..model.params import CONTROL_NAMES, HairParams
+from ..controls import CONTROL_NAMES
+from ..model.params import HairParams
 from . import cycles, materialx, mitsuba, pbrt
 from .common import LossyExportWarning
 
