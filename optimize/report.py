@@ -36,7 +36,7 @@ def errors(result: FitResult, truth: dict) -> dict:
 def fitted_look(result: FitResult, target: Target) -> HairParams:
     """The hair of the target's scenes with the fitted controls put in (exposure is not a hair control)."""
     controls = target.hair.to_dict()
-    # A fit's colour control is always the scenes' colour input (controls.parse_control_names), so a plain
+    # A fit's colour control is always the scenes' colour input (latents.parse_control_names), so a plain
     # update keeps the other melanin when only one is fitted.
     controls.update({name: value for name, value in result.values.items() if name != EXPOSURE})
     return HairParams(**controls)

@@ -40,7 +40,7 @@ class Control:
     hi: float
     lo_open: bool
     hi_open: bool
-    default: float | None  # None: a colour input must be given explicitly
+    default: float | None  # None: no default (a colour input is given); a melanin's: when only the other is
     colour_input: str | None  # the colour input it belongs to, None for the scalar controls
     unit: str
     doc: str
