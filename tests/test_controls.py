@@ -2,6 +2,8 @@
 
 import dataclasses
 import math
+import subprocess
+import sys
 import warnings
 from pathlib import Path
 
@@ -177,3 +179,14 @@ def test_theta_vector_refuses_a_wrong_set_of_controls():
         named_theta("albedo", np.zeros(7))
     with pytest.raises(ValueError, match="unknown colour input"):
         controls_of("rgb")
+
+
+def test_the_product_does_not_import_the_test_oracle():
+    """θ's layout comes from the table: the renderer, the torch front and the fit load without warp_hair.testing."""
+    code = (
+        "import sys, warp_hair, warp_hair.torch, warp_hair.renderer.gradients, optimize.fit, optimize.linearize; "
+        "print(sorted(m for m in sys.modules if m.startswith('warp_hair.testing')))"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
+                         cwd=Path(__file__).resolve().parents[1])
+    assert out.stdout.strip() == "[]"
