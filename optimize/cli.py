@@ -26,16 +26,16 @@ from .fit import FitSettings
 
 
 def resolve_target(name_or_path: str) -> Path:
-    from .target import SHIPPED_TARGETS, TARGET_FILE
+    """A target directory, or else the shipped target of that name (the `targets` package)."""
+    import targets
 
     path = Path(name_or_path)
     if path.exists():
         return path
-    shipped = SHIPPED_TARGETS / name_or_path
-    if (shipped / TARGET_FILE).is_file():
-        return shipped
-    names = sorted(p.name for p in SHIPPED_TARGETS.iterdir() if (p / TARGET_FILE).is_file())
-    raise FileNotFoundError(f"{name_or_path}: no such target directory, nor a shipped target (shipped: {', '.join(names)})")
+    if name_or_path in targets.names():
+        return targets.path(name_or_path)
+    raise FileNotFoundError(f"{name_or_path}: no such target directory, nor a shipped target "
+                            f"(shipped: {', '.join(targets.names())})")
 
 
 def parse_assignments(items, option: str) -> dict:
