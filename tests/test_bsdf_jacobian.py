@@ -31,7 +31,7 @@ import numpy as np
 import pytest
 import warp as wp
 from scipy.special import i0e, i1e
-from test_bsdf_grad import (
+from helpers.bsdf_derivatives import (
     ATOL,
     COLOUR_MODES,
     RTOL,
