@@ -22,6 +22,8 @@ target.toml:
 All images of a target show the same fibers with the same hair: their scenes' [fibers] and [hair] must agree.
 `make_target` renders the images from their scenes (at the spp and seed of each scene's [render] table) and
 writes truth.json from the [hair] table: what the shipped targets are made with (`warp-hair targets make`).
+The shipped targets are the `targets` package's data; an installed package's copy is not rewritten (make_target
+says so): remake them in a source checkout, or copy one elsewhere and make the copy.
 
 A target rendered by another renderer says so in target.toml, `renderer = "cycles"` or `"mitsuba"` (default
 "warp-hair"): its scene files describe for warp-hair what that renderer rendered, and `make_target` leaves its

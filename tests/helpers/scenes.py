@@ -26,33 +26,13 @@ def toml_text(data: dict) -> str:
 
 
 # The command-line tests' scene (the `tiny_scene` fixture writes it to a file): 12×8 pixels, 40 fibers, 2 spp.
-TINY_SCENE = """
-[camera]
-type = "orthographic"
-origin = [0.0, 0.0, 3.0]
-target = [0.0, 0.0, 0.0]
-up = [0.0, 1.0, 0.0]
-width = 0.2
-resolution = [12, 8]
-
-[[lights]]
-type = "directional"
-direction = [0.3, -0.4, -1.0]
-irradiance = [3.0, 3.0, 3.0]
-
-[fibers]
-generator = "swatch"
-count = 40
-layers = 2
-
-[hair]
-eumelanin = 1.3
-
-[render]
-spp = 2
-max_depth = 8
-seed = 4
-"""
+TINY_SCENE = toml_text({
+    "camera": front_camera(0.2, (12, 8)),
+    "lights": [{"type": "directional", "direction": [0.3, -0.4, -1.0], "irradiance": [3.0, 3.0, 3.0]}],
+    "fibers": {"generator": "swatch", "count": 40, "layers": 2},
+    "hair": {"eumelanin": 1.3},
+    "render": {"spp": 2, "max_depth": 8, "seed": 4},
+})
 
 
 def swatch_scene(hair, lights, resolution=(24, 24), render_table=None, card=None):
