@@ -17,7 +17,8 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-# What the wheel is built from; the rest of the checkout (tests, benchmarks, .venv) stays out of the build.
+# What the wheel is built from (with this environment's setuptools, the test extra's); the rest of the checkout
+# (tests, benchmarks, .venv) stays out of the build.
 SOURCES = ("pyproject.toml", "README.md", "warp_hair", "optimize", "targets")
 # Imported in the fresh environment: every module of the product, with the test-only code made unimportable.
 IMPORT_CHECK = textwrap.dedent(
