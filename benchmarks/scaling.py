@@ -14,7 +14,7 @@ Writes OUT/scaling.md (the tables) and OUT/scaling.png (log-log plots), and prin
   interpreter, Warp and the kernels included, about 0.2 GiB) is its own; "BVH bytes" is what the render reads
   (nodes, tubes, segment and strand indices), "SAH" the tree's surface area heuristic cost (node visits at cost
   1 plus tube tests, each weighted by its box's area over the root's: the expected work of a ray through the
-  root, lower is better). With --numpy-build the NumPy build the Warp kernels replaced (tests/reference_bvh.py,
+  root, lower is better). With --numpy-build the NumPy build the Warp kernels replaced (tests/helpers/reference_bvh.py,
   the same tree) is timed on the same boxes too.
 
 The scene is prepared once (`prepare`) before a render is timed; preparation (tube frames and boxes, the BVH
@@ -144,7 +144,7 @@ def segments_case(segments: int, threads, numpy_build: bool) -> dict:
 def build_times(scene, threads) -> dict:
     """CPU seconds of the BVH build alone, in Warp kernels and in the NumPy reference, on the scene's tube boxes."""
     sys.path.insert(0, str(HERE.parent / "tests"))
-    import reference_bvh
+    from helpers import reference_bvh
 
     from warp_hair.geometry.bvh import build_bvh
     from warp_hair.geometry.intersect import MAX_LEAF, TRAVERSAL_COST
