@@ -101,8 +101,6 @@ def test_installed_wheel_imports_without_the_tests(installed, tmp_path):
     assert int(out.split()[0]) > 40
 
 
-@pytest.mark.xfail(strict=True, reason="model/jacobian.py and renderer/gradients.py import the control layout "
-                   "from warp_hair.testing.bsdf_grad until the table of controls replaces it")
 def test_installed_wheel_imports_without_warp_hair_testing(installed, tmp_path):
     out = _run([installed / "python", "-c", IMPORT_CHECK, "warp_hair.testing"], cwd=tmp_path, env=_clean_env())
     assert int(out.split()[0]) > 40
