@@ -25,7 +25,8 @@ import warnings
 from pathlib import Path
 
 from . import validate
-from .model.params import ETA_MAX, R_ROUGHNESS_SCALE_RANGE, HairParams
+from .controls import CONTROLS, SCALAR_CONTROLS
+from .model.params import HairParams
 
 PROG = "warp-hair"
 DEFAULT_ALBEDO = (0.6, 0.4, 0.2)
@@ -63,13 +64,11 @@ def add_hair_controls(parser: argparse.ArgumentParser) -> None:
         help="absorption per unit fiber radius, >= 0: one value (grey) or three (R G B)")
     add("--eumelanin", type=float, metavar="X", help="eumelanin concentration >= 0 (blonde 0.3, brown 1.3, black 8)")
     add("--pheomelanin", type=float, metavar="Y", help="pheomelanin (red-yellow pigment) concentration >= 0")
-    add("--beta-m", type=float, default=0.3, metavar="B", help="longitudinal roughness in [0, 1] (default 0.3)")
-    add("--beta-n", type=float, default=0.3, metavar="B", help="azimuthal roughness in [0, 1] (default 0.3)")
-    add("--alpha", type=float, default=2.0, metavar="DEG", help="cuticle tilt in degrees, in [-30, 30] (default 2)")
-    add("--eta", type=float, default=1.55, metavar="E", help=f"index of refraction, in (1, {ETA_MAX:g}] (default 1.55)")
-    add("--r-roughness-scale", type=float, default=1.0, metavar="K",
-        help="factor on the primary reflection's longitudinal roughness, in [{:g}, {:g}] (default 1)".format(
-            *R_ROUGHNESS_SCALE_RANGE))
+    metavars = {"alpha": "DEG", "eta": "E", "r_roughness_scale": "K"}
+    for name in SCALAR_CONTROLS:
+        c = CONTROLS[name]
+        add(f"--{name.replace('_', '-')}", type=float, default=c.default, metavar=metavars.get(name, "B"),
+            help=f"{c.doc}, in {c.interval} (default {c.default:g})")
 
 
 def hair_params(args: argparse.Namespace) -> HairParams:

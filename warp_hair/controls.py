@@ -80,10 +80,10 @@ CONTROLS = {
         _control("pheomelanin", 1, 1, 0.0, ABSORPTION_MAX, default=0.0, colour_input="melanin",
                  unit="concentration", doc="red pigment"),
         _control("beta_m", 1, 3, 0.0, 1.0, default=0.3, unit="",
-                 doc="longitudinal roughness; below the floor (params.BETA_FLOOR) it renders as the floor"),
+                 doc="longitudinal roughness (below params.BETA_FLOOR it renders as the floor)"),
         _control("beta_n", 1, 4, 0.0, 1.0, default=0.3, unit="",
-                 doc="azimuthal roughness; below the floor (params.BETA_FLOOR) it renders as the floor"),
-        _control("alpha", 1, 5, -30.0, 30.0, default=2.0, unit="degrees", doc="cuticle scale tilt"),
+                 doc="azimuthal roughness (below params.BETA_FLOOR it renders as the floor)"),
+        _control("alpha", 1, 5, -30.0, 30.0, default=2.0, unit="degrees", doc="cuticle scale tilt; > 0 (human hair) moves the primary highlight toward the root"),
         # Above 1 (a fiber that refracts); 10 is beyond every dielectric in visible light (diamond 2.4, silicon ~4).
         _control("eta", 1, 6, 1.0, 10.0, lo_open=True, default=1.55, unit="", doc="index of refraction"),
         # 1e-6 to 1e6 spans any species by far, and the lobes are tested finite there.

@@ -26,9 +26,6 @@ BETA_FLOOR = 0.01
 EUMELANIN_SIGMA_A = np.array([0.419, 0.697, 1.37])
 PHEOMELANIN_SIGMA_A = np.array([0.187, 0.4, 1.05])
 
-# The command line states these two ranges in its help (warp_hair.cli); the table is their one definition.
-ETA_MAX = CONTROLS["eta"].hi
-R_ROUGHNESS_SCALE_RANGE = (CONTROLS["r_roughness_scale"].lo, CONTROLS["r_roughness_scale"].hi)
 
 # The [hair] key of the albedo inversion's table (not a control: see HairParams).
 ALBEDO_INVERSION_KEY = "albedo_inversion"
