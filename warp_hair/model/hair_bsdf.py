@@ -16,7 +16,7 @@ Nothing allocates; everything is float32.
 import numpy as np
 import warp as wp
 
-from ..numerics import FLOAT32_MIN_NORMAL, INV_TWO_PI, PI64, TWO_PI64
+from ..numerics import INV_TWO_PI, PI64, TWO_PI64
 from .lobes import (
     attenuation,
     fresnel_dielectric,

@@ -163,8 +163,8 @@ def _named(f, name: str):
 @wp.func
 def shading_point(scene: SceneData, hit: FiberHit, t_card: float, o: wp.vec3, d: wp.vec3):
     """(on_card, position, x, y, z, h): where the ray o + t d scatters, and the shading frame there. At a fiber,
-    x along it (turning smoothly along the strand), z its normal and h the offset across it (MODEL.md); at the
-    card, z its normal turned toward the incoming ray, the position lifted off it."""
+    x along it (turning smoothly along the strand), z its normal and h the offset across it (docs/MODEL.md,
+    "Shading frame"); at the card, z its normal turned toward the incoming ray, the position lifted off it."""
     on_card = t_card < hit.t
     x = hit.tangent
     z = hit.normal
@@ -255,7 +255,7 @@ def make_scatter(differentiable: bool):
     return _named(scatter, "scatter_grad" if differentiable else "scatter")
 
 
-def make_sample_ld(differentiable: bool):
+def make_sample_ld(differentiable: bool, scatter):
     """Next-event estimation at a vertex, over every kind of light (pbrt's SampleLd):
 
     sample_ld(scene, on_card, position, x, y, z, setup, throughput, num_emitters, select_pdf, rng)
@@ -265,9 +265,8 @@ def make_sample_ld(differentiable: bool):
     then a direction toward it. The sample is tested for occlusion before the BSDF is evaluated toward it: an
     occluded sample, often most of them inside an assembly, then costs no evaluation. A directional light is a
     delta that BSDF sampling cannot hit: its sample is not weighted. The environment's is combined with BSDF
-    sampling by the power heuristic (`escaped` takes the other side).
+    sampling by the power heuristic (`escaped` takes the other side). `scatter` is `make_scatter(differentiable)`.
     """
-    scatter = make_scatter(differentiable)
 
     def sample_ld(
         scene: SceneData,
@@ -327,7 +326,7 @@ def make_trace_path(differentiable: bool):
     path is the forward renderer's): for the continuation, and toward the light only when the sample is lit.
     """
     scatter = make_scatter(differentiable)
-    sample_ld = make_sample_ld(differentiable)
+    sample_ld = make_sample_ld(differentiable, scatter)
 
     def trace_path(
         scene: SceneData,
