@@ -64,7 +64,8 @@ import numpy as np
 import torch
 
 from .controls import COLOUR_CONTROLS, CONTROL_NAMES, RGB_CONTROLS, controls_of
-from .renderer.forward import PreparedScene, render, sampling, scene_of
+from .renderer.forward import render
+from .renderer.prepare import PreparedScene, sampling, scene_of
 from .renderer.gradients import contract, contract_crossed, named_gradients
 from .renderer.jacobian import render_jacobian
 from .scene import Scene

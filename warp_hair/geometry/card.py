@@ -7,7 +7,7 @@ point, two-sided Lambertian with an RGB albedo.
 import numpy as np
 import warp as wp
 
-NO_HIT = wp.constant(1.0e30)
+from ..numerics import NO_HIT
 
 
 @wp.struct

@@ -72,11 +72,11 @@ from __future__ import annotations
 
 import warp as wp
 
+from ..numerics import NO_HIT
 from .bvh import LEAF_BITS, MAX_LEAF_SIZE
 
 wp.set_module_options({"enable_backward": False})
 
-NO_HIT = wp.constant(1.0e30)
 # Entering roots closer than this many radii are the surface the ray starts on.
 T_MIN_RADII = wp.constant(1.0e-3)
 # (1 + 1e-3)²: an origin within r·(1 + 1e-3) of a tube's axis is on or inside that tube.

@@ -16,8 +16,8 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
+from ..numerics import FLOAT32_MIN_NORMAL
 from .hair_bsdf import (
-    FLOAT32_MIN_NORMAL,
     HairCoefficients,
     hair_coefficients,
     hair_pdf,

@@ -16,10 +16,8 @@ Nothing allocates; everything is float32.
 import numpy as np
 import warp as wp
 
+from ..numerics import INV_TWO_PI, PI64, TWO_PI64
 from .lobes import (
-    INV_TWO_PI,
-    PI64,
-    TWO_PI64,
     attenuation,
     fresnel_dielectric,
     logistic_norm,
@@ -70,12 +68,6 @@ def hair_coefficients(params: HairParams) -> HairCoefficients:
     c.sin_2k_alpha = wp.vec3(*np.sin(angles))
     c.cos_2k_alpha = wp.vec3(*np.cos(angles))
     return c
-
-
-# A sampled direction whose density is below this (subnormal) carries no weight: the ratio S/pdf of two
-# subnormals is off by up to a percent, and such a direction (the far tail of a very narrow lobe) is drawn with
-# a probability near 1e-38.
-FLOAT32_MIN_NORMAL = wp.constant(1.17549435e-38)
 
 
 @wp.struct

@@ -40,8 +40,8 @@ import warp as wp
 
 from ..controls import THETA_SIZE, column
 from .hair_bsdf import LobeSetup, cos_from_sin
+from ..numerics import INV_TWO_PI
 from .lobes import (
-    INV_TWO_PI,
     attenuation_partials,
     fresnel_dielectric_d_eta,
     longitudinal_scattering_with_slopes,

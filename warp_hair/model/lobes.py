@@ -6,16 +6,10 @@ arranged so that no step overflows or cancels catastrophically at the extremes (
 grazing angles, h = ±1, σ_a = 0).
 """
 
-import math
-
 import numpy as np
 import warp as wp
 
-PI = wp.constant(math.pi)
-TWO_PI = wp.constant(2.0 * math.pi)
-INV_TWO_PI = wp.constant(1.0 / (2.0 * math.pi))
-PI64 = wp.constant(wp.float64(math.pi))
-TWO_PI64 = wp.constant(wp.float64(2.0 * math.pi))
+from ..numerics import PI, PI64, TWO_PI, TWO_PI64
 
 mat43 = wp.types.matrix(shape=(4, 3), dtype=wp.float32)
 

@@ -26,10 +26,9 @@ import math
 import numpy as np
 import warp as wp
 
-PI = wp.constant(math.pi)
-TWO_PI = wp.constant(2.0 * math.pi)
+from ..numerics import INV_FOUR_PI, PI, TWO_PI
+
 INV_TWO_PI_SQUARED = wp.constant(1.0 / (2.0 * math.pi**2))
-INV_FOUR_PI = wp.constant(1.0 / (4.0 * math.pi))
 # Largest float32 below 1: caps coordinates and in-pixel offsets so that rounding cannot push them
 # onto the next pixel, or past the last one.
 ONE_MINUS_ULP = wp.constant(float(np.nextafter(np.float32(1.0), np.float32(0.0))))

@@ -1,28 +1,23 @@
-"""Render a scene: the Python front of the path tracer.
+"""Render a scene: the pixel loop of the path tracer, shared by the image and its Jacobian.
 
-The image is split into tiles of rows, each launched from a thread pool (a Warp CPU launch runs on one
-core); every pixel owns its random stream, so the image depends on the seed only, not on the threads.
+    image = render(scene, spp=64, seed=1)                # linear radiance (H, W, 3), row 0 at the top
+
+One kernel factory makes both passes: `render` launches its forward variant, `render_jacobian` its gradient
+variant, which traces the same paths (same seed, same random streams) and also sums each path's Jacobian. The
+image is split into ranges of pixels launched from a thread pool (a Warp CPU launch runs on one core); every
+pixel owns its random stream, so the image depends on the seed only, not on the threads.
 """
 
 from __future__ import annotations
 
-import copy
-import dataclasses
-
-import numpy as np
 import warp as wp
 
-from .camera import camera_data
-from ..geometry.card import card_data
-from .envmap import environment_data
-from ..model.hair_bsdf import hair_coefficients
-from .integrator import DirectionalLightData, SceneData, render_kernel
-from ..geometry.tubes import FiberBVH
-from ..model.params import HairParams
+from ..model.jacobian import CoefficientDerivatives, coefficient_derivatives, value_jacobian_mat
 from ..parallel import launch_ranges
-from .. import validate
-from ..scene import DirectionalLight, EnvironmentLight, Scene, check_scene
-
+from ..scene import Scene
+from .camera import generate_ray
+from .integrator import SceneData, pixel_start, rand2, standard_error, trace_path, trace_path_grad
+from .prepare import PreparedScene, prepare, sampling
 
 # Pixels per range handed to a thread: fiber pixels cost far more than background ones, and small ranges
 # balance the threads at a negligible cost per launch (a fit's 48×48 targets are 9 ranges, not one core's work).
@@ -36,98 +31,83 @@ def tile_pixels(spp: int) -> int:
     return max(1, TILE_PIXELS * TILE_SPP // max(spp, TILE_SPP))
 
 
-class PreparedScene:
-    """Everything a render kernel reads, built once per scene and device: the tubes and their BVH, the camera,
-    the light tables, the card. `prepare(scene)` makes one; `render` and `render_jacobian` accept it in place of
-    the scene. Only the hair coefficients change between a fit's iterations: `with_hair` swaps them and shares
-    the rest, so a fit builds its BVH once, and a render of the prepared scene is bit for bit that of the scene.
-    """
+def make_render_kernel(differentiable: bool):
+    """The pixel kernel: spp paths per pixel, their mean and its standard error; with `differentiable` also the
+    mean of the paths' (3, 8) Jacobians. Both variants take the same arguments (the forward one ignores `derivs`
+    and `jacobian`), so that one launch serves both."""
+    trace = trace_path_grad if differentiable else trace_path
 
-    def __init__(self, scene: Scene, device: str = "cpu"):
-        check_scene(scene)  # a scene built in Python, not loaded, is checked here
-        self.scene = scene
-        self.device = device
-        self.bvh = FiberBVH(scene.fibers, device=device, smooth_tangents=scene.render.tangents == "smooth")
-        directional = [light for light in scene.lights if isinstance(light, DirectionalLight)]
-        environments = [light for light in scene.lights if isinstance(light, EnvironmentLight)]
-        if len(environments) > 1:
-            raise ValueError("a scene can have at most one environment light")
-        self.lights = wp.array(
-            [_directional_data(light) for light in directional] or [_directional_data(None)],
-            dtype=DirectionalLightData,
-            device=device,
-        )
-        env = environments[0] if environments else None
-        self.env, self._env_keepalive = environment_data(
-            radiance=None if env is None or env.image is not None else env.radiance,
-            image=None if env is None else env.image,
-            device=device,
-        )
-        self._num_lights = len(directional)
-        self._has_env = int(env is not None)
-        self._camera = camera_data(scene.camera)
-        self._card = card_data(scene.card, scene.camera, self.bvh.bounds)
-        self.data = self._scene_data(hair_coefficients(scene.hair))
-        self.resolution = scene.camera.resolution
+    def render_pixels(
+        scene: SceneData,
+        derivs: CoefficientDerivatives,
+        spp: int,
+        seed: int,
+        image: wp.array(dtype=wp.vec3),
+        stderr: wp.array(dtype=wp.vec3),
+        jacobian: wp.array(dtype=value_jacobian_mat),
+        first: int,
+    ):
+        pixel = wp.tid() + first
+        px, py, rng = pixel_start(scene, pixel, seed)
+        total = wp.vec3(0.0)
+        total_sq = wp.vec3(0.0)
+        if wp.static(differentiable):
+            total_jacobian = value_jacobian_mat()
+        for s in range(spp):
+            jitter, rng = rand2(rng)
+            origin, direction = generate_ray(scene.camera, px, py, jitter)
+            radiance, path_jacobian, rng = trace(scene, origin, direction, rng, derivs)
+            total += radiance
+            total_sq += wp.cw_mul(radiance, radiance)
+            if wp.static(differentiable):
+                total_jacobian += path_jacobian
+        image[pixel] = total / float(spp)
+        stderr[pixel] = standard_error(total, total_sq, spp)
+        if wp.static(differentiable):
+            jacobian[pixel] = total_jacobian / float(spp)
 
-    def _scene_data(self, hair) -> SceneData:
-        data = SceneData()
-        data.camera = self._camera
-        data.fibers = self.bvh.geometry
-        data.hair = hair
-        data.lights = self.lights
-        data.num_lights = self._num_lights
-        data.env = self.env
-        data.has_env = self._has_env
-        data.card = self._card
-        data.max_depth = self.scene.render.max_depth
-        data.rr_depth = self.scene.render.rr_depth
-        return data
-
-    def with_hair(self, hair: HairParams) -> "PreparedScene":
-        """This prepared scene with other hair controls; the geometry, lights and camera are shared, not rebuilt."""
-        if not isinstance(hair, HairParams):
-            raise TypeError(f"hair must be a HairParams (e.g. scene.hair.replace(albedo=...)), got {type(hair).__name__}")
-        other = copy.copy(self)
-        other.scene = dataclasses.replace(self.scene, hair=hair)
-        other.data = self._scene_data(hair_coefficients(hair))
-        return other
+    # A module of its own for each variant: rendering an image never compiles the gradient pass.
+    return wp.kernel(
+        render_pixels,
+        name="render_jacobian_kernel" if differentiable else "render_kernel",
+        module="unique",
+        module_options={"enable_backward": False, "optimization_level": 3},
+    )
 
 
-def _same_device(a: str, b: str) -> bool:
-    try:
-        return wp.get_device(a) == wp.get_device(b)
-    except ValueError:  # not a device on this machine
-        return False
+render_kernel = make_render_kernel(False)
+render_jacobian_kernel = make_render_kernel(True)
 
 
-def prepare(scene: Scene | PreparedScene, device: str | None = None) -> PreparedScene:
-    """The scene made ready to render on `device` (default "cpu"), for rendering it many times with only its
-    hair changing (`PreparedScene.with_hair`); a prepared scene is returned as it is (on its own device)."""
-    if isinstance(scene, PreparedScene):
-        if device is not None and not _same_device(device, scene.device):
-            raise ValueError(f"the scene was prepared on device {scene.device!r}, not {device!r}; prepare it again")
-        return scene
-    if not isinstance(scene, Scene):
-        raise TypeError(f"expected a Scene or a PreparedScene, got {type(scene).__name__}")
-    return PreparedScene(scene, device="cpu" if device is None else device)
-
-
-def _directional_data(light: DirectionalLight | None) -> DirectionalLightData:
-    data = DirectionalLightData()
-    if light is None:
-        data.to_light = wp.vec3(0.0, 0.0, 1.0)
-        data.irradiance = wp.vec3(0.0, 0.0, 0.0)
-        return data
-    travel = np.asarray(light.direction, dtype=np.float64)
-    data.to_light = wp.vec3(*(-travel / np.linalg.norm(travel)))
-    data.irradiance = wp.vec3(*light.irradiance)
-    return data
-
-
-def scene_of(scene: Scene | PreparedScene) -> Scene:
-    """The Scene itself, of a Scene or a PreparedScene."""
-    return scene.scene if isinstance(scene, PreparedScene) else scene
+def trace_pixels(scene: Scene | PreparedScene, spp, seed, threads, device, differentiable: bool, progress=None):
+    """(image (H, W, 3), stderr (H, W, 3), jacobian (H, W, 3, 8) or None): the launch of both passes."""
+    spp, seed = sampling(scene, spp, seed)
+    prepared = prepare(scene, device)
+    device = prepared.device
+    width, height = prepared.resolution
+    n = width * height
+    image = wp.zeros(n, dtype=wp.vec3, device=device)
+    stderr = wp.zeros(n, dtype=wp.vec3, device=device)
+    if differentiable:
+        kernel = render_jacobian_kernel
+        derivs = coefficient_derivatives(prepared.scene.hair)
+        jacobian = wp.zeros(n, dtype=value_jacobian_mat, device=device)
+    else:
+        kernel, derivs, jacobian = render_kernel, CoefficientDerivatives(), None
+    launch_ranges(
+        kernel,
+        n,
+        [prepared.data, derivs, spp, seed, image, stderr, jacobian],
+        threads=threads,
+        device=device,
+        chunk=tile_pixels(spp),
+        progress=progress,
+    )
+    return (
+        image.numpy().reshape(height, width, 3),
+        stderr.numpy().reshape(height, width, 3),
+        None if jacobian is None else jacobian.numpy().reshape(height, width, 3, -1),
+    )
 
 
 def render_metadata(scene: Scene, spp: int, seed: int) -> dict:
@@ -144,14 +124,6 @@ def render_metadata(scene: Scene, spp: int, seed: int) -> dict:
             "seed": seed,
         }
     }
-
-
-def sampling(scene: Scene | PreparedScene, spp=None, seed=None) -> tuple:
-    """(spp, seed): the given ones, else the scene's [render] table's; spp in [1, 2**31), seed in [0, 2**32)."""
-    scene = scene_of(scene)
-    spp = scene.render.spp if spp is None else validate.integer("spp", spp, minimum=1)
-    seed = scene.render.seed if seed is None else validate.seed("seed", seed)
-    return spp, seed
 
 
 def render(
@@ -171,22 +143,7 @@ def render(
     With `return_stderr`, returns (image, stderr): the standard error of each pixel's mean, estimated from
     the spread of its own samples.
     """
-    spp, seed = sampling(scene, spp, seed)
-    prepared = prepare(scene, device)
-    device = prepared.device
-    width, height = prepared.resolution
-    image = wp.zeros(width * height, dtype=wp.vec3, device=device)
-    stderr = wp.zeros(width * height, dtype=wp.vec3, device=device)
-    launch_ranges(
-        render_kernel,
-        width * height,
-        [prepared.data, spp, seed, image, stderr],
-        threads=threads,
-        device=device,
-        chunk=tile_pixels(spp),
-        progress=progress,
-    )
-    image = image.numpy().reshape(height, width, 3)
+    image, stderr, _ = trace_pixels(scene, spp, seed, threads, device, False, progress)
     if return_stderr:
-        return image, stderr.numpy().reshape(height, width, 3)
+        return image, stderr
     return image

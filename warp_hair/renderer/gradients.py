@@ -8,35 +8,12 @@ Controls are named as in `HairParams.to_dict()`: "albedo" (3,), "sigma_a" (3,) o
 "pheomelanin", then "beta_m", "beta_n", "alpha" (per degree), "eta", "r_roughness_scale". With albedo as the
 colour input, ∂/∂β_n includes the chain through the albedo inversion (σ_a depends on β_n).
 
-Estimator: detached sampling. Each path is traced exactly as `render` traces it (same seed, same random
-streams, same directions), and the directions it samples, its MIS weights and its Russian-roulette probabilities
-are held fixed: they are treated as functions of the random numbers only, not of θ. This is unbiased: the
-derivative of ∫ f_θ is ∫ ∂f_θ, and the MIS weights of the strategies that can produce a given path sum to one
-whatever values they are frozen at, so Σ_strategies E[w ∂f/p] = ∫ ∂f. (Roulette likewise: frozen survival
-probabilities q and the 1/q factor cancel in expectation.) Every contribution C of a path — next-event estimation
-at vertex k, or the environment reached by a BSDF-sampled ray — is then a product of BSDF values S over its
-vertices divided by θ-independent quantities, so
-
-    ∂C_c/∂θ_k = C_c Σ_vertices ∂ log S_c/∂θ_k,
-
-with S at each vertex evaluated at the direction actually used there (the continuation for the vertices before,
-the light direction for the NEE vertex itself). One forward pass accumulates it: a per-path running matrix
-G[c, k] = Σ_previous fiber vertices ∂ log S_c(wi_j)/∂θ_k (= J[c, k]/S_c, skipped where S_c = 0, where the
-contribution vanishes too), and each contribution adds Σ_c adjoint_c C_c (G[c, k] + ∂ log S_c(w_light)/∂θ_k)
-/ spp to its pixel (the tracer keeps the channels apart: render_jacobian.py returns the per-pixel Jacobian and
-this module contracts it with the adjoint). Memory does not grow with the path depth (no tape over the bounce loop). The BSDF Jacobian
-J = ∂S/∂θ is in closed form (`bsdf_jacobian`): the map from the controls to the model's coefficients and its
-derivatives are formed once per material on the host in float64 (`coefficient_derivatives`), and each vertex
-differentiates the same evaluation of the lobes that gave S (bsdf_grad's wp.grad of the same model is its
-independent check, tests/test_bsdf_jacobian.py). The card does not depend on θ.
-
-The tracer is integrator.make_trace_path(True): the forward renderer's own loop, with the gradient code
-compiled in under wp.static branches (the forward variant compiles them out). Per-pixel terms are summed on the host
-in float64: the result depends on the seed only, not on the threads.
-
-What the estimator does not include: derivatives through the sampling of the path (the directions are fixed,
-which is what makes it a "detached" estimator, valid because the pdfs cancel), and nothing of the geometry.
-The roughness floor (β = 0.01) is a clamp: ∂/∂β there is 0.
+The estimator is detached sampling (docs/gradients.md): each path is traced as `render` traces it, its
+directions, MIS weights and roulette probabilities held fixed, which is unbiased because the pdfs cancel. A
+contribution C is then a product of BSDF values over its vertices, so ∂C_c/∂θ = C_c Σ_vertices ∂ log S_c/∂θ,
+carried forward along the path with no tape (`render_jacobian` gives it per pixel; this module contracts it with
+the adjoint). Nothing of the geometry is differentiated, and the roughness floor (β = 0.01) is a clamp: ∂/∂β
+there is 0.
 """
 
 from __future__ import annotations
@@ -44,7 +21,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..controls import CONTROLS, named_theta
-from .forward import PreparedScene, scene_of
+from .prepare import PreparedScene, scene_of
 from .jacobian import render_jacobian
 from ..scene import Scene
 

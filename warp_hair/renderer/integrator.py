@@ -1,19 +1,21 @@
-"""Unidirectional path tracing of fiber assemblies with next-event estimation and multiple importance sampling.
+"""Unidirectional path tracing of fiber assemblies, with next-event estimation and multiple importance sampling.
 
-At every fiber vertex the near-field BSDF is evaluated at the true offset h of the hit (the talk's point:
-the integral over h is left to the path tracer). Lights: directional lights (next-event estimation only:
-they are deltas), one environment (constant or an importance-sampled lat-long map; light sampling and BSDF
-sampling combined with the power heuristic) and an optional diffuse backing card. Russian roulette after
-`rr_depth` bounces keeps long paths in light hair unbiased without paying for all of them.
+At every fiber vertex the near-field BSDF is evaluated at the true offset h of the hit: the integral over h is
+left to the path tracer rather than folded into a far-field lobe. Lights: directional lights (deltas, reached by
+light sampling only), one environment (constant or an importance-sampled lat-long map; light and BSDF sampling
+combined by the power heuristic) and an optional diffuse backing card. Russian roulette after `rr_depth`
+bounces keeps long paths in light hair unbiased without paying for all of them.
+
+The tracer is built as pbrt-v4 factors its path integrator: `trace_path` (pbrt's `Li`) walks the path, and
+`sample_ld` does next-event estimation over every kind of light; `make_trace_path(True)` compiles the gradient
+of the same walk in under `wp.static` branches (docs/gradients.md).
 """
 
 import warp as wp
 
-from .camera import CameraData, generate_ray
-from ..geometry.card import NO_HIT, CardData, card_distance
-from .envmap import EnvironmentData, env_pdf, env_radiance, env_sample
-from ..model.hair_bsdf import FLOAT32_MIN_NORMAL, HairCoefficients, LobeSetup, hair_sample, hair_value_pdf, lobe_setup
-from ..geometry.intersect import FiberGeometry, fibers_occluded, intersect_fibers, shading_frame
+from ..geometry.card import CardData, card_distance
+from ..geometry.intersect import FiberGeometry, FiberHit, fibers_occluded, intersect_fibers, shading_frame
+from ..model.hair_bsdf import HairCoefficients, LobeSetup, hair_sample, hair_value_pdf, lobe_setup
 from ..model.jacobian import (
     CoefficientDerivatives,
     LobeEvaluation,
@@ -23,13 +25,13 @@ from ..model.jacobian import (
     lobe_setup_grad,
     value_jacobian_mat,
 )
-from ..model.lobes import TWO_PI
+from ..numerics import FLOAT32_MIN_NORMAL, INV_PI, NO_HIT, TWO_PI
+from .camera import CameraData
+from .envmap import EnvironmentData, env_pdf, env_radiance, env_sample
 
 # Forward only (the gradient tracer carries its derivatives forward itself, see `make_trace_path`); -O3 for the
 # renderer's hot loop.
 wp.set_module_options({"enable_backward": False, "optimization_level": 3})
-
-INV_PI = wp.constant(0.31830988618379067)
 
 
 @wp.struct
@@ -68,9 +70,8 @@ def occluded(scene: SceneData, origin: wp.vec3, direction: wp.vec3):
 
 @wp.func
 def light_visible(scene: SceneData, on_card: bool, position: wp.vec3, to_light: wp.vec3, w_light: wp.vec3):
-    """Whether a light sample (world direction to_light, local w_light) is unoccluded, tested before the BSDF is
-    evaluated toward it: an occluded sample, often most of them inside an assembly, then costs no evaluation.
-    Below the card's surface its S is 0: no shadow ray is traced for those."""
+    """Whether a light sample (world direction to_light, local w_light) is unoccluded. Below the card's surface
+    its S is 0: no shadow ray is traced for those."""
     if on_card and w_light[2] <= 0.0:
         return False
     return not occluded(scene, position, to_light)
@@ -121,16 +122,6 @@ def scatter_value_pdf(scene: SceneData, on_card: bool, setup: LobeSetup, wi: wp.
 
 
 @wp.func
-def scatter_value_pdf_lobes(scene: SceneData, on_card: bool, setup: LobeSetup, wi: wp.vec3):
-    """`scatter_value_pdf`, and at a fiber the evaluation of its lobes that `hair_value_jacobian` differentiates."""
-    if on_card:
-        value, density = scatter_value_pdf(scene, on_card, setup, wi)
-        return value, density, LobeEvaluation()
-    value, density, lobes = hair_value_pdf_lobes(setup, wi)
-    return value, density, lobes
-
-
-@wp.func
 def scaled_rows(w: wp.vec3, G: value_jacobian_mat):
     """G with row c multiplied by w_c."""
     R = value_jacobian_mat()
@@ -162,29 +153,180 @@ def log_weights(contribution: wp.vec3, value: wp.vec3):
     return w
 
 
+def _named(f, name: str):
+    """f as a `wp.func` under its own name: the forward and gradient variants of one factory are two functions
+    with one signature, which Warp would otherwise take for overloads of one."""
+    f.__name__ = f.__qualname__ = name
+    return wp.func(f)
+
+
+@wp.func
+def shading_point(scene: SceneData, hit: FiberHit, t_card: float, o: wp.vec3, d: wp.vec3):
+    """(on_card, position, x, y, z, h): where the ray o + t d scatters, and the shading frame there. At a fiber,
+    x along it (turning smoothly along the strand), z its normal and h the offset across it (docs/MODEL.md,
+    "Shading frame"); at the card, z its normal turned toward the incoming ray, the position lifted off it."""
+    on_card = t_card < hit.t
+    x = hit.tangent
+    z = hit.normal
+    h = hit.h
+    if not on_card:
+        x, z, h = shading_frame(scene.fibers, hit, d)
+    position = hit.position
+    if on_card:
+        z = scene.card.normal
+        if wp.dot(z, d) > 0.0:
+            z = -z
+        x = card_frame_x(z)
+        position = o + t_card * d + 1.0e-5 * z
+    y = wp.cross(z, x)
+    return on_card, position, x, y, z, h
+
+
+@wp.func
+def escaped(scene: SceneData, throughput: wp.vec3, d: wp.vec3, prev_pdf: float, select_pdf: float):
+    """The environment's contribution to a ray that leaves the scene, MIS-weighted against light sampling (a
+    camera ray, prev_pdf = 0, takes it whole)."""
+    mis = float(1.0)
+    if prev_pdf > 0.0:
+        mis = power_heuristic(prev_pdf, select_pdf * env_pdf(scene.env, d))
+    return mis * wp.cw_mul(throughput, env_radiance(scene.env, d))
+
+
+@wp.func
+def sample_light(scene: SceneData, k: int, rng: wp.uint32):
+    """(direction toward emitter k, its solid-angle pdf, rng); the directional lights come first, then the
+    environment. A directional light is a delta: its pdf is 1, a probability, not a density (as in pbrt)."""
+    direction = wp.vec3(0.0)
+    pdf = float(1.0)
+    if k < scene.num_lights:
+        direction = scene.lights[k].to_light
+    else:
+        u, rng = rand2(rng)
+        direction, pdf = env_sample(scene.env, u)
+    return direction, pdf, rng
+
+
+@wp.func
+def light_radiance(scene: SceneData, k: int, direction: wp.vec3):
+    """What emitter k sends along `direction`: a directional light's irradiance, the environment's radiance."""
+    if k < scene.num_lights:
+        return scene.lights[k].irradiance
+    return env_radiance(scene.env, direction)
+
+
+@wp.func
+def sample_continuation(on_card: bool, setup: LobeSetup, rng: wp.uint32):
+    """(local direction, rng): the next direction of the path, drawn from the vertex's BSDF."""
+    wi = wp.vec3(0.0)
+    if on_card:
+        u2, rng = rand2(rng)
+        wi = cosine_hemisphere(u2)
+    else:
+        wi = hair_sample(setup, wp.vec3(wp.randf(rng), wp.randf(rng), wp.randf(rng)))
+    return wi, rng
+
+
+@wp.func
+def roulette(throughput: wp.vec3, rng: wp.uint32):
+    """(alive, throughput, rng): the path survives with probability q = min(1, max_c throughput_c), and its
+    throughput is divided by q if it does, which keeps the estimate unbiased."""
+    survive = wp.min(1.0, wp.max(throughput[0], wp.max(throughput[1], throughput[2])))
+    alive = True
+    if wp.randf(rng) >= survive:
+        alive = False
+    else:
+        throughput = throughput / survive
+    return alive, throughput, rng
+
+
+def make_scatter(differentiable: bool):
+    """`scatter(scene, on_card, setup, wi) -> (value, pdf, lobes)`: the vertex's cosine-weighted BSDF value and
+    solid-angle pdf toward local wi; with `differentiable`, at a fiber also the evaluation of its lobes that
+    `hair_value_jacobian` differentiates (the forward variant returns an empty one)."""
+
+    def scatter(scene: SceneData, on_card: bool, setup: LobeSetup, wi: wp.vec3):
+        if wp.static(differentiable):
+            if not on_card:
+                value, density, lobes = hair_value_pdf_lobes(setup, wi)
+                return value, density, lobes
+        value, density = scatter_value_pdf(scene, on_card, setup, wi)
+        return value, density, LobeEvaluation()
+
+    return _named(scatter, "scatter_grad" if differentiable else "scatter")
+
+
+def make_sample_ld(differentiable: bool, scatter):
+    """Next-event estimation at a vertex, over every kind of light (pbrt's SampleLd):
+
+    sample_ld(scene, on_card, position, x, y, z, setup, throughput, num_emitters, select_pdf, rng)
+        -> (lit, contribution, S toward the light, lobes toward the light, rng)
+
+    One emitter is chosen uniformly (one shadow ray per vertex whatever the number of lights, as in Mitsuba),
+    then a direction toward it. The sample is tested for occlusion before the BSDF is evaluated toward it: an
+    occluded sample, often most of them inside an assembly, then costs no evaluation. A directional light is a
+    delta that BSDF sampling cannot hit: its sample is not weighted. The environment's is combined with BSDF
+    sampling by the power heuristic (`escaped` takes the other side). `scatter` is `make_scatter(differentiable)`.
+    """
+
+    def sample_ld(
+        scene: SceneData,
+        on_card: bool,
+        position: wp.vec3,
+        x: wp.vec3,
+        y: wp.vec3,
+        z: wp.vec3,
+        setup: LobeSetup,
+        throughput: wp.vec3,
+        num_emitters: int,
+        select_pdf: float,
+        rng: wp.uint32,
+    ):
+        k = wp.min(int(wp.randf(rng) * float(num_emitters)), num_emitters - 1)
+        delta = k < scene.num_lights
+        to_light, light_pdf, rng = sample_light(scene, k, rng)
+        lit = False
+        nee = wp.vec3(0.0)
+        value = wp.vec3(0.0)
+        lobes = LobeEvaluation()
+        if light_pdf > 0.0:
+            w_light = to_local(to_light, x, y, z)
+            if light_visible(scene, on_card, position, to_light, w_light):
+                value, pdf_bsdf, lobes = scatter(scene, on_card, setup, w_light)
+                if pdf_bsdf > 0.0:
+                    lit = True
+                    f = wp.cw_mul(throughput, wp.cw_mul(value, light_radiance(scene, k, to_light)))
+                    if delta:
+                        nee = f / select_pdf
+                    else:
+                        p_light = select_pdf * light_pdf
+                        nee = (power_heuristic(p_light, pdf_bsdf) / p_light) * f
+        return lit, nee, value, lobes, rng
+
+    return _named(sample_ld, "sample_ld_grad" if differentiable else "sample_ld")
+
+
 def make_trace_path(differentiable: bool):
-    """The path tracer as a `wp.func`; with `differentiable` it also returns the path's ∂L/∂θ.
+    """The path tracer as a `wp.func` (pbrt's Li); with `differentiable` it also returns the path's ∂L/∂θ.
 
     trace_path(scene, origin, direction, rng, derivs) -> (radiance, D, rng), `derivs` the material's
-    `bsdf_jacobian.coefficient_derivatives` and D[c, k] = ∂L_c/∂θ_k, the (3, 8) Jacobian of the path's
+    `model.jacobian.coefficient_derivatives` and D[c, k] = ∂L_c/∂θ_k, the (3, 8) Jacobian of the path's
     radiance. The forward variant ignores `derivs` and returns D = 0: the branches under wp.static are compiled
-    out of it, so the forward renderer runs the same code as it did without them.
+    out of it.
 
-    The gradient (detached sampling; render_grad.py explains why it is unbiased): every contribution C of a
+    The gradient (detached sampling; docs/gradients.md explains why it is unbiased): every contribution C of a
     path is a product of BSDF values S_c over its fiber vertices divided by θ-independent factors (pdfs, MIS
     weights and roulette probabilities held fixed), so ∂C_c/∂θ_k = C_c Σ_vertices ∂ log S_c/∂θ_k. G[c, k]
     carries that sum over the vertices so far (at the directions the path continued in); each contribution
     adds C_c (G[c, k] + ∂ log S_c(w_light)/∂θ_k at an NEE vertex on a fiber) to D[c, k]. Keeping the channels
-    apart costs what contracting them with an adjoint would (24 multiply-adds per contribution either way) and
-    gives the whole per-pixel Jacobian in one pass. The
-    card does not depend on θ. Memory is flat in the depth: no tape over the loop.
+    apart gives the whole per-pixel Jacobian in one pass for what contracting them with an adjoint would cost;
+    memory is flat in the depth (no tape over the loop). The card does not depend on θ.
 
-    ∂S/∂θ comes in closed form from `bsdf_jacobian`: at a fiber vertex, `lobe_setup_grad` once (what depends
-    on wo and h); S and the pdf toward the light and toward the continuation come from `hair_value_pdf_lobes`
-    (the values `hair_value_pdf` gives, so the path is the forward renderer's), and `hair_value_jacobian`
-    differentiates that same evaluation: for the continuation, and toward the light only when the light
-    sample is visible.
+    ∂S/∂θ is in closed form (`model.jacobian`): at a fiber vertex `lobe_setup_grad` once (what depends on wo and
+    h), and `hair_value_jacobian` differentiates the very evaluation of the lobes that gave S and the pdf (so the
+    path is the forward renderer's): for the continuation, and toward the light only when the sample is lit.
     """
+    scatter = make_scatter(differentiable)
+    sample_ld = make_sample_ld(differentiable, scatter)
 
     def trace_path(
         scene: SceneData,
@@ -199,8 +341,6 @@ def make_trace_path(differentiable: bool):
         throughput = wp.vec3(1.0)
         o = origin
         d = direction
-        # One light sample per vertex, the light chosen uniformly (as Mitsuba does): one shadow ray per vertex
-        # whatever the number of lights.
         num_emitters = scene.num_lights + scene.has_env
         select_pdf = 1.0 / float(wp.max(num_emitters, 1))
         prev_pdf = float(0.0)  # solid-angle pdf of the BSDF sample that produced d; 0 for the camera ray
@@ -210,10 +350,7 @@ def make_trace_path(differentiable: bool):
             t_card = card_distance(scene.card, o, d)
             if hit.t >= NO_HIT and t_card >= NO_HIT:
                 if scene.has_env != 0:
-                    mis = float(1.0)
-                    if prev_pdf > 0.0:
-                        mis = power_heuristic(prev_pdf, select_pdf * env_pdf(scene.env, d))
-                    contribution = mis * wp.cw_mul(throughput, env_radiance(scene.env, d))
+                    contribution = escaped(scene, throughput, d, prev_pdf, select_pdf)
                     radiance += contribution
                     if wp.static(differentiable):
                         D += scaled_rows(contribution, G)
@@ -223,86 +360,31 @@ def make_trace_path(differentiable: bool):
             if depth >= scene.max_depth:
                 break
 
-            # The shading frame: at a fiber, x along it (turning smoothly along the strand) and z its normal
-            # (MODEL.md); at the card, z its normal turned toward the incoming ray.
-            on_card = t_card < hit.t
-            x = hit.tangent
-            z = hit.normal
-            h = hit.h
-            if not on_card:
-                x, z, h = shading_frame(scene.fibers, hit, d)
-            position = hit.position
+            on_card, position, x, y, z, h = shading_point(scene, hit, t_card, o, d)
+            wo = to_local(-d, x, y, z)
             setup = LobeSetup()
             if wp.static(differentiable):
                 d_setup = LobeSetupGrad()
-            if on_card:
-                z = scene.card.normal
-                if wp.dot(z, d) > 0.0:
-                    z = -z
-                x = card_frame_x(z)
-                position = o + t_card * d + 1.0e-5 * z
-            y = wp.cross(z, x)
-            wo = to_local(-d, x, y, z)
             if not on_card:
                 setup = lobe_setup(scene.hair, wo, h)
                 if wp.static(differentiable):
                     d_setup = lobe_setup_grad(setup, wo, h)
 
-            # Next-event estimation with one light.
             if num_emitters > 0:
-                k = wp.min(int(wp.randf(rng) * float(num_emitters)), num_emitters - 1)
-                lit = False
-                nee = wp.vec3(0.0)  # the light sample's contribution
-                nee_value = wp.vec3(0.0)  # S toward the light
-                w_light = wp.vec3(0.0)  # local direction toward the light
-                if wp.static(differentiable):
-                    lobes_light = LobeEvaluation()
-                if k < scene.num_lights:
-                    light = scene.lights[k]
-                    w_light = to_local(light.to_light, x, y, z)
-                    if light_visible(scene, on_card, position, light.to_light, w_light):
-                        if wp.static(differentiable):
-                            nee_value, pdf_bsdf, lobes_light = scatter_value_pdf_lobes(scene, on_card, setup, w_light)
-                        else:
-                            nee_value, pdf_bsdf = scatter_value_pdf(scene, on_card, setup, w_light)
-                        if pdf_bsdf > 0.0:
-                            lit = True
-                            nee = wp.cw_mul(throughput, wp.cw_mul(nee_value, light.irradiance)) / select_pdf
-                else:
-                    u_env, rng = rand2(rng)
-                    d_env, pdf_env = env_sample(scene.env, u_env)
-                    if pdf_env > 0.0:
-                        w_light = to_local(d_env, x, y, z)
-                        if light_visible(scene, on_card, position, d_env, w_light):
-                            if wp.static(differentiable):
-                                nee_value, pdf_bsdf, lobes_light = scatter_value_pdf_lobes(scene, on_card, setup, w_light)
-                            else:
-                                nee_value, pdf_bsdf = scatter_value_pdf(scene, on_card, setup, w_light)
-                            if pdf_bsdf > 0.0:
-                                light_pdf = select_pdf * pdf_env
-                                w = power_heuristic(light_pdf, pdf_bsdf) / light_pdf
-                                lit = True
-                                nee = w * wp.cw_mul(throughput, wp.cw_mul(nee_value, env_radiance(scene.env, d_env)))
+                lit, nee, nee_value, lobes_light, rng = sample_ld(
+                    scene, on_card, position, x, y, z, setup, throughput, num_emitters, select_pdf, rng
+                )
                 if lit:
                     radiance += nee
                     if wp.static(differentiable):
                         D += scaled_rows(nee, G)
                         if not on_card:
-                            # C_c ∂ log S_c(w_light)/∂θ, only for visible light samples.
+                            # C_c ∂ log S_c(w_light)/∂θ, only for lit light samples.
                             J_light = hair_value_jacobian(setup, d_setup, derivs, lobes_light)
                             D += scaled_rows(log_weights(nee, nee_value), J_light)
 
-            # Continue the path by sampling the BSDF.
-            wi = wp.vec3(0.0)
-            if on_card:
-                u2, rng = rand2(rng)
-                wi = cosine_hemisphere(u2)
-            else:
-                wi = hair_sample(setup, wp.vec3(wp.randf(rng), wp.randf(rng), wp.randf(rng)))
-            if wp.static(differentiable):
-                value, pdf, lobes = scatter_value_pdf_lobes(scene, on_card, setup, wi)
-            else:
-                value, pdf = scatter_value_pdf(scene, on_card, setup, wi)
+            wi, rng = sample_continuation(on_card, setup, rng)
+            value, pdf, lobes = scatter(scene, on_card, setup, wi)
             if pdf < FLOAT32_MIN_NORMAL:
                 break
             throughput = wp.cw_mul(throughput, value / pdf)
@@ -312,22 +394,20 @@ def make_trace_path(differentiable: bool):
             depth += 1
 
             if depth >= scene.rr_depth:
-                survive = wp.min(1.0, wp.max(throughput[0], wp.max(throughput[1], throughput[2])))
-                if wp.randf(rng) >= survive:
+                alive, throughput, rng = roulette(throughput, rng)
+                if not alive:
                     break
-                throughput = throughput / survive
             if wp.static(differentiable):
                 # After roulette: a path it ends has no later contribution to carry the vertex's derivative to.
                 if not on_card:
                     G = add_log_derivative(G, hair_value_jacobian(setup, d_setup, derivs, lobes), value)
         return radiance, D, rng
 
-    # Distinct keys: two same-named functions with one signature in a module would be taken for one overload.
-    trace_path.__name__ = trace_path.__qualname__ = "trace_path_grad" if differentiable else "trace_path"
-    return wp.func(trace_path)
+    return _named(trace_path, "trace_path_grad" if differentiable else "trace_path")
 
 
 trace_path = make_trace_path(False)
+trace_path_grad = make_trace_path(True)
 
 
 @wp.func
@@ -347,30 +427,3 @@ def pixel_start(scene: SceneData, pixel: int, seed: int):
     split among threads, and the gradient pass with the same seed traces the same paths."""
     width = scene.camera.width_px
     return pixel % width, pixel / width, wp.rand_init(seed, pixel)
-
-
-@wp.kernel
-def render_kernel(
-    scene: SceneData,
-    spp: int,
-    seed: int,
-    image: wp.array(dtype=wp.vec3),
-    stderr: wp.array(dtype=wp.vec3),
-    first: int,
-):
-    pixel = wp.tid() + first
-    px, py, rng = pixel_start(scene, pixel, seed)
-    total = wp.vec3(0.0)
-    total_sq = wp.vec3(0.0)
-    for s in range(spp):
-        jitter, rng = rand2(rng)
-        origin, direction = generate_ray(scene.camera, px, py, jitter)
-        radiance, unused_jacobian, rng = trace_path(scene, origin, direction, rng, CoefficientDerivatives())
-        total += radiance
-        total_sq += wp.cw_mul(radiance, radiance)
-    image[pixel] = total / float(spp)
-    stderr[pixel] = standard_error(total, total_sq, spp)
-
-
-# The gradient tracer (render_grad.py): the same loop with the wp.static(differentiable) branches compiled in.
-trace_path_grad = make_trace_path(True)

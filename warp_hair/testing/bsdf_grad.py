@@ -56,7 +56,7 @@ from ..controls import SCALAR_CONTROLS as SCALAR_NAMES
 from ..model.bsdf import _check_params, _directions, _launch, _offsets
 from ..model.jacobian import controls_vec
 from ..model.hair_bsdf import HairCoefficients, hair_value_pdf, lobe_setup
-from ..model.lobes import PI
+from ..numerics import PI
 from ..model.params import ALBEDO_INVERSION_DEGREE, BETA_FLOOR, EUMELANIN_SIGMA_A, PHEOMELANIN_SIGMA_A, HairParams
 
 # wp.grad runs forward only: the kernels here need no backward pass of their own.

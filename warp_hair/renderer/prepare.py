@@ -1,0 +1,127 @@
+"""A scene made ready to render: the tubes and their BVH, the camera, the light tables and the card on a device.
+
+    prepared = prepare(scene)                       # build once
+    render(prepared.with_hair(other_hair))          # render many times, only the hair changing
+
+A fit renders one scene hundreds of times with only its hair controls changing; preparing it once keeps the
+BVH build out of that loop. `render` and `render_jacobian` take a Scene or a PreparedScene alike.
+"""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+
+import numpy as np
+import warp as wp
+
+from .. import validate
+from ..geometry.card import card_data
+from ..geometry.tubes import FiberBVH
+from ..model.hair_bsdf import hair_coefficients
+from ..model.params import HairParams
+from ..scene import DirectionalLight, EnvironmentLight, Scene, check_scene
+from .camera import camera_data
+from .envmap import environment_data
+from .integrator import DirectionalLightData, SceneData
+
+class PreparedScene:
+    """Everything a render kernel reads, built once per scene and device: the tubes and their BVH, the camera,
+    the light tables, the card. `prepare(scene)` makes one; `render` and `render_jacobian` accept it in place of
+    the scene. Only the hair coefficients change between a fit's iterations: `with_hair` swaps them and shares
+    the rest, so a fit builds its BVH once, and a render of the prepared scene is bit for bit that of the scene.
+    """
+
+    def __init__(self, scene: Scene, device: str = "cpu"):
+        check_scene(scene)  # a scene built in Python, not loaded, is checked here
+        self.scene = scene
+        self.device = device
+        self.bvh = FiberBVH(scene.fibers, device=device, smooth_tangents=scene.render.tangents == "smooth")
+        directional = [light for light in scene.lights if isinstance(light, DirectionalLight)]
+        environments = [light for light in scene.lights if isinstance(light, EnvironmentLight)]
+        if len(environments) > 1:
+            raise ValueError("a scene can have at most one environment light")
+        self.lights = wp.array(
+            [_directional_data(light) for light in directional] or [_directional_data(None)],
+            dtype=DirectionalLightData,
+            device=device,
+        )
+        env = environments[0] if environments else None
+        self.env, self._env_keepalive = environment_data(
+            radiance=None if env is None or env.image is not None else env.radiance,
+            image=None if env is None else env.image,
+            device=device,
+        )
+        self._num_lights = len(directional)
+        self._has_env = int(env is not None)
+        self._camera = camera_data(scene.camera)
+        self._card = card_data(scene.card, scene.camera, self.bvh.bounds)
+        self.data = self._scene_data(hair_coefficients(scene.hair))
+        self.resolution = scene.camera.resolution
+
+    def _scene_data(self, hair) -> SceneData:
+        data = SceneData()
+        data.camera = self._camera
+        data.fibers = self.bvh.geometry
+        data.hair = hair
+        data.lights = self.lights
+        data.num_lights = self._num_lights
+        data.env = self.env
+        data.has_env = self._has_env
+        data.card = self._card
+        data.max_depth = self.scene.render.max_depth
+        data.rr_depth = self.scene.render.rr_depth
+        return data
+
+    def with_hair(self, hair: HairParams) -> "PreparedScene":
+        """This prepared scene with other hair controls; the geometry, lights and camera are shared, not rebuilt."""
+        if not isinstance(hair, HairParams):
+            raise TypeError(f"hair must be a HairParams (e.g. scene.hair.replace(albedo=...)), got {type(hair).__name__}")
+        other = copy.copy(self)
+        other.scene = dataclasses.replace(self.scene, hair=hair)
+        other.data = self._scene_data(hair_coefficients(hair))
+        return other
+
+
+def _same_device(a: str, b: str) -> bool:
+    try:
+        return wp.get_device(a) == wp.get_device(b)
+    except ValueError:  # not a device on this machine
+        return False
+
+
+def prepare(scene: Scene | PreparedScene, device: str | None = None) -> PreparedScene:
+    """The scene made ready to render on `device` (default "cpu"), for rendering it many times with only its
+    hair changing (`PreparedScene.with_hair`); a prepared scene is returned as it is (on its own device)."""
+    if isinstance(scene, PreparedScene):
+        if device is not None and not _same_device(device, scene.device):
+            raise ValueError(f"the scene was prepared on device {scene.device!r}, not {device!r}; prepare it again")
+        return scene
+    if not isinstance(scene, Scene):
+        raise TypeError(f"expected a Scene or a PreparedScene, got {type(scene).__name__}")
+    return PreparedScene(scene, device="cpu" if device is None else device)
+
+
+def _directional_data(light: DirectionalLight | None) -> DirectionalLightData:
+    data = DirectionalLightData()
+    if light is None:
+        data.to_light = wp.vec3(0.0, 0.0, 1.0)
+        data.irradiance = wp.vec3(0.0, 0.0, 0.0)
+        return data
+    travel = np.asarray(light.direction, dtype=np.float64)
+    data.to_light = wp.vec3(*(-travel / np.linalg.norm(travel)))
+    data.irradiance = wp.vec3(*light.irradiance)
+    return data
+
+
+def scene_of(scene: Scene | PreparedScene) -> Scene:
+    """The Scene itself, of a Scene or a PreparedScene."""
+    return scene.scene if isinstance(scene, PreparedScene) else scene
+
+
+def sampling(scene: Scene | PreparedScene, spp=None, seed=None) -> tuple:
+    """(spp, seed): the given ones, else the scene's [render] table's; spp in [1, 2**31), seed in [0, 2**32)."""
+    scene = scene_of(scene)
+    spp = scene.render.spp if spp is None else validate.integer("spp", spp, minimum=1)
+    seed = scene.render.seed if seed is None else validate.seed("seed", seed)
+    return spp, seed
