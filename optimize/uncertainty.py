@@ -14,7 +14,7 @@ independent, but a pixel's three channels share their paths; the statistical ter
 correlate within a pixel as our render's noise does, measured from the difference of its two passes
 (`Linearization.statistical_covariance`). The estimate is the mean of m Gauss–Newton end points, each moved by
 its linearisation's render noise; Cov_MC is that mean's covariance (`refine.mean_covariance`). After Adam alone
-it is left out. Before both terms were counted this way, auburn_curly reported ±0.001 for errors of 0.019.
+it is left out.
 
 Identifiability: two components whose estimates correlate by |ρ| > 0.95 trade off against each other in these
 images (albedo and β_n can, through the albedo inversion, under a single front light); a control the images do

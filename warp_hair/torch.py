@@ -170,6 +170,11 @@ def _as_image(image, tensors):
     return torch.from_numpy(np.ascontiguousarray(image, dtype=np.float32)).to(out_device)
 
 
+def _no_gradients(ctx):
+    """backward's answer when no control needs a gradient: None for config, names and each tensor."""
+    return (None, None) + (None,) * len(ctx.meta)
+
+
 class _RenderFunction(torch.autograd.Function):
     @staticmethod
     def forward(ctx, config, names, *tensors):
@@ -183,7 +188,7 @@ class _RenderFunction(torch.autograd.Function):
     def backward(ctx, grad_output):
         adjoint = _adjoint(ctx, grad_output)
         if adjoint is None:
-            return (None, None) + (None,) * len(ctx.meta)
+            return _no_gradients(ctx)
         jacobian, _, _ = render_jacobian(ctx.scene, spp=ctx.spp, seed=ctx.grad_seed, threads=ctx.threads, device="cpu")
         return _control_gradients(ctx, contract(adjoint, jacobian))
 
@@ -205,7 +210,7 @@ class _PairFunction(torch.autograd.Function):
     def backward(ctx, grad_output):
         adjoint = _adjoint(ctx, grad_output)
         if adjoint is None:
-            return (None, None) + (None,) * len(ctx.meta)
+            return _no_gradients(ctx)
         return _control_gradients(ctx, contract_crossed(adjoint, ctx.jacobians))
 
 
