@@ -14,7 +14,7 @@ Writes OUT/scaling.md (the tables) and OUT/scaling.png (log-log plots), and prin
   interpreter, Warp and the kernels included, about 0.2 GiB) is its own; "BVH bytes" is what the render reads
   (nodes, tubes, segment and strand indices), "SAH" the tree's surface area heuristic cost (node visits at cost
   1 plus tube tests, each weighted by its box's area over the root's: the expected work of a ray through the
-  root, lower is better). With --numpy-build the NumPy build the Warp kernels replaced (tests/reference_bvh.py,
+  root, lower is better). With --numpy-build the NumPy reference build (tests/reference_bvh.py,
   the same tree) is timed on the same boxes too.
 
 The scene is prepared once (`prepare`) before a render is timed; preparation (tube frames and boxes, the BVH
@@ -233,7 +233,7 @@ def main() -> None:
     parser.add_argument("--quick", action="store_true", help="segments up to 10⁵ only")
     parser.add_argument("--out", type=Path, default=HERE.parent / "docs")
     parser.add_argument("--numpy-build", action="store_true",
-                        help="also time the NumPy BVH build the kernels replaced (17 s at 10⁶ segments)")
+                        help="also time the NumPy reference BVH build (tests/reference_bvh.py; slow at 10⁶ segments)")
     parser.add_argument("--segments-case", type=int, help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.segments_case:

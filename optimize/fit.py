@@ -7,7 +7,7 @@
 Each iteration renders every image of the target at the current controls as two independent renders of spp/2
 each (`warp_hair.torch.render_torch_pair`: one gradient pass per render gives its image and its Jacobian, and
 each render's adjoint meets the other's Jacobian, so the gradient is unbiased without `render_torch`'s separate
-forward render, which would cost a forward pass more per iteration), sums the image losses, and takes one torch.optim.Adam step on the controls' latents (`controls.py`: no step
+forward render, which would cost a forward pass more per iteration), sums the image losses, and takes one torch.optim.Adam step on the controls' latents (`latents.py`: no step
 leaves a control's range). Fresh seeds every iteration, so the Monte Carlo noise averages out over the
 iterations instead of biasing every step alike.
 
@@ -147,7 +147,7 @@ def _as_control(name, values):
 class _Latents:
     """The optimiser's parameters: one latent tensor per fitted control, float64.
 
-    The albedo's latent depends on β_n (controls.py): the fitted β_n's current value, else the scenes' own; and
+    The albedo's latent depends on β_n (latents.py): the fitted β_n's current value, else the scenes' own; and
     on the scenes' albedo inversion coefficients.
     """
 
