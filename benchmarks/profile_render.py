@@ -36,8 +36,9 @@ from warp_hair.renderer.camera import generate_ray
 from warp_hair.renderer.envmap import env_sample
 from warp_hair.model.hair_bsdf import hair_sample, hair_value_pdf, lobe_setup
 from warp_hair.renderer.integrator import SceneData, pixel_start, rand2, to_local, to_world
-from warp_hair.geometry.intersect import MAX_LEAF, NO_HIT, TRAVERSAL_COST, intersect_fibers
-from warp_hair.geometry.tubes import _segment_boxes, _segment_frames
+from warp_hair.geometry.bvh import TRAVERSAL_COST
+from warp_hair.geometry.intersect import NO_HIT, intersect_fibers
+from warp_hair.geometry.tubes import MAX_LEAF, _segment_boxes, _segment_frames
 from warp_hair.geometry.rays import intersect, occluded
 from warp_hair.parallel import default_threads
 from warp_hair.renderer.forward import prepare, render

@@ -104,8 +104,7 @@ def draped_swatch(segments: int):
 
 def sah_cost(nodes: np.ndarray) -> float:
     """The surface area heuristic cost of a 4-wide fiber BVH (its BvhNode records), relative to its root box."""
-    from warp_hair.geometry.bvh import leaf_range
-    from warp_hair.geometry.intersect import TRAVERSAL_COST
+    from warp_hair.geometry.bvh import TRAVERSAL_COST, leaf_range
 
     lo = np.stack([nodes[f"lo_{a}"] for a in "xyz"], axis=-1).astype(np.float64)
     hi = np.stack([nodes[f"hi_{a}"] for a in "xyz"], axis=-1).astype(np.float64)
@@ -146,9 +145,8 @@ def build_times(scene, threads) -> dict:
     sys.path.insert(0, str(HERE.parent / "tests"))
     import reference_bvh
 
-    from warp_hair.geometry.bvh import build_bvh
-    from warp_hair.geometry.intersect import MAX_LEAF, TRAVERSAL_COST
-    from warp_hair.geometry.tubes import _segment_boxes, _segment_frames
+    from warp_hair.geometry.bvh import TRAVERSAL_COST, build_bvh
+    from warp_hair.geometry.tubes import MAX_LEAF, _segment_boxes, _segment_frames
 
     p0, p1, r0, r1, strand, _ = scene.fibers.segments()
     lowers, uppers = _segment_boxes(_segment_frames(p0, p1, r0, r1, strand))
