@@ -7,9 +7,10 @@ The sky is a lat-long image made here (blue zenith, pale horizon, dim ground) an
 EXR file, as a scene file's `[[lights]] type = "environment", file = "sky.exr"` would; the sun is a
 directional light. Each swatch is laid over a cylinder (`drape`), so the angle between fibers, camera and sun
 sweeps along the strands and one picture shows both highlights: the primary (R, white: light reflected off
-the cuticle) nearer the root, and the secondary (TRT, tinted by the fiber's colour: light that entered the
-fiber and reflected off its back) shifted toward the tip by the cuticle tilt α. Black hair absorbs the
-secondary; on blonde it is a golden band.
+the cuticle) and the secondary (TRT, tinted by the fiber's colour: light that entered the fiber and reflected
+off its back), which the cuticle tilt α sets apart. The tilt turns R toward the roots and TRT toward the tips,
+so on a swatch that curves away from the viewer R shows nearer the tips (the top of each panel; the roots are
+at the bottom) and TRT nearer the roots. Black hair absorbs the secondary; on blonde it is a golden band.
 """
 
 import argparse
