@@ -26,16 +26,16 @@ from .fit import FitSettings
 
 
 def resolve_target(name_or_path: str) -> Path:
-    from .target import SHIPPED_TARGETS, TARGET_FILE
+    """A target directory, or else the shipped target of that name (the `targets` package)."""
+    import targets
 
     path = Path(name_or_path)
     if path.exists():
         return path
-    shipped = SHIPPED_TARGETS / name_or_path
-    if (shipped / TARGET_FILE).is_file():
-        return shipped
-    names = sorted(p.name for p in SHIPPED_TARGETS.iterdir() if (p / TARGET_FILE).is_file())
-    raise FileNotFoundError(f"{name_or_path}: no such target directory, nor a shipped target (shipped: {', '.join(names)})")
+    if name_or_path in targets.names():
+        return targets.path(name_or_path)
+    raise FileNotFoundError(f"{name_or_path}: no such target directory, nor a shipped target "
+                            f"(shipped: {', '.join(targets.names())})")
 
 
 def parse_assignments(items, option: str) -> dict:
@@ -57,8 +57,12 @@ def parse_assignments(items, option: str) -> dict:
 
 
 def add_fit(subparsers) -> None:
+    defaults = FitSettings()
     parser = subparsers.add_parser(
         "fit",
+        parents=[render_cli.common_flags(
+            spp=f"samples per pixel at the end of the schedule (default {defaults.spp}; it starts at spp/4)",
+            spp_default=defaults.spp, seed="seed of the fit's random streams (default 0)", seed_default=defaults.seed)],
         help="fit hair controls to a target's images",
         description="Fit hair controls to the images of a target by gradient descent on path-traced renders "
         "(Adam over unconstrained latents, fresh seeds every iteration, growing spp, cosine learning-rate decay), "
@@ -68,25 +72,20 @@ def add_fit(subparsers) -> None:
     )
     parser.add_argument("target", metavar="TARGET", help="a target directory, or the name of a shipped target (targets/)")
     parser.add_argument("-o", "--output", required=True, type=Path, metavar="OUT_DIR", help="directory for the results")
-    defaults = FitSettings()
     parser.add_argument("--fit", default=",".join(DEFAULT_FIT), metavar="NAMES",
                         help=f"comma-separated controls to fit (default {','.join(DEFAULT_FIT)}); any of "
                         f"{', '.join(SPECS)}")
     parser.add_argument("--iters", type=int, default=defaults.iters, metavar="N", help=f"most iterations (default {defaults.iters})")
-    parser.add_argument("--spp", type=int, default=defaults.spp, metavar="N",
-                        help=f"samples per pixel at the end of the schedule (default {defaults.spp}; it starts at spp/4)")
     parser.add_argument("--loss", default=defaults.loss, choices=("l2", "rel_l2", "l1"), help="image loss (default l2)")
     parser.add_argument("--lr", type=float, default=defaults.lr, metavar="LR", help=f"Adam's initial learning rate on the latents (default {defaults.lr})")
     parser.add_argument("--init", nargs="+", metavar="NAME=V", help="start values of fitted controls (default: albedo 0.5 grey, "
                         "beta_m = beta_n = 0.5, the others their usual values)")
     parser.add_argument("--fix", nargs="+", metavar="NAME=V", help="set controls that are not fitted, overriding the scene files")
-    parser.add_argument("--seed", type=int, default=defaults.seed, metavar="S", help="seed of the fit's random streams (default 0)")
     parser.add_argument("--patience", type=int, default=defaults.patience, metavar="P",
                         help=f"stop after P iterations without improvement at the final spp (default {defaults.patience})")
     parser.add_argument("--refine", type=int, metavar="K",
                         help="Gauss-Newton steps after Adam (default 16, or more for a target rendered at more samples "
                         "per pixel than 16 steps render; 0 with --loss l1, which is not a sum of squares)")
-    parser.add_argument("--threads", type=int, metavar="T", help="CPU threads (default: all cores)")
     parser.add_argument("--export", metavar="RENDERERS",
                         help="also write the fitted look for these renderers beside params.json (comma-separated: "
                         "mitsuba, pbrt, cycles, materialx; files hair_<renderer>.*, as `warp-hair export` writes)")
@@ -147,13 +146,13 @@ def _fix_controls(target, fixed: dict) -> None:
 def add_targets(subparsers) -> None:
     parser = subparsers.add_parser(
         "targets",
+        parents=[render_cli.common_flags()],
         help="list or regenerate the shipped fit targets",
         description="make: render each target's images from its scene files (at their [render] spp and seed) and "
         "write truth.json, reproducing the committed files; list: the shipped targets and their true controls.",
     )
     parser.add_argument("action", choices=("make", "list"))
     parser.add_argument("names", nargs="*", metavar="NAME", help="shipped target names or target directories (default: all shipped)")
-    parser.add_argument("--threads", type=int, metavar="T", help="CPU threads (default: all cores)")
     parser.set_defaults(run=run_targets)
 
 

@@ -25,7 +25,8 @@ from dataclasses import dataclass
 
 import torch
 
-from warp_hair.model.params import ALPHA_RANGE_DEG, BETA_FLOOR, ETA_MAX, R_ROUGHNESS_SCALE_RANGE, albedo_polynomial
+from warp_hair.controls import COLOUR_CONTROL_NAMES, COLOUR_CONTROLS, CONTROLS
+from warp_hair.model.params import BETA_FLOOR, albedo_polynomial
 
 EXPOSURE = "exposure"
 DEFAULT_FIT = ("albedo", "beta_m", "beta_n")
@@ -79,24 +80,37 @@ def _need_inversion(inversion) -> None:
         raise ValueError("the albedo's latent needs the target's albedo inversion coefficients (HairParams.albedo_inversion)")
 
 
+def _spec(name: str, lo: float | None = None, hi: float | None = None, neutral: float | None = None) -> ControlSpec:
+    """A hair control's spec: its size from the table, its interval the table's range (ends open, as every
+    latent's map reaches a bound only at infinity) unless the fit narrows or widens it, its start the table's
+    default unless given."""
+    control = CONTROLS[name]
+    return ControlSpec(
+        name,
+        control.size,
+        control.lo if lo is None else lo,
+        control.hi if hi is None else hi,
+        control.default if neutral is None else neutral,
+    )
+
+
 SPECS = {
     spec.name: spec
     for spec in (
-        ControlSpec("albedo", 3, 0.0, 1.0, 0.5),
-        ControlSpec("sigma_a", 3, 0.0, math.inf, 1.0),
-        ControlSpec("eumelanin", 1, 0.0, math.inf, 1.0),
-        ControlSpec("pheomelanin", 1, 0.0, math.inf, 0.3),
-        ControlSpec("beta_m", 1, BETA_FLOOR, 1.0, 0.5),
-        ControlSpec("beta_n", 1, BETA_FLOOR, 1.0, 0.5),
-        ControlSpec("alpha", 1, ALPHA_RANGE_DEG[0], ALPHA_RANGE_DEG[1], 2.0),
-        ControlSpec("eta", 1, 1.0, ETA_MAX, 1.55),
+        _spec("albedo", neutral=0.5),
+        # The absorptions' upper limit guards float32, it is no bound a fit can reach: the log map suits them.
+        _spec("sigma_a", hi=math.inf, neutral=1.0),
+        _spec("eumelanin", hi=math.inf, neutral=1.0),
+        _spec("pheomelanin", hi=math.inf, neutral=0.3),
+        _spec("beta_m", lo=BETA_FLOOR, neutral=0.5),
+        _spec("beta_n", lo=BETA_FLOOR, neutral=0.5),
+        _spec("alpha"),
+        _spec("eta"),
         # Bounded below only: its upper limit (1e6) is far beyond any fit, and the log map suits a scale.
-        ControlSpec("r_roughness_scale", 1, R_ROUGHNESS_SCALE_RANGE[0], math.inf, 1.0),
+        _spec("r_roughness_scale", hi=math.inf),
         ControlSpec(EXPOSURE, 1, 0.0, math.inf, 1.0),
     )
 }
-
-COLOUR_CONTROLS = {"albedo": ("albedo",), "sigma_a": ("sigma_a",), "melanin": ("eumelanin", "pheomelanin")}
 
 
 def parse_control_names(names, colour_input: str) -> tuple:
@@ -110,7 +124,7 @@ def parse_control_names(names, colour_input: str) -> tuple:
     for name in names:
         if name not in SPECS:
             raise ValueError(f"unknown control {name!r} to fit; allowed: {list(SPECS)}")
-        if name in sum(COLOUR_CONTROLS.values(), ()) and name not in colour:
+        if name in COLOUR_CONTROL_NAMES and name not in colour:
             raise ValueError(
                 f"cannot fit {name!r}: the target's scenes give the hair colour as {colour_input!r}, so the colour "
                 f"control is {' and '.join(repr(c) for c in colour)}"

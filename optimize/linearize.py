@@ -27,6 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from warp_hair.controls import CONTROL_NAMES, columns
 from warp_hair.renderer.forward import prepare
 from warp_hair.renderer.jacobian import render_jacobian
 from warp_hair.torch import default_grad_seed, scene_with_controls
@@ -36,9 +37,8 @@ from .losses import REL_EPSILON, block_mean
 
 CHANNELS = 3  # consecutive residuals of one pixel (or pooled block): R, G, B
 
-# θ columns of render_jacobian (warp_hair.testing.bsdf_grad's ordering).
-COLUMNS = {"beta_m": [3], "beta_n": [4], "alpha": [5], "eta": [6], "r_roughness_scale": [7],
-           "albedo": [0, 1, 2], "sigma_a": [0, 1, 2], "eumelanin": [0], "pheomelanin": [1]}
+# θ columns of render_jacobian, per hair control.
+COLUMNS = {name: columns(name) for name in CONTROL_NAMES}
 
 
 @dataclass

@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
+from warp_hair.io import srgb_encode
 from warp_hair.model.params import HairParams
 
 from .latents import EXPOSURE, SPECS
@@ -36,7 +37,7 @@ def errors(result: FitResult, truth: dict) -> dict:
 def fitted_look(result: FitResult, target: Target) -> HairParams:
     """The hair of the target's scenes with the fitted controls put in (exposure is not a hair control)."""
     controls = target.hair.to_dict()
-    # A fit's colour control is always the scenes' colour input (controls.parse_control_names), so a plain
+    # A fit's colour control is always the scenes' colour input (latents.parse_control_names), so a plain
     # update keeps the other melanin when only one is fitted.
     controls.update({name: value for name, value in result.values.items() if name != EXPOSURE})
     return HairParams(**controls)
@@ -124,11 +125,6 @@ def plot_convergence(path: Path, result: FitResult, truth: dict) -> None:
     plt.close(fig)
 
 
-def _srgb(linear: np.ndarray) -> np.ndarray:
-    x = np.clip(linear, 0.0, 1.0)
-    return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)
-
-
 def plot_comparison(path: Path, result: FitResult, target: Target) -> None:
     """One row per target image: target | fit | difference (fit − target, red brighter, blue darker)."""
     import matplotlib
@@ -143,8 +139,8 @@ def plot_comparison(path: Path, result: FitResult, target: Target) -> None:
         exposure = 0.8 / max(float(np.percentile(image.image, 99)), 1e-6)
         diff = (fitted - image.image).mean(axis=-1)
         limit = max(float(np.percentile(np.abs(diff), 99)), 1e-6)
-        panels = ((_srgb(image.image * exposure), f"target: {image.name}", None),
-                  (_srgb(fitted * exposure), "fit", None),
+        panels = ((srgb_encode(image.image * exposure), f"target: {image.name}", None),
+                  (srgb_encode(fitted * exposure), "fit", None),
                   (diff, f"fit − target (±{limit:.3g})", limit))
         for ax, (picture, title, lim) in zip(axes[row], panels):
             if lim is None:

@@ -22,6 +22,8 @@ target.toml:
 All images of a target show the same fibers with the same hair: their scenes' [fibers] and [hair] must agree.
 `make_target` renders the images from their scenes (at the spp and seed of each scene's [render] table) and
 writes truth.json from the [hair] table: what the shipped targets are made with (`warp-hair targets make`).
+The shipped targets are the `targets` package's data; an installed package's copy is not rewritten (make_target
+says so): remake them in a source checkout, or copy one elsewhere and make the copy.
 
 A target rendered by another renderer says so in target.toml, `renderer = "cycles"` or `"mitsuba"` (default
 "warp-hair"): its scene files describe for warp-hair what that renderer rendered, and `make_target` leaves its
@@ -37,18 +39,19 @@ from pathlib import Path
 
 import numpy as np
 
+import targets as shipped
 from warp_hair.io import read_exr, write_exr
 from warp_hair.model.params import HairParams
 from warp_hair.renderer.forward import render, render_metadata
 from warp_hair.scene import Scene, load_scene
 
-TARGET_FILE = "target.toml"
+TARGET_FILE = shipped.TARGET_FILE
 TRUTH_FILE = "truth.json"
 IMAGE_KEYS = {"scene", "image", "mask"}
 # Who rendered a target's images: warp-hair itself, or a peer renderer (benchmarks/make_peer_targets.py).
 RENDERERS = ("warp-hair", "mitsuba", "cycles")
-# The shipped targets, next to the packages in the repository.
-SHIPPED_TARGETS = Path(__file__).resolve().parent.parent / "targets"
+# The shipped targets: the `targets` package's data, in a source checkout or an installed package.
+SHIPPED_TARGETS = shipped.root()
 
 
 @dataclass
@@ -208,6 +211,7 @@ def make_target(directory, threads=None, progress=None) -> list[Path]:
     """
     directory = Path(directory)
     entries = read_target_spec(directory)
+    _check_writable_target(directory)
     renderer = target_renderer(directory)
     if renderer != "warp-hair":
         raise ValueError(f"{directory}: its images were rendered by {renderer}; re-render them with "
@@ -238,6 +242,15 @@ def make_target(directory, threads=None, progress=None) -> list[Path]:
     return written
 
 
+def _check_writable_target(directory: Path) -> None:
+    """An installed package's shipped targets are its data, not a working copy: they are remade in a checkout."""
+    if shipped.is_source_checkout() or directory.resolve().parent != SHIPPED_TARGETS.resolve():
+        return
+    raise ValueError(f"{directory}: a shipped target of the installed warp-hair package, which is not rewritten; "
+                     f"remake it in a source checkout, or copy the directory elsewhere and make the copy "
+                     f"(`cp -r {directory} my_target && warp-hair targets make my_target`)")
+
+
 def shipped_targets() -> list[Path]:
-    """The target directories shipped in `targets/`, sorted by name."""
-    return sorted(p for p in SHIPPED_TARGETS.iterdir() if (p / TARGET_FILE).is_file())
+    """The shipped target directories (the `targets` package), sorted by name."""
+    return [shipped.path(name) for name in shipped.names()]

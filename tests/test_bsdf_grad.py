@@ -1,7 +1,7 @@
 """Derivatives of S and pdf with respect to every artist control (warp_hair.testing.bsdf_grad) against the reference.
 
 The reference derivative d of each output (S_r, S_g, S_b, pdf) is a five-point central finite difference of
-the float64 NumPy model (tests/reference_model.py), step 1e-5 of the control's scale (steps of 5e-6 and
+the float64 NumPy model (tests/helpers/reference_model.py), step 1e-5 of the control's scale (steps of 5e-6 and
 2e-5 change it by less than 1e-3 of the allowance below: truncation and rounding are negligible). Each
 output is a sum over the lobes p of a geometric factor G_p = M_p N_p times a colour factor F_p (A_p for S,
 the lobe probability for the pdf), and no control acts on both M and N, so d = Σ_p (∂G_p F_p + G_p ∂F_p).
@@ -36,137 +36,33 @@ large, including the peaks of narrow lobes).
 `python tests/test_bsdf_grad.py` prints the largest errors per colour mode and control.
 """
 
-import math
 import warnings
 
 import numpy as np
 import pytest
-import reference_model as ref
 import warp as wp
-from sphere import random_directions
+from helpers.bsdf_derivatives import (
+    ATOL,
+    COLOUR_MODES,
+    RTOL,
+    UNDERFLOW,
+    configurations,
+    control_entries,
+    natural_scale,
+    random_controls,
+    reference_derivative,
+)
+from helpers.sphere import random_directions
 
 import warp_hair as wh
 from warp_hair.testing import bsdf_grad
 from warp_hair.model.hair_bsdf import HairCoefficients, hair_coefficients
-from warp_hair.model.params import (
-    TALK_ALBEDO_INVERSION,
-    lobe_variances,
-    logistic_scale,
-    longitudinal_variance,
-    sigma_a_from_albedo,
-)
+from warp_hair.model.params import TALK_ALBEDO_INVERSION, sigma_a_from_albedo
 
 wp.set_module_options({"enable_backward": False})
 
-RTOL = 1e-4
-ATOL = 1e-5
-UNDERFLOW = 1e-30
-FD_STEP = 1e-5
 MATERIALS_PER_MODE = 48
 CONFIGS_PER_MATERIAL = 96  # 4608 configurations per colour mode
-COLOUR_MODES = ("albedo", "sigma_a", "melanin")
-
-# The smallest step scale per control: σ_a, melanin and α may be 0.
-STEP_FLOOR = {"sigma_a": 1e-2, "eumelanin": 1e-2, "pheomelanin": 1e-2, "alpha": 1.0}
-
-
-def _float32(value):
-    return [float(np.float32(v)) for v in value] if isinstance(value, list) else float(np.float32(value))
-
-
-def random_controls(rng, mode: str) -> dict:
-    if mode == "albedo":
-        colour = {"albedo": list(rng.uniform(0.02, 0.99, 3))}
-    elif mode == "sigma_a":
-        colour = {"sigma_a": list(rng.uniform(0.0, 4.0, 3))}
-    else:
-        colour = {"eumelanin": rng.uniform(0.0, 8.0), "pheomelanin": rng.uniform(0.0, 3.0)}
-    controls = dict(
-        colour,
-        beta_m=rng.uniform(0.02, 1.0),
-        beta_n=rng.uniform(0.02, 1.0),
-        alpha=rng.uniform(-25.0, 25.0),
-        eta=rng.uniform(1.05, 2.5),
-        r_roughness_scale=math.exp(rng.uniform(math.log(0.1), math.log(10.0))),
-    )
-    return {name: _float32(value) for name, value in controls.items()}
-
-
-def configurations(rng, params, n):
-    """(wo, wi, h) in float32; the second half of wi importance-sampled from the material itself."""
-    wo = random_directions(rng, n).astype(np.float32)
-    wi = random_directions(rng, n).astype(np.float32)
-    h = rng.uniform(-0.999, 0.999, n).astype(np.float32)
-    half = n // 2
-    wi[half:] = wh.bsdf.sample(params, wo[half:], h[half:], rng.random((n - half, 3)))[0]
-    return wo, wi, h
-
-
-def control_entries(controls: dict):
-    """(name, component) of every scalar the material's derivatives are taken for; component None for scalars."""
-    entries = []
-    for name, value in controls.items():
-        entries += [(name, k) for k in range(3)] if isinstance(value, list) else [(name, None)]
-    return entries
-
-
-def shifted(controls: dict, name: str, component, step: float) -> dict:
-    out = dict(controls)
-    if component is None:
-        out[name] = controls[name] + step
-    else:
-        out[name] = list(controls[name])
-        out[name][component] += step
-    return out
-
-
-def lobe_factors(controls, wo, wi, h):
-    """G (N, 4) = M_p N_p per lobe, and F (N, 4, 4): A_p per channel of S, then the lobe probability."""
-    MN, A = ref._lobe_terms(ref.coefficients(controls), wo, wi, h)
-    return MN, np.concatenate([A, ref._lobe_probs(A)[:, :, None]], axis=2)
-
-
-def reference_derivative(controls, name, component, wo, wi, h):
-    """(d, terms, out), each (N, 4) over (S_r, S_g, S_b, pdf): the derivative, Σ of its terms' magnitudes, the output."""
-    value = controls[name] if component is None else controls[name][component]
-    step = FD_STEP * max(abs(value), STEP_FLOOR.get(name, 0.0))
-    at = {j: lobe_factors(shifted(controls, name, component, j * step), wo, wi, h) for j in (-2, -1, 1, 2)}
-
-    def five_point(i):
-        return (at[-2][i] - 8.0 * at[-1][i] + 8.0 * at[1][i] - at[2][i]) / (12.0 * step)
-
-    G, F = lobe_factors(controls, wo, wi, h)
-    dG, dF = five_point(0)[:, :, None], five_point(1)
-    G = G[:, :, None]
-    d = (dG * F + G * dF).sum(axis=1)
-    terms = (np.abs(dG * F) + np.abs(G * dF)).sum(axis=1)
-    return d, terms, (G * F).sum(axis=1)
-
-
-def _log_slope(mapping, x):
-    return abs(math.log(mapping(x * (1 + 1e-6))) - math.log(mapping(x * (1 - 1e-6)))) / (2e-6 * x)
-
-
-def natural_scale(controls: dict, name: str) -> float:
-    """ν_k: log-change of the lobes per unit of the control, the size of the parts its derivative sums.
-
-    β_m, r_roughness_scale: d log v / dθ (v the longitudinal variance they set). β_n: d log s / dβ_n.
-    α (degrees): the largest rotation of θ_o per degree (4α on TRT) over the narrowest lobe's width √v.
-    η: the azimuthal centres move O(1) per unit η, over the logistic width s; Fresnel and absorption O(1).
-    Colours: 1 per unit of albedo, σ_a or melanin.
-    """
-    if name == "beta_m":
-        return _log_slope(longitudinal_variance, controls["beta_m"])
-    if name == "r_roughness_scale":
-        return 1.0 / controls["r_roughness_scale"]
-    if name == "beta_n":
-        return _log_slope(logistic_scale, controls["beta_n"])
-    if name == "alpha":
-        v = lobe_variances(controls["beta_m"], controls["r_roughness_scale"])
-        return 4.0 * math.radians(1.0) / math.sqrt(v.min())
-    if name == "eta":
-        return 1.0 + 1.0 / logistic_scale(controls["beta_n"])
-    return 1.0
 
 
 def warp_derivative(value_grad: dict, pdf_grad: dict, name: str, component) -> np.ndarray:

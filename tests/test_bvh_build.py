@@ -1,4 +1,4 @@
-"""The BVH build in Warp kernels reproduces the NumPy reference build (tests/reference_bvh.py) exactly: the same
+"""The BVH build in Warp kernels reproduces the NumPy reference build (tests/helpers/reference_bvh.py) exactly: the same
 order, boxes, children and levels, so the same surface area heuristic cost and the same traversals; and the tree
 does not depend on the number of threads."""
 
@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import reference_bvh
+from helpers import reference_bvh
 
 from warp_hair.geometry import bvh
 from warp_hair.geometry.formats import load_fibers

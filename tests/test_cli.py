@@ -6,6 +6,7 @@ import sys
 
 import numpy as np
 import pytest
+from helpers.scenes import TINY_SCENE
 
 import warp_hair as wh
 from warp_hair.cli import main
@@ -109,38 +110,8 @@ def test_far_field_azimuthal_profile_is_mirror_symmetric():
     assert not np.allclose(near, near[::-1], rtol=0.1)
 
 
-TINY_SCENE = """
-[camera]
-type = "orthographic"
-origin = [0.0, 0.0, 3.0]
-target = [0.0, 0.0, 0.0]
-up = [0.0, 1.0, 0.0]
-width = 0.2
-resolution = [12, 8]
-
-[[lights]]
-type = "directional"
-direction = [0.3, -0.4, -1.0]
-irradiance = [3.0, 3.0, 3.0]
-
-[fibers]
-generator = "swatch"
-count = 40
-layers = 2
-
-[hair]
-eumelanin = 1.3
-
-[render]
-spp = 2
-max_depth = 8
-seed = 4
-"""
-
-
-def test_render_writes_exr_with_metadata_and_png(tmp_path, capsys):
-    scene = tmp_path / "tiny.toml"
-    scene.write_text(TINY_SCENE)
+def test_render_writes_exr_with_metadata_and_png(tiny_scene, tmp_path, capsys):
+    scene = tiny_scene
     exr, png = tmp_path / "tiny.exr", tmp_path / "tiny.png"
     assert main(["render", str(scene), "-o", str(exr), "--png", str(png), "--spp", "3", "--threads", "1"]) == 0
     assert f"wrote {exr}" in capsys.readouterr().out

@@ -6,7 +6,7 @@ every lobe is normalised); averaged over h it is the fiber's albedo of 1.
 
 import numpy as np
 import pytest
-from sphere import from_angles, random_directions, stratified_directions
+from helpers.sphere import from_angles, random_directions, stratified_directions
 
 import warp_hair as wh
 

@@ -9,47 +9,27 @@ import json
 
 import numpy as np
 import pytest
+from helpers.scenes import front_camera, toml_text
 
 from optimize.cli import main
 from optimize.fit import fit
 from optimize.target import load_target, make_target
 
 TRUTH = {"albedo": [0.55, 0.38, 0.22], "beta_m": 0.3, "beta_n": 0.4}
-SCENE = """
-[camera]
-type = "orthographic"
-origin = [0.0, 0.0, 3.0]
-target = [0.0, 0.0, 0.0]
-up = [0.0, 1.0, 0.0]
-width = 0.36
-resolution = [24, 24]
 
-[[lights]]
-type = "directional"
-direction = {direction}
-irradiance = [3.0, 3.0, 3.0]
 
-[fibers]
-generator = "swatch"
-count = 120
-layers = 2
-length = 0.5
-width = 0.4
-radius = 0.004
-drape = 0.25
-segments = 16
-seed = 4
+def scene_text(direction, spp):
+    """A 120-fiber draped swatch with the TRUTH controls under one directional light, 24×24 pixels."""
+    return toml_text({
+        "camera": front_camera(0.36, (24, 24)),
+        "lights": [{"type": "directional", "direction": direction, "irradiance": [3.0, 3.0, 3.0]}],
+        "fibers": {"generator": "swatch", "count": 120, "layers": 2, "length": 0.5, "width": 0.4, "radius": 0.004,
+                   "drape": 0.25, "segments": 16, "seed": 4},
+        "hair": dict(TRUTH),
+        "render": {"spp": spp, "max_depth": 16, "seed": 3},
+    })
 
-[hair]
-albedo = {albedo}
-beta_m = {beta_m}
-beta_n = {beta_n}
 
-[render]
-spp = {spp}
-max_depth = 16
-seed = 3
-"""
 # At 1024 spp this target's own noise leaves red albedo uncertain by ±0.03 (1σ, as the fit reports it), the
 # bound below: the fit passed or failed by chance. At 4096, ±0.012.
 TARGET_SPP = 4096
@@ -59,7 +39,7 @@ TARGET_SPP = 4096
 def small_target(tmp_path_factory):
     directory = tmp_path_factory.mktemp("small_target")
     for name, direction in (("front", [0.2, -0.3, -1.0]), ("back", [0.0, -0.15, 1.0])):
-        (directory / f"scene_{name}.toml").write_text(SCENE.format(direction=direction, spp=TARGET_SPP, **TRUTH))
+        (directory / f"scene_{name}.toml").write_text(scene_text(direction, TARGET_SPP))
     (directory / "target.toml").write_text(
         '[[images]]\nscene = "scene_front.toml"\nimage = "front.exr"\n\n'
         '[[images]]\nscene = "scene_back.toml"\nimage = "back.exr"\n'

@@ -3,65 +3,25 @@
 import re
 
 import pytest
+from helpers.scenes import SPARSE_HAIR, sparse_scene_dict, toml_text
 
 from warp_hair.cli import main
 from warp_hair.gradcheck import GradcheckRow, gradcheck, target_hair
 
 
-# 12×12 px, one sparse layer of 24 fibers, directional + constant sky, max_depth 8 without roulette (as
-# tests/test_render_grad.py: sparse, so that central differences with common random numbers are not swamped by
-# the discrete choices a change of the controls flips).
-TINY_SCENE = """
-[camera]
-type = "orthographic"
-origin = [0.0, 0.0, 3.0]
-target = [0.0, 0.0, 0.0]
-up = [0.0, 1.0, 0.0]
-width = 0.25
-resolution = [12, 12]
-
-[[lights]]
-type = "directional"
-direction = [0.3, -0.4, -1.0]
-irradiance = [3.0, 3.0, 3.0]
-
-[[lights]]
-type = "environment"
-radiance = [0.3, 0.3, 0.3]
-
-[fibers]
-generator = "swatch"
-count = 24
-layers = 1
-length = 0.6
-radius = 0.004
-seed = 3
-
-[hair]
-albedo = [0.7, 0.5, 0.3]
-beta_m = 0.3
-beta_n = 0.35
-alpha = 2.0
-eta = 1.55
-r_roughness_scale = 1.5
-
-[render]
-spp = 16
-max_depth = 8
-rr_depth = 8
-seed = 1
-"""
+# 12×12 px, the gradient checks' sparse scene at 16 spp (helpers.scenes.sparse_scene_dict).
+SPARSE_SCENE = toml_text(sparse_scene_dict(SPARSE_HAIR, (12, 12), spp=16))
 
 
 @pytest.fixture
-def tiny_scene(tmp_path):
-    path = tmp_path / "tiny.toml"
-    path.write_text(TINY_SCENE)
+def sparse_scene_file(tmp_path):
+    path = tmp_path / "sparse.toml"
+    path.write_text(SPARSE_SCENE)
     return path
 
 
-def test_gradcheck_prints_a_row_per_control(tiny_scene, capsys):
-    assert main(["gradcheck", str(tiny_scene), "--spp", "64", "--seeds", "4", "--params", "albedo,eta"]) == 0
+def test_gradcheck_prints_a_row_per_control(sparse_scene_file, capsys):
+    assert main(["gradcheck", str(sparse_scene_file), "--spp", "64", "--seeds", "4", "--params", "albedo,eta"]) == 0
     out = capsys.readouterr().out
     rows = {line.split()[0]: line for line in out.splitlines() if re.match(r"(albedo\[[rgb]\]|eta)\s", line)}
     assert set(rows) == {"albedo[r]", "albedo[g]", "albedo[b]", "eta"}, out
@@ -70,19 +30,19 @@ def test_gradcheck_prints_a_row_per_control(tiny_scene, capsys):
     assert "4/4 OK" in out
 
 
-def test_unknown_control_exits_2(tiny_scene, capsys):
-    assert main(["gradcheck", str(tiny_scene), "--params", "albedo,bogus"]) == 2
+def test_unknown_control_exits_2(sparse_scene_file, capsys):
+    assert main(["gradcheck", str(sparse_scene_file), "--params", "albedo,bogus"]) == 2
     err = capsys.readouterr().err
     assert "warp-hair: error:" in err and "'bogus'" in err
 
 
-def test_step_outside_the_range_is_an_error(tiny_scene, capsys):
-    assert main(["gradcheck", str(tiny_scene), "--params", "beta_m", "--eps", "0.5"]) == 2
+def test_step_outside_the_range_is_an_error(sparse_scene_file, capsys):
+    assert main(["gradcheck", str(sparse_scene_file), "--params", "beta_m", "--eps", "0.5"]) == 2
     assert "use a smaller --eps" in capsys.readouterr().err
 
 
 def test_target_perturbation():
-    scene = load_scene_from_text(TINY_SCENE)
+    scene = load_scene_from_text(SPARSE_SCENE)
     moved = target_hair(scene.hair, ["albedo", "beta_m", "alpha", "eta"])
     assert moved.albedo == pytest.approx((0.63, 0.45, 0.27))
     assert (moved.beta_m, moved.alpha, moved.eta) == pytest.approx((0.35, 5.0, 1.60))
@@ -102,7 +62,7 @@ def test_verdict_rule():
 
 def test_gradcheck_needs_two_seeds():
     with pytest.raises(ValueError, match="seeds must be at least 2"):
-        gradcheck(load_scene_from_text(TINY_SCENE), ["eta"], seeds=1)
+        gradcheck(load_scene_from_text(SPARSE_SCENE), ["eta"], seeds=1)
 
 
 def load_scene_from_text(text):

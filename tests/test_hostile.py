@@ -10,6 +10,8 @@ import tomllib
 
 import numpy as np
 import pytest
+from helpers import reference_model as reference
+from helpers.scenes import TINY_SCENE
 
 import warp_hair as wh
 from warp_hair import validate
@@ -20,9 +22,6 @@ from warp_hair.geometry.generators import swatch
 from warp_hair.io import write_exr
 from warp_hair.model.params import HairParams
 from warp_hair.scene import scene_from_dict
-
-import reference_model as reference
-from test_cli import TINY_SCENE
 
 # The command-line tests' tiny scene: 12×8 pixels, 40 fibers, 2 spp.
 BASE = tomllib.loads(TINY_SCENE)

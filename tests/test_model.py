@@ -2,7 +2,7 @@
 
 import numpy as np
 import pytest
-from sphere import direction, from_angles, midpoint_grid, random_directions
+from helpers.sphere import direction, from_angles, midpoint_grid, random_directions
 
 import warp_hair as wh
 from warp_hair.model.params import EUMELANIN_SIGMA_A, PHEOMELANIN_SIGMA_A

@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from helpers.scenes import front_camera, toml_text
 
 from optimize.cli import main
 from optimize.latents import SPECS, parse_control_names
@@ -24,46 +25,22 @@ from warp_hair.model.params import TALK_ALBEDO_INVERSION
 from warp_hair.renderer.forward import render
 from warp_hair.torch import default_grad_seed, scene_with_controls
 
-SCENE = """
-[camera]
-type = "orthographic"
-origin = [0.0, 0.0, 3.0]
-target = [0.0, 0.0, 0.0]
-up = [0.0, 1.0, 0.0]
-width = 0.2
-resolution = [{w}, {h}]
-
-[[lights]]
-type = "directional"
-direction = [0.2, -0.3, {dz}]
-irradiance = [3.0, 3.0, 3.0]
-
-[fibers]
-generator = "swatch"
-count = 30
-layers = 2
-length = 0.3
-width = 0.2
-radius = 0.004
-drape = 0.2
-segments = 12
-seed = 5
-
-[hair]
-albedo = [{red}, 0.4, 0.3]
-beta_m = 0.3
-beta_n = 0.4
-
-[render]
-spp = 4
-max_depth = 8
-"""
+def scene_text(w, h, dz, red):
+    """A 30-fiber draped swatch lit from the front (dz < 0) or from behind, w×h pixels."""
+    return toml_text({
+        "camera": front_camera(0.2, (w, h)),
+        "lights": [{"type": "directional", "direction": [0.2, -0.3, dz], "irradiance": [3.0, 3.0, 3.0]}],
+        "fibers": {"generator": "swatch", "count": 30, "layers": 2, "length": 0.3, "width": 0.2, "radius": 0.004,
+                   "drape": 0.2, "segments": 12, "seed": 5},
+        "hair": {"albedo": [red, 0.4, 0.3], "beta_m": 0.3, "beta_n": 0.4},
+        "render": {"spp": 4, "max_depth": 8},
+    })
 
 
 def write_target(directory, w=8, h=6, red=0.6, image_shape=None, extra="", back_red=None):
     directory.mkdir(parents=True, exist_ok=True)
-    (directory / "scene_front.toml").write_text(SCENE.format(w=w, h=h, dz=-1.0, red=red))
-    (directory / "scene_back.toml").write_text(SCENE.format(w=w, h=h, dz=1.0, red=red if back_red is None else back_red))
+    (directory / "scene_front.toml").write_text(scene_text(w, h, -1.0, red))
+    (directory / "scene_back.toml").write_text(scene_text(w, h, 1.0, red if back_red is None else back_red))
     (directory / "target.toml").write_text(
         '[[images]]\nscene = "scene_front.toml"\nimage = "front.exr"\n' + extra
         + '\n[[images]]\nscene = "scene_back.toml"\nimage = "back.exr"\n'

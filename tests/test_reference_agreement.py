@@ -1,4 +1,4 @@
-"""The Warp BSDF agrees with an independent float64 NumPy reference (tests/reference_model.py).
+"""The Warp BSDF agrees with an independent float64 NumPy reference (tests/helpers/reference_model.py).
 
 Tolerance: 1e-4 relative or 1e-6 absolute per value (|warp − ref| ≤ 1e-4·|ref| + 1e-6); a sampled
 direction is a unit vector, so its relative error is |wi_warp − wi_ref|. 24 materials × 512 configurations
@@ -11,8 +11,8 @@ import warnings
 
 import numpy as np
 import pytest
-import reference_model as ref
-from sphere import random_directions
+from helpers import reference_model as ref
+from helpers.sphere import random_directions
 
 import warp_hair as wh
 

@@ -3,31 +3,12 @@ fiber's width, Monte Carlo convergence, and images that do not depend on the num
 
 import numpy as np
 import pytest
-import reference_model as ref
+from helpers import reference_model as ref
+from helpers.scenes import front_camera, swatch_scene
 
 from warp_hair.geometry.assembly import FiberAssembly
 from warp_hair.renderer.forward import render
 from warp_hair.scene import EnvironmentLight, scene_from_dict
-
-
-def swatch_scene(hair, lights, resolution=(24, 24), render_table=None, card=None):
-    data = {
-        "camera": {
-            "type": "orthographic",
-            "origin": [0.0, 0.0, 3.0],
-            "target": [0.0, 0.0, 0.0],
-            "up": [0.0, 1.0, 0.0],
-            "width": 0.3,
-            "resolution": list(resolution),
-        },
-        "lights": lights,
-        "fibers": {"generator": "swatch", "count": 160, "layers": 4, "length": 0.6, "radius": 0.004, "seed": 3},
-        "hair": hair,
-        "render": render_table or {"spp": 64, "max_depth": 64, "seed": 1},
-    }
-    if card is not None:
-        data["card"] = card
-    return scene_from_dict(data)
 
 
 def test_white_furnace():
@@ -67,14 +48,7 @@ def single_fiber_scene(radius, light_direction, resolution, hair):
     points = np.array([[0.0, -1.0, 0.0], [0.0, 1.0, 0.0]])
     fiber = FiberAssembly(points, np.full(2, radius), np.array([0, 2]))
     data = {
-        "camera": {
-            "type": "orthographic",
-            "origin": [0.0, 0.0, 3.0],
-            "target": [0.0, 0.0, 0.0],
-            "up": [0.0, 1.0, 0.0],
-            "width": 2.0 * radius,
-            "resolution": list(resolution),
-        },
+        "camera": front_camera(2.0 * radius, resolution),
         "lights": [{"type": "directional", "direction": list(light_direction), "irradiance": [2.0, 2.0, 2.0]}],
         "fibers": {"generator": "swatch", "count": 1, "layers": 1},
         "hair": hair,

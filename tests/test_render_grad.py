@@ -11,39 +11,16 @@ difference of their means. One test compares them without common random numbers,
 
 import numpy as np
 import pytest
+from helpers.scenes import SPARSE_HAIR, sparse_scene
 
 from warp_hair.renderer.forward import render
 from warp_hair.renderer.gradients import render_grad
-from warp_hair.scene import scene_from_dict
 
-HAIR = {"albedo": [0.7, 0.5, 0.3], "beta_m": 0.3, "beta_n": 0.35, "alpha": 2.0, "eta": 1.55, "r_roughness_scale": 1.5}
+HAIR = SPARSE_HAIR
 # Central-difference steps (ε; the differences are extrapolated from ε and ε/2): large enough that the 1/ε
 # variance of the discontinuities stays small.
 STEPS = {"albedo": 0.04, "beta_m": 0.04, "beta_n": 0.08, "alpha": 1.0, "eta": 0.04, "r_roughness_scale": 0.4}
 SEEDS = range(1, 9)
-SPP = 128
-
-
-def sparse_scene(hair, resolution=(16, 16)):
-    return scene_from_dict(
-        {
-            "camera": {
-                "type": "orthographic",
-                "origin": [0.0, 0.0, 3.0],
-                "target": [0.0, 0.0, 0.0],
-                "up": [0.0, 1.0, 0.0],
-                "width": 0.25,
-                "resolution": list(resolution),
-            },
-            "lights": [
-                {"type": "directional", "direction": [0.3, -0.4, -1.0], "irradiance": [3.0, 3.0, 3.0]},
-                {"type": "environment", "radiance": [0.3, 0.3, 0.3]},
-            ],
-            "fibers": {"generator": "swatch", "count": 24, "layers": 1, "length": 0.6, "radius": 0.004, "seed": 3},
-            "hair": hair,
-            "render": {"spp": SPP, "max_depth": 8, "rr_depth": 8, "seed": 1},
-        }
-    )
 
 
 def loss(scene, adjoint, seed):

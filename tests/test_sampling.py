@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 from scipy.stats import chi2
-from sphere import from_angles, midpoint_grid
+from helpers.sphere import from_angles, midpoint_grid
 
 import warp_hair as wh
 

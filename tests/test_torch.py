@@ -6,7 +6,7 @@ import dataclasses
 import numpy as np
 import pytest
 import torch
-from test_render import swatch_scene
+from helpers.scenes import swatch_scene
 
 from warp_hair.renderer.forward import render
 from warp_hair.renderer.gradients import render_grad

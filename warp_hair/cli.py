@@ -25,10 +25,31 @@ import warnings
 from pathlib import Path
 
 from . import validate
-from .model.params import ETA_MAX, R_ROUGHNESS_SCALE_RANGE, HairParams
+from .controls import CONTROLS, SCALAR_CONTROLS
+from .model.params import HairParams
 
 PROG = "warp-hair"
 DEFAULT_ALBEDO = (0.6, 0.4, 0.2)
+SCENE_SPP = "samples per pixel (default: the scene's [render] spp)"
+SCENE_SEED = "random seed (default: the scene's [render] seed)"
+
+
+def common_flags(*, threads=True, spp=None, seed=None, spp_default=None, seed_default=None) -> argparse.ArgumentParser:
+    """The parent parser of a subcommand: the flags every command spells the same way.
+
+    --debug (also accepted before the subcommand), --threads where the command renders, and --spp / --seed
+    where given their help text (the defaults differ: the scene's [render] table, or the command's own).
+    """
+    parent = argparse.ArgumentParser(add_help=False)
+    if spp is not None:
+        parent.add_argument("--spp", type=int, default=spp_default, metavar="N", help=spp)
+    if seed is not None:
+        parent.add_argument("--seed", type=int, default=seed_default, metavar="S", help=seed)
+    if threads:
+        parent.add_argument("--threads", type=int, metavar="T", help="CPU threads (default: all cores)")
+    # SUPPRESS keeps the top-level value when the flag is not repeated after the subcommand.
+    parent.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help=argparse.SUPPRESS)
+    return parent
 
 
 def add_hair_controls(parser: argparse.ArgumentParser) -> None:
@@ -43,13 +64,11 @@ def add_hair_controls(parser: argparse.ArgumentParser) -> None:
         help="absorption per unit fiber radius, >= 0: one value (grey) or three (R G B)")
     add("--eumelanin", type=float, metavar="X", help="eumelanin concentration >= 0 (blonde 0.3, brown 1.3, black 8)")
     add("--pheomelanin", type=float, metavar="Y", help="pheomelanin (red-yellow pigment) concentration >= 0")
-    add("--beta-m", type=float, default=0.3, metavar="B", help="longitudinal roughness in [0, 1] (default 0.3)")
-    add("--beta-n", type=float, default=0.3, metavar="B", help="azimuthal roughness in [0, 1] (default 0.3)")
-    add("--alpha", type=float, default=2.0, metavar="DEG", help="cuticle tilt in degrees, in [-30, 30] (default 2)")
-    add("--eta", type=float, default=1.55, metavar="E", help=f"index of refraction, in (1, {ETA_MAX:g}] (default 1.55)")
-    add("--r-roughness-scale", type=float, default=1.0, metavar="K",
-        help="factor on the primary reflection's longitudinal roughness, in [{:g}, {:g}] (default 1)".format(
-            *R_ROUGHNESS_SCALE_RANGE))
+    metavars = {"alpha": "DEG", "eta": "E", "r_roughness_scale": "K"}
+    for name in SCALAR_CONTROLS:
+        c = CONTROLS[name]
+        add(f"--{name.replace('_', '-')}", type=float, default=c.default, metavar=metavars.get(name, "B"),
+            help=f"{c.doc}, in {c.interval} (default {c.default:g})")
 
 
 def hair_params(args: argparse.Namespace) -> HairParams:
@@ -69,6 +88,7 @@ def hair_params(args: argparse.Namespace) -> HairParams:
 def add_plot_bsdf(subparsers) -> None:
     parser = subparsers.add_parser(
         "plot-bsdf",
+        parents=[common_flags(threads=False)],
         help="plot the lobes of a hair material to a PNG",
         description="Plot the azimuthal (top row) and longitudinal (bottom row) lobes of a hair material, "
         "one column per viewing angle, for checking a material by eye.",
@@ -91,15 +111,13 @@ def plot_bsdf(args: argparse.Namespace) -> None:
 def add_render(subparsers) -> None:
     parser = subparsers.add_parser(
         "render",
+        parents=[common_flags(spp=SCENE_SPP, seed=SCENE_SEED)],
         help="path-trace a scene file to a linear EXR",
         description="Path-trace a scene (TOML) to a float32 linear-radiance EXR, with the scene and hair controls "
         "in its header; optionally also a tone-mapped sRGB PNG preview.",
     )
     parser.add_argument("scene", type=Path, metavar="SCENE.toml", help="the scene file")
     parser.add_argument("-o", "--output", required=True, type=Path, metavar="OUT.exr", help="the EXR file to write")
-    parser.add_argument("--spp", type=int, metavar="N", help="samples per pixel (default: the scene's [render] spp)")
-    parser.add_argument("--seed", type=int, metavar="S", help="random seed (default: the scene's [render] seed)")
-    parser.add_argument("--threads", type=int, metavar="T", help="CPU threads (default: all cores)")
     parser.add_argument("--png", type=Path, metavar="PREVIEW.png", help="also write a tone-mapped sRGB preview")
     parser.add_argument("--exposure", type=float, default=1.0, metavar="E", help="scale applied before tone mapping the PNG (default 1)")
     parser.set_defaults(run=render_scene)
@@ -135,6 +153,7 @@ def render_scene(args: argparse.Namespace) -> None:
 def add_gradcheck(subparsers) -> None:
     parser = subparsers.add_parser(
         "gradcheck",
+        parents=[common_flags(spp="samples per pixel per render (default 16)", spp_default=16)],
         help="check render gradients against finite differences on a scene",
         description="Compare the render-level gradients (render_grad) of L = mean 0.5 (image - target)^2 with "
         "central finite differences of render (common random numbers, Richardson-extrapolated from eps and "
@@ -144,7 +163,6 @@ def add_gradcheck(subparsers) -> None:
         "--spp plus the target, at the scene's own resolution; lower the resolution in the scene for quick checks.",
     )
     parser.add_argument("scene", type=Path, metavar="SCENE.toml", help="the scene file")
-    parser.add_argument("--spp", type=int, default=16, metavar="N", help="samples per pixel per render (default 16)")
     parser.add_argument("--seeds", type=int, default=4, metavar="K",
                         help="independent seed pairs, for the standard errors; at least 2 (default 4)")
     parser.add_argument("--params", metavar="NAMES",
@@ -152,7 +170,6 @@ def add_gradcheck(subparsers) -> None:
     parser.add_argument("--eps", type=float, metavar="E",
                         help="one finite-difference step for every control (default per control: colour 0.04, "
                         "melanins 0.05, beta_m 0.04, beta_n 0.08, alpha 1 deg, eta 0.04, r_roughness_scale 0.4)")
-    parser.add_argument("--threads", type=int, metavar="T", help="CPU threads (default: all cores)")
     parser.set_defaults(run=gradcheck_scene)
 
 
@@ -187,6 +204,7 @@ def add_export(subparsers) -> None:
 
     parser = subparsers.add_parser(
         "export",
+        parents=[common_flags(threads=False)],
         help="write a look for Mitsuba 3, pbrt-v4, Blender Cycles or MaterialX",
         description="Convert a look to another renderer's hair material: Mitsuba 3's hair BSDF (XML element), "
         "pbrt-v4's Material \"hair\", a Blender bpy script building a Principled Hair BSDF (Chiang), or a "
@@ -210,6 +228,8 @@ def export_look(args: argparse.Namespace) -> None:
 def add_calibrate(subparsers) -> None:
     parser = subparsers.add_parser(
         "calibrate",
+        parents=[common_flags(spp=SCENE_SPP, seed="seed of the first render, the k-th uses S + k (default: the "
+                              "scene's [render] seed)")],
         help="refit the albedo inversion for a scene's assembly and lighting",
         description="Render the scene at every point of a grid of grey sigma_a and beta_n (its other controls as "
         "they are), measure each render's albedo (the mean of the pixels the fibers cover, over the radiance of a "
@@ -226,10 +246,6 @@ def add_calibrate(subparsers) -> None:
     parser.add_argument("--beta-n", nargs="+", type=float, metavar="B",
                         help="azimuthal roughnesses of the grid, in [0.01, 1], at least 6 distinct (default: "
                         "warp_hair.calibrate.DEFAULT_BETA_N, 8 values)")
-    parser.add_argument("--spp", type=int, metavar="N", help="samples per pixel (default: the scene's [render] spp)")
-    parser.add_argument("--seed", type=int, metavar="S",
-                        help="seed of the first render, the k-th uses S + k (default: the scene's [render] seed)")
-    parser.add_argument("--threads", type=int, metavar="T", help="CPU threads (default: all cores)")
     parser.set_defaults(run=calibrate_scene)
 
 
@@ -288,9 +304,6 @@ def build_parser(extra=()) -> argparse.ArgumentParser:
     subparsers = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for add in SUBCOMMANDS + tuple(extra):
         add(subparsers)
-    for subparser in subparsers.choices.values():
-        # Also after the subcommand; SUPPRESS keeps the top-level value when it is not repeated there.
-        subparser.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help=argparse.SUPPRESS)
     return parser
 
 

@@ -138,6 +138,23 @@ def _decoded(text):
         return text
 
 
+def read_text(path: Path, what: str, hint: str = "") -> str:
+    """A UTF-8 text file's contents; a missing file is FileNotFoundError "<path>: <what> not found<hint>", an
+    unreadable one ValueError "<path>: cannot read the <what>: <reason>"."""
+    try:
+        return path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise FileNotFoundError(f"{path}: {what} not found{hint}") from None
+    except (OSError, UnicodeDecodeError) as error:
+        raise ValueError(f"{path}: cannot read the {what}: {error}") from None
+
+
+def srgb_encode(linear: np.ndarray) -> np.ndarray:
+    """Linear values clipped to [0, 1], sRGB-encoded (the IEC 61966-2-1 transfer curve): what a display shows."""
+    x = np.clip(linear, 0.0, 1.0)
+    return np.where(x <= 0.0031308, 12.92 * x, 1.055 * x ** (1 / 2.4) - 0.055)
+
+
 def write_png(path, image, exposure=1.0):
     """Write linear radiance as an 8-bit sRGB PNG for people to look at: image × exposure, clipped to [0, 1],
     sRGB-encoded. NaNs show black, +inf white. `exposure` must be a finite number > 0."""
@@ -145,8 +162,7 @@ def write_png(path, image, exposure=1.0):
     exposure = validate.real("exposure", exposure)
     if not exposure > 0:
         raise ValueError(f"exposure must be > 0, got {exposure!r}")
-    linear = np.clip(np.nan_to_num(image * np.float32(exposure), nan=0.0), 0.0, 1.0)
-    encoded = np.where(linear <= 0.0031308, 12.92 * linear, 1.055 * linear ** (1 / 2.4) - 0.055)
+    encoded = srgb_encode(np.nan_to_num(image * np.float32(exposure), nan=0.0))
     pixels = np.round(encoded * 255.0).astype(np.uint8)
     path = Path(path)
     with _replaced(path) as partial:

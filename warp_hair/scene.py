@@ -26,8 +26,9 @@ from . import validate
 from .geometry.assembly import FiberAssembly
 from .geometry.formats import load_fibers
 from .geometry.usd import SUFFIXES as USD_SUFFIXES
-from .io import read_exr
-from .model.params import ALBEDO_INVERSION_KEY, CONTROL_NAMES, HairParams
+from .controls import CONTROL_NAMES
+from .io import read_exr, read_text
+from .model.params import ALBEDO_INVERSION_KEY, HairParams
 
 CAMERA_TYPES = ("orthographic", "perspective")
 TABLES = ("camera", "lights", "fibers", "hair", "render", "card")
@@ -279,12 +280,7 @@ class Scene:
 def load_scene(path) -> Scene:
     """Load and validate a TOML scene file; relative file paths in it are relative to the file."""
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise FileNotFoundError(f"{path}: scene file not found") from None
-    except (OSError, UnicodeDecodeError) as error:
-        raise ValueError(f"{path}: cannot read the scene file: {error}") from None
+    text = read_text(path, "scene file")
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as error:

@@ -63,15 +63,12 @@ import dataclasses
 import numpy as np
 import torch
 
-from .model.params import CONTROL_NAMES
+from .controls import COLOUR_CONTROLS, CONTROL_NAMES, RGB_CONTROLS, controls_of
 from .renderer.forward import PreparedScene, render, sampling, scene_of
 from .renderer.gradients import contract, contract_crossed, named_gradients
 from .renderer.jacobian import render_jacobian
 from .scene import Scene
 
-COLOUR_CONTROLS = {"albedo": ("albedo",), "sigma_a": ("sigma_a",), "melanin": ("eumelanin", "pheomelanin")}
-SCALAR_CONTROLS = ("beta_m", "beta_n", "alpha", "eta", "r_roughness_scale")
-RGB_CONTROLS = ("albedo", "sigma_a")
 GRAD_SEED_OFFSET = 1_000_003
 SEED_MODULUS = 2**32
 
@@ -83,7 +80,7 @@ def default_grad_seed(seed: int) -> int:
 
 def allowed_controls(scene: Scene | PreparedScene) -> tuple:
     """The control names `render_torch` accepts for this scene (its colour input's, then the scalars)."""
-    return COLOUR_CONTROLS[scene_of(scene).hair.colour_input] + SCALAR_CONTROLS
+    return controls_of(scene_of(scene).hair.colour_input)
 
 
 def _check_controls(scene: Scene | PreparedScene, controls: dict) -> dict:

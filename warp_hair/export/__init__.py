@@ -18,7 +18,9 @@ import json
 import tomllib
 from pathlib import Path
 
-from ..model.params import CONTROL_NAMES, HairParams
+from ..controls import CONTROL_NAMES
+from ..io import read_text
+from ..model.params import HairParams
 from . import cycles, materialx, mitsuba, pbrt
 from .common import LossyExportWarning
 
@@ -55,12 +57,7 @@ def default_filename(to: str) -> str:
 def load_look(path) -> HairParams:
     """The hair controls of a LOOK file: params.json, a JSON object of controls, or a scene file's [hair]."""
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise FileNotFoundError(f"{path}: look file not found (give a fit's params.json or a scene file)") from None
-    except (OSError, UnicodeDecodeError) as error:
-        raise ValueError(f"{path}: cannot read the look file: {error}") from None
+    text = read_text(path, "look file", " (give a fit's params.json or a scene file)")
     if path.suffix.lower() == ".toml":
         try:
             table = tomllib.loads(text).get("hair")

@@ -26,7 +26,7 @@ ranges become leaves, node ids) is NumPy over the nodes, not the primitives. A n
 holds at most `max_leaf` primitives and the heuristic prefers that to splitting. Nodes whose centres all fall
 in one bin, and all nodes once the tree is deep enough that SAH splits could exceed `MAX_DEPTH`, are split at
 the median instead (sorted in NumPy: rare), so the depth never exceeds MAX_DEPTH interior nodes. The build is
-in float64 and deterministic: tests/reference_bvh.py, the same algorithm in NumPy, gives the same tree.
+in float64 and deterministic: tests/helpers/reference_bvh.py, the same algorithm in NumPy, gives the same tree.
 Build time and memory per segment, 10³ to 10⁶ segments: `benchmarks/scaling.py`.
 
 The 4-wide tree collapses the binary one: its nodes are the binary nodes at even depth, and their children

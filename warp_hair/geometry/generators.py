@@ -67,10 +67,7 @@ def swatch(
     With the default spacing and layer gap no two fibers intersect. A smaller spacing, or a `width` that
     implies one, packs them tighter and lets neighbours overlap.
     """
-    _check_size(count, segments)
-    rng = np.random.default_rng(seed)
-    y = _heights(length, segments)
-    x, z = _swatch_axes(y, count, layers, radius, spacing, width, jitter, layer_gap, rng)
+    _, y, x, z = _straight_swatch(count, layers, length, radius, spacing, jitter, segments, width, seed, layer_gap)
     return _swatch_assembly(x, y, z, radius, drape)
 
 
@@ -104,10 +101,7 @@ def wavy(
     """
     _check_positive(amplitude=amplitude, wavelength=wavelength)
     segments = _segments_per_period(segments, length, wavelength, 12, "wavelength")
-    _check_size(count, segments)
-    rng = np.random.default_rng(seed)
-    y = _heights(length, segments)
-    x, z = _swatch_axes(y, count, layers, radius, spacing, width, jitter, layer_gap, rng)
+    rng, y, x, z = _straight_swatch(count, layers, length, radius, spacing, jitter, segments, width, seed, layer_gap)
     angle = _fiber_phases(count, phase_jitter, rng)[:, None] + 2 * np.pi * y / wavelength
     return _swatch_assembly(x + amplitude * np.sin(angle), y, z, radius, drape)
 
@@ -145,10 +139,7 @@ def curly(
     """
     _check_positive(curl_radius=curl_radius, pitch=pitch)
     segments = _segments_per_period(segments, length, pitch, 16, "pitch")
-    _check_size(count, segments)
-    rng = np.random.default_rng(seed)
-    y = _heights(length, segments)
-    x, z = _swatch_axes(y, count, layers, radius, spacing, width, jitter, layer_gap, rng)
+    rng, y, x, z = _straight_swatch(count, layers, length, radius, spacing, jitter, segments, width, seed, layer_gap)
     angle = _fiber_phases(count, phase_jitter, rng)[:, None] + 2 * np.pi * y / pitch
     return _swatch_assembly(x + curl_radius * np.cos(angle), y, z + curl_radius * np.sin(angle), radius, drape)
 
@@ -206,6 +197,16 @@ def fur(
     offsets = np.concatenate([np.zeros((count, 1, 3)), np.cumsum(steps, axis=1)], axis=1)
     radii = np.linspace(root_radius, tip_radius, segments + 1)
     return FiberAssembly.from_arrays(roots[:, None, :] + offsets, np.broadcast_to(radii, (count, segments + 1)))
+
+
+def _straight_swatch(count, layers, length, radius, spacing, jitter, segments, width, seed, layer_gap):
+    """What every swatch starts from: the seeded generator (the caller's own draws follow its), the heights y (N,)
+    and the straight fiber axes x, z (S, N)."""
+    _check_size(count, segments)
+    rng = np.random.default_rng(seed)
+    y = _heights(length, segments)
+    x, z = _swatch_axes(y, count, layers, radius, spacing, width, jitter, layer_gap, rng)
+    return rng, y, x, z
 
 
 def _heights(length, segments):

@@ -1,6 +1,6 @@
 """∂S/∂θ of the hair BSDF in closed form, evaluated together with S: the gradient tracer's per-vertex derivative.
 
-θ is ordered as in `bsdf_grad` (colour[0:3], β_m, β_n, α in degrees, η, r_roughness_scale). Usage:
+θ is laid out as in `warp_hair.controls` (colour[0:3], β_m, β_n, α in degrees, η, r_roughness_scale). Usage:
 
     derivs = coefficient_derivatives(params)       # host, once per material (float64 → float32)
     # in a kernel, at a fiber vertex:
@@ -38,7 +38,7 @@ import math
 import numpy as np
 import warp as wp
 
-from ..testing.bsdf_grad import CONTROL_COUNT, controls_vec
+from ..controls import THETA_SIZE, column
 from .hair_bsdf import LobeSetup, cos_from_sin
 from .lobes import (
     INV_TWO_PI,
@@ -62,7 +62,12 @@ from .params import (
 
 wp.set_module_options({"enable_backward": False})
 
-value_jacobian_mat = wp.types.matrix(shape=(3, CONTROL_COUNT), dtype=wp.float32)
+# θ as kernels carry it, and ∂S_c/∂θ_k (rows: channels of S).
+controls_vec = wp.types.vector(length=THETA_SIZE, dtype=wp.float32)
+value_jacobian_mat = wp.types.matrix(shape=(3, THETA_SIZE), dtype=wp.float32)
+_BETA_M, _BETA_N, _ALPHA, _ETA, _R_ROUGHNESS_SCALE = (
+    column(name) for name in ("beta_m", "beta_n", "alpha", "eta", "r_roughness_scale")
+)
 
 # ∂θ_o,p/∂α of the tilted angles (R: θ_o + 2α, TT: θ_o − α, TRT: θ_o − 4α, residual: θ_o), per degree of α.
 _TILT = wp.constant(wp.vec4(2.0 * math.pi / 180.0, -math.pi / 180.0, -4.0 * math.pi / 180.0, 0.0))
@@ -112,7 +117,7 @@ def coefficient_derivatives(params: HairParams) -> CoefficientDerivatives:
     elif mode == "sigma_a":
         d_colour = np.eye(3)
     else:
-        d_colour[:, 0], d_colour[:, 1] = EUMELANIN_SIGMA_A, PHEOMELANIN_SIGMA_A
+        d_colour[:, column("eumelanin")], d_colour[:, column("pheomelanin")] = EUMELANIN_SIGMA_A, PHEOMELANIN_SIGMA_A
     k = CoefficientDerivatives()
     k.d_sigma_d_colour = wp.mat33(*d_colour.ravel())
     k.d_sigma_d_beta_n = wp.vec3(*d_beta_n)
@@ -258,14 +263,11 @@ def hair_value_jacobian(L: LobeSetup, G: LobeSetupGrad, k: CoefficientDerivative
     d_scale = (d[0] * log_v[0] * k.d_log_v_r_d_scale) * L.A[0]
     J = value_jacobian_mat()
     for c in range(3):
-        J[c] = controls_vec(
-            d_sigma[c] * k.d_sigma_d_colour[c, 0],
-            d_sigma[c] * k.d_sigma_d_colour[c, 1],
-            d_sigma[c] * k.d_sigma_d_colour[c, 2],
-            d_beta_m[c],
-            d_beta_n[c],
-            d_tilt[c],
-            d_index[c],
-            d_scale[c],
-        )
+        for j in range(3):  # the colour's columns
+            J[c, j] = d_sigma[c] * k.d_sigma_d_colour[c, j]
+        J[c, _BETA_M] = d_beta_m[c]
+        J[c, _BETA_N] = d_beta_n[c]
+        J[c, _ALPHA] = d_tilt[c]
+        J[c, _ETA] = d_index[c]
+        J[c, _R_ROUGHNESS_SCALE] = d_scale[c]
     return J

@@ -1,4 +1,6 @@
-"""The six artist controls of the Chiang et al. hair/fur model and their mappings to model coefficients.
+"""The artist controls of the Chiang et al. hair/fur model (HairParams) and their mappings to model coefficients.
+
+The controls themselves (names, ranges, defaults, θ columns) are the table in `warp_hair.controls`.
 
 Everything here is plain float64 NumPy: it runs once per material, not per sample. The Warp kernels read
 the derived coefficients (σ_a, per-lobe longitudinal variance, logistic scale, tilt) from
@@ -14,6 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .. import validate
+from ..controls import COLOUR_CONTROL_NAMES, CONTROL_NAMES, CONTROLS, controls_of, describe
 
 # Below this roughness the lobes are narrower than float32 angles can resolve, and at 0 the mappings give
 # v = s = 0 (a delta lobe no path tracer can sample). pbrt, Mitsuba and Cycles clamp the same way.
@@ -23,29 +26,9 @@ BETA_FLOOR = 0.01
 EUMELANIN_SIGMA_A = np.array([0.419, 0.697, 1.37])
 PHEOMELANIN_SIGMA_A = np.array([0.187, 0.4, 1.05])
 
-ALPHA_RANGE_DEG = (-30.0, 30.0)
-# η: above 1 (a fiber that refracts); 10 is beyond every dielectric in visible light (diamond 2.4, silicon ~4).
-ETA_MAX = 10.0
-# The R lobe's variance factor: 1e-6 to 1e6 spans any species by far, and the lobes are tested finite there.
-R_ROUGHNESS_SCALE_RANGE = (1e-6, 1e6)
-# Absorption (σ_a, or a melanin concentration) beyond this is black to float32 precision, and σ_a times a path
-# length must stay finite.
-ABSORPTION_MAX = 1e30
 
 # The [hair] key of the albedo inversion's table (not a control: see HairParams).
 ALBEDO_INVERSION_KEY = "albedo_inversion"
-
-CONTROL_NAMES = (
-    "albedo",
-    "sigma_a",
-    "eumelanin",
-    "pheomelanin",
-    "beta_m",
-    "beta_n",
-    "alpha",
-    "eta",
-    "r_roughness_scale",
-)
 
 
 def effective_beta(beta):
@@ -135,6 +118,20 @@ def _real(name, value):
     return validate.real(name, value)
 
 
+def _rgb_control(name, value):
+    """An RGB control's value, each channel checked against the control's range."""
+    values = _rgb(name, value)
+    for c, v in zip("rgb", values):
+        CONTROLS[name].check(v, f"{name}[{c}]")
+    return values
+
+
+def _scalar_control(name, value):
+    value = _real(name, value)
+    CONTROLS[name].check(value)
+    return value
+
+
 def _rgb(name, value):
     """An RGB triple from a number (grey) or a sequence of three numbers."""
     values = np.atleast_1d(np.asarray(value, dtype=object)).ravel()
@@ -145,28 +142,20 @@ def _rgb(name, value):
     return tuple(_real(f"{name}[{c}]", v) for c, v in zip("rgb", values))
 
 
-def _check_range(name, value, lo, hi, lo_open=False, hi_open=False):
-    below = value <= lo if lo_open else value < lo
-    above = value >= hi if hi_open else value > hi
-    if below or above:
-        interval = f"{'(' if lo_open else '['}{lo}, {hi}{')' if hi_open else ']'}"
-        raise ValueError(f"{name} = {value} is outside the allowed range {interval}")
-
-
 @dataclass(frozen=True)
 class HairParams:
-    """The artist controls of the Chiang et al. 2015 hair/fur model.
+    """The artist controls of the Chiang et al. 2015 hair/fur model (the table: `warp_hair.controls`).
 
     Colour: give exactly one of
-      - ``albedo``: RGB multiple-scattering albedo, each channel in (0, 1] (a single number means grey);
-        σ_a follows from the talk's albedo inversion, which depends on β_n;
-      - ``sigma_a``: RGB absorption coefficient per unit fiber radius, each ≥ 0;
-      - ``eumelanin`` and/or ``pheomelanin``: pigment concentrations ≥ 0 (blonde ≈ 0.3, brown ≈ 1.3, black ≈ 8).
-    Roughness ``beta_m`` (longitudinal) and ``beta_n`` (azimuthal) in [0, 1]; values below 0.01 are rendered
-    as 0.01 (with a warning), because a zero-width lobe cannot be sampled. ``alpha`` is the cuticle tilt in
-    degrees, in [-30, 30], ``eta`` the index of refraction, in (1, 10], ``r_roughness_scale`` the species
-    control, in [1e-6, 1e6]: a factor on the primary reflection (R) lobe's longitudinal variance only. σ_a and
-    the melanins are at most 1e30. Every control is a number: a bool or a string is an error.
+      - ``albedo``: RGB multiple-scattering albedo (a single number means grey); σ_a follows from the talk's
+        albedo inversion, which depends on β_n;
+      - ``sigma_a``: RGB absorption coefficient per unit fiber radius (a single number means grey);
+      - ``eumelanin`` and/or ``pheomelanin``: pigment concentrations (the one not given is 0).
+    Roughnesses below BETA_FLOOR (0.01) are rendered as the floor (with a warning), because a zero-width lobe
+    cannot be sampled. Every control is a number: a bool or a string is an error. The controls, their ranges
+    and defaults:
+
+    {table}
 
     ``albedo_inversion`` is not a control but the calibration behind the albedo input: the coefficients
     p_0 ... p_5 of P(β_n) in σ_a = (ln c / P(β_n))², by default the talk's (TALK_ALBEDO_INVERSION); P must be
@@ -177,11 +166,11 @@ class HairParams:
     sigma_a_input: tuple | None = field(default=None, repr=False)
     eumelanin: float | None = None
     pheomelanin: float | None = None
-    beta_m: float = 0.3
-    beta_n: float = 0.3
-    alpha: float = 2.0
-    eta: float = 1.55
-    r_roughness_scale: float = 1.0
+    beta_m: float = CONTROLS["beta_m"].default
+    beta_n: float = CONTROLS["beta_n"].default
+    alpha: float = CONTROLS["alpha"].default
+    eta: float = CONTROLS["eta"].default
+    r_roughness_scale: float = CONTROLS["r_roughness_scale"].default
     albedo_inversion: tuple = TALK_ALBEDO_INVERSION
 
     def __init__(
@@ -191,11 +180,11 @@ class HairParams:
         sigma_a=None,
         eumelanin=None,
         pheomelanin=None,
-        beta_m=0.3,
-        beta_n=0.3,
-        alpha=2.0,
-        eta=1.55,
-        r_roughness_scale=1.0,
+        beta_m=CONTROLS["beta_m"].default,
+        beta_n=CONTROLS["beta_n"].default,
+        alpha=CONTROLS["alpha"].default,
+        eta=CONTROLS["eta"].default,
+        r_roughness_scale=CONTROLS["r_roughness_scale"].default,
         albedo_inversion=TALK_ALBEDO_INVERSION,
     ):
         given = [name for name, v in (("albedo", albedo), ("sigma_a", sigma_a)) if v is not None]
@@ -209,33 +198,26 @@ class HairParams:
             )
         set_ = object.__setattr__
         if albedo is not None:
-            albedo = _rgb("albedo", albedo)
-            for c, a in zip("rgb", albedo):
-                _check_range(f"albedo[{c}]", a, 0.0, 1.0, lo_open=True)
+            albedo = _rgb_control("albedo", albedo)
         if sigma_a is not None:
-            sigma_a = _rgb("sigma_a", sigma_a)
-            for c, s in zip("rgb", sigma_a):
-                _check_range(f"sigma_a[{c}]", s, 0.0, ABSORPTION_MAX)
+            sigma_a = _rgb_control("sigma_a", sigma_a)
         if eumelanin is not None or pheomelanin is not None:
-            eumelanin = _real("eumelanin", 0.0 if eumelanin is None else eumelanin)
-            pheomelanin = _real("pheomelanin", 0.0 if pheomelanin is None else pheomelanin)
-            _check_range("eumelanin", eumelanin, 0.0, ABSORPTION_MAX)
-            _check_range("pheomelanin", pheomelanin, 0.0, ABSORPTION_MAX)
+            eumelanin = _real("eumelanin", CONTROLS["eumelanin"].default if eumelanin is None else eumelanin)
+            pheomelanin = _real("pheomelanin", CONTROLS["pheomelanin"].default if pheomelanin is None else pheomelanin)
+            CONTROLS["eumelanin"].check(eumelanin)
+            CONTROLS["pheomelanin"].check(pheomelanin)
         beta_m, beta_n = _real("beta_m", beta_m), _real("beta_n", beta_n)
         for name, b in (("beta_m", beta_m), ("beta_n", beta_n)):
-            _check_range(name, b, 0.0, 1.0)
+            CONTROLS[name].check(b)
             if b < BETA_FLOOR:
                 warnings.warn(
                     f"{name} = {b} is below {BETA_FLOOR}, the narrowest lobe the model can sample; "
                     f"it is rendered as {BETA_FLOOR}",
                     stacklevel=2,
                 )
-        alpha = _real("alpha", alpha)
-        _check_range("alpha", alpha, *ALPHA_RANGE_DEG)
-        eta = _real("eta", eta)
-        _check_range("eta", eta, 1.0, ETA_MAX, lo_open=True)
-        r_roughness_scale = _real("r_roughness_scale", r_roughness_scale)
-        _check_range("r_roughness_scale", r_roughness_scale, *R_ROUGHNESS_SCALE_RANGE)
+        alpha = _scalar_control("alpha", alpha)
+        eta = _scalar_control("eta", eta)
+        r_roughness_scale = _scalar_control("r_roughness_scale", r_roughness_scale)
 
         set_(self, "albedo", albedo)
         set_(self, "sigma_a_input", sigma_a)
@@ -276,22 +258,13 @@ class HairParams:
         return logistic_scale(self.beta_n)
 
     def to_dict(self) -> dict:
-        """The controls as given, as a flat dict of named values (colour under its own input's name); the
-        albedo inversion is not a control and is not in it (see `to_table`)."""
+        """The controls as given, as a flat dict of named values (colour under its own input's name, RGB as lists
+        of three), in `controls.controls_of` order; the albedo inversion is not a control and is not in it (see
+        `to_table`)."""
         d = {}
-        if self.colour_input == "albedo":
-            d["albedo"] = list(self.albedo)
-        elif self.colour_input == "sigma_a":
-            d["sigma_a"] = list(self.sigma_a_input)
-        else:
-            d["eumelanin"], d["pheomelanin"] = self.eumelanin, self.pheomelanin
-        d.update(
-            beta_m=self.beta_m,
-            beta_n=self.beta_n,
-            alpha=self.alpha,
-            eta=self.eta,
-            r_roughness_scale=self.r_roughness_scale,
-        )
+        for name in controls_of(self.colour_input):
+            value = getattr(self, "sigma_a_input" if name == "sigma_a" else name)
+            d[name] = list(value) if CONTROLS[name].size == 3 else value
         return d
 
     def to_table(self) -> dict:
@@ -319,8 +292,8 @@ class HairParams:
         """A copy with some controls changed (the albedo inversion kept unless given); changing the colour input
         replaces the old one."""
         d = self.to_dict()
-        if {"albedo", "sigma_a", "eumelanin", "pheomelanin"} & set(changes):
-            for key in ("albedo", "sigma_a", "eumelanin", "pheomelanin"):
+        if set(COLOUR_CONTROL_NAMES) & set(changes):
+            for key in COLOUR_CONTROL_NAMES:
                 d.pop(key, None)
         d[ALBEDO_INVERSION_KEY] = self.albedo_inversion
         d.update(changes)
@@ -339,3 +312,6 @@ def _inversion_table(table, where) -> tuple:
         return check_albedo_inversion(table["coefficients"], f"{ALBEDO_INVERSION_KEY}.coefficients")
     except ValueError as error:
         raise ValueError(f"{where}: {error}") from None
+
+
+HairParams.__doc__ = HairParams.__doc__.replace("{table}", describe().replace("\n", "\n    "))

@@ -43,7 +43,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..testing.bsdf_grad import SCALAR_CONTROLS
+from ..controls import CONTROLS, named_theta
 from .forward import PreparedScene, scene_of
 from .jacobian import render_jacobian
 from ..scene import Scene
@@ -62,15 +62,10 @@ def _check_adjoint(adjoint, shape) -> np.ndarray:
 
 
 def named_gradients(params, g: np.ndarray) -> dict:
-    """Name the 8 θ columns of g by control, as in `HairParams.to_dict()` (colour by its input's kind)."""
-    g = np.asarray(g, dtype=np.float64)
-    mode = params.colour_input
-    if mode == "melanin":
-        named = {"eumelanin": float(g[0]), "pheomelanin": float(g[1])}
-    else:
-        named = {mode: g[0:3].copy()}
-    named.update({name: float(g[k]) for name, k in SCALAR_CONTROLS.items()})
-    return named
+    """Name the 8 θ columns of g by control, as in `HairParams.to_dict()` (colour by its input's kind): floats,
+    and arrays of three for RGB controls."""
+    named = named_theta(params.colour_input, np.asarray(g, dtype=np.float64))
+    return {name: v.copy() if CONTROLS[name].size == 3 else float(v) for name, v in named.items()}
 
 
 def contract(adjoint: np.ndarray, jacobian: np.ndarray) -> np.ndarray:

@@ -1,12 +1,8 @@
 """Derivatives of the hair BSDF value S (RGB) and of its pdf with respect to the artist controls.
 
-In kernels the controls travel as a `HairControls`: eight floats `theta` and the colour input's kind.
-
-    theta[0:3]  colour: albedo RGB        (colour_mode COLOUR_ALBEDO)
-                        σ_a RGB           (colour_mode COLOUR_SIGMA_A)
-                        eumelanin, pheomelanin, unused  (colour_mode COLOUR_MELANIN)
-    theta[3]    beta_m          theta[4]  beta_n          theta[5]  alpha (degrees)
-    theta[6]    eta             theta[7]  r_roughness_scale
+In kernels the controls travel as a `HairControls`: the eight floats `theta`, laid out as the table of
+`warp_hair.controls` says (colour in 0-2, then β_m, β_n, α in degrees, η, r_roughness_scale), and the colour
+input's kind (COLOUR_ALBEDO, COLOUR_SIGMA_A, COLOUR_MELANIN).
 
 Usage inside a kernel (`controls = hair_controls(params)` on the host):
     J = hair_value_pdf_jacobian(controls, wo, wi, h)   # 4×8: rows ∂S_r, ∂S_g, ∂S_b, ∂pdf; columns θ_k
@@ -55,7 +51,10 @@ import math
 import numpy as np
 import warp as wp
 
+from ..controls import COLOUR_INPUTS, THETA_SIZE, column, named_theta, theta_vector
+from ..controls import SCALAR_CONTROLS as SCALAR_NAMES
 from ..model.bsdf import _check_params, _directions, _launch, _offsets
+from ..model.jacobian import controls_vec
 from ..model.hair_bsdf import HairCoefficients, hair_value_pdf, lobe_setup
 from ..model.lobes import PI
 from ..model.params import ALBEDO_INVERSION_DEGREE, BETA_FLOOR, EUMELANIN_SIGMA_A, PHEOMELANIN_SIGMA_A, HairParams
@@ -63,19 +62,19 @@ from ..model.params import ALBEDO_INVERSION_DEGREE, BETA_FLOOR, EUMELANIN_SIGMA_
 # wp.grad runs forward only: the kernels here need no backward pass of their own.
 wp.set_module_options({"enable_backward": False})
 
-CONTROL_COUNT = 8
-controls_vec = wp.types.vector(length=CONTROL_COUNT, dtype=wp.float32)
+CONTROL_COUNT = THETA_SIZE
 inversion_vec = wp.types.vector(length=ALBEDO_INVERSION_DEGREE + 1, dtype=wp.float32)
 jacobian_mat = wp.types.matrix(shape=(4, CONTROL_COUNT), dtype=wp.float32)
 
-COLOUR_ALBEDO = wp.constant(0)
-COLOUR_SIGMA_A = wp.constant(1)
-COLOUR_MELANIN = wp.constant(2)
-COLOUR_MODES = {"albedo": 0, "sigma_a": 1, "melanin": 2}
+# The kernels' code for each colour input.
+COLOUR_MODES = {colour_input: k for k, colour_input in enumerate(COLOUR_INPUTS)}
+COLOUR_ALBEDO = wp.constant(COLOUR_MODES["albedo"])
+COLOUR_SIGMA_A = wp.constant(COLOUR_MODES["sigma_a"])
+COLOUR_MELANIN = wp.constant(COLOUR_MODES["melanin"])
 
-# Column of each scalar control in theta (the colour occupies columns 0-2).
-BETA_M, BETA_N, ALPHA, ETA, R_ROUGHNESS_SCALE = 3, 4, 5, 6, 7
-SCALAR_CONTROLS = {"beta_m": BETA_M, "beta_n": BETA_N, "alpha": ALPHA, "eta": ETA, "r_roughness_scale": R_ROUGHNESS_SCALE}
+# Column of each scalar control in theta.
+SCALAR_CONTROLS = {name: column(name) for name in SCALAR_NAMES}
+BETA_M, BETA_N, ALPHA, ETA, R_ROUGHNESS_SCALE = SCALAR_CONTROLS.values()
 
 # Rows of the Jacobian: S_r, S_g, S_b, pdf.
 VALUE_ROWS = (0, 1, 2)
@@ -102,13 +101,7 @@ def hair_controls(params: HairParams) -> HairControls:
     """The HairControls of a HairParams: its colour input as given, then the five scalar controls."""
     k = HairControls()
     mode = params.colour_input
-    if mode == "albedo":
-        colour = params.albedo
-    elif mode == "sigma_a":
-        colour = params.sigma_a_input
-    else:
-        colour = (params.eumelanin, params.pheomelanin, 0.0)
-    k.theta = controls_vec(*colour, params.beta_m, params.beta_n, params.alpha, params.eta, params.r_roughness_scale)
+    k.theta = controls_vec(*theta_vector(mode, params.to_dict()))
     k.colour_mode = COLOUR_MODES[mode]
     k.albedo_inversion = inversion_vec(*params.albedo_inversion)
     return k
@@ -259,13 +252,7 @@ def _gradients(params, wo, wi, h, rows, threads, device) -> np.ndarray:
 
 def _by_control(params: HairParams, g: np.ndarray) -> dict:
     """Name the columns of g (..., 8): the colour input's own name(s), then the scalar controls."""
-    mode = params.colour_input
-    if mode == "melanin":
-        named = {"eumelanin": g[..., 0], "pheomelanin": g[..., 1]}
-    else:
-        named = {mode: g[..., 0:3]}
-    named.update({name: g[..., k] for name, k in SCALAR_CONTROLS.items()})
-    return named
+    return named_theta(params.colour_input, g)
 
 
 def eval_grad(params: HairParams, wo, wi, h, threads: int | None = None, device: str = "cpu") -> dict:

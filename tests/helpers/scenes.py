@@ -1,0 +1,76 @@
+"""The small scenes several test files render: a 12×8 command-line scene, a dense swatch and a sparse single layer.
+
+Every one is seen from the front by an orthographic camera on the z axis (`front_camera`).
+"""
+
+import tomlkit
+
+from warp_hair.scene import scene_from_dict
+
+
+def front_camera(width: float, resolution) -> dict:
+    """An orthographic camera 3 units up the z axis, looking at the origin with y up, `width` units wide."""
+    return {
+        "type": "orthographic",
+        "origin": [0.0, 0.0, 3.0],
+        "target": [0.0, 0.0, 0.0],
+        "up": [0.0, 1.0, 0.0],
+        "width": width,
+        "resolution": list(resolution),
+    }
+
+
+def toml_text(data: dict) -> str:
+    """A scene dictionary as a scene file's text."""
+    return tomlkit.dumps(data)
+
+
+# The command-line tests' scene (the `tiny_scene` fixture writes it to a file): 12×8 pixels, 40 fibers, 2 spp.
+TINY_SCENE = toml_text({
+    "camera": front_camera(0.2, (12, 8)),
+    "lights": [{"type": "directional", "direction": [0.3, -0.4, -1.0], "irradiance": [3.0, 3.0, 3.0]}],
+    "fibers": {"generator": "swatch", "count": 40, "layers": 2},
+    "hair": {"eumelanin": 1.3},
+    "render": {"spp": 2, "max_depth": 8, "seed": 4},
+})
+
+
+def swatch_scene(hair, lights, resolution=(24, 24), render_table=None, card=None):
+    """A dense swatch (160 fibers in 4 layers) filling the view, under `lights`."""
+    data = {
+        "camera": front_camera(0.3, resolution),
+        "lights": lights,
+        "fibers": {"generator": "swatch", "count": 160, "layers": 4, "length": 0.6, "radius": 0.004, "seed": 3},
+        "hair": hair,
+        "render": render_table or {"spp": 64, "max_depth": 64, "seed": 1},
+    }
+    if card is not None:
+        data["card"] = card
+    return scene_from_dict(data)
+
+
+# The gradient checks' hair, with every scalar control away from its default.
+SPARSE_HAIR = {"albedo": [0.7, 0.5, 0.3], "beta_m": 0.3, "beta_n": 0.35, "alpha": 2.0, "eta": 1.55,
+               "r_roughness_scale": 1.5}
+
+
+def sparse_scene_dict(hair, resolution=(16, 16), spp=128) -> dict:
+    """One sparse layer of 24 fibers under a directional light and a constant sky, max_depth 8 without roulette.
+
+    Sparse, so that central differences of `render` with common random numbers are not swamped by the discrete
+    choices (lobe, fiber hit) a change of the controls flips (tests/test_render_grad.py says more).
+    """
+    return {
+        "camera": front_camera(0.25, resolution),
+        "lights": [
+            {"type": "directional", "direction": [0.3, -0.4, -1.0], "irradiance": [3.0, 3.0, 3.0]},
+            {"type": "environment", "radiance": [0.3, 0.3, 0.3]},
+        ],
+        "fibers": {"generator": "swatch", "count": 24, "layers": 1, "length": 0.6, "radius": 0.004, "seed": 3},
+        "hair": hair,
+        "render": {"spp": spp, "max_depth": 8, "rr_depth": 8, "seed": 1},
+    }
+
+
+def sparse_scene(hair, resolution=(16, 16), spp=128):
+    return scene_from_dict(sparse_scene_dict(hair, resolution, spp))
