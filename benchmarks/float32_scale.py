@@ -42,7 +42,7 @@ def main() -> None:
     print("| shift | extent / radius | mean relative to unshifted | the scene check |")
     print("| --- | --- | --- | --- |")
     # Measured without the check, to show what it prevents.
-    importlib.import_module("warp_hair.render").check_scene = lambda scene: None
+    importlib.import_module("warp_hair.renderer.forward").check_scene = lambda scene: None
     for shift in args.shifts:
         moved = copy.copy(scene)
         moved.camera = dataclasses.replace(scene.camera, origin=np.add(scene.camera.origin, [shift, 0, 0]).tolist(),

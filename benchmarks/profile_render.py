@@ -3,11 +3,11 @@ traversal of each kind of ray, shading).
 
     python benchmarks/profile_render.py [--spp 16] [--record-spp 2] [--target brown_wavy] [--threads N]
 
-1. Preparation of a scene (`warp_hair.render.prepare`), split into its steps: the segments of the assembly, the
+1. Preparation of a scene (`warp_hair.prepare`), split into its steps: the segments of the assembly, the
    tubes' frames and boxes, the BVH build (`bvh.build_bvh`), and the rest (tube arrays in leaf order, lights,
    camera, card), on the standard swatch and on the target's fibers.
 2. A fit iteration (`optimize.fit`'s loss and gradient at the end of its spp schedule: two gradient passes per
-   image) of the target, with its scenes prepared once for the fit and, as before `prepare` existed, once per
+   image) of the target, with its scenes prepared once for the fit and, for comparison, once per
    pass; and the share of preparation in a 48×48 forward render.
 3. The standard swatch render at --spp (256×256, depth 16), and its rays: a recording kernel traces paths like
    the integrator (camera ray, a shadow ray toward one light chosen uniformly per vertex, a BSDF-sampled
@@ -36,9 +36,10 @@ from warp_hair.renderer.camera import generate_ray
 from warp_hair.renderer.envmap import env_sample
 from warp_hair.model.hair_bsdf import hair_sample, hair_value_pdf, lobe_setup
 from warp_hair.renderer.integrator import SceneData, pixel_start, rand2, to_local, to_world
-from warp_hair.geometry.intersect import MAX_LEAF, TRAVERSAL_COST, intersect_fibers
+from warp_hair.geometry.bvh import TRAVERSAL_COST
+from warp_hair.geometry.intersect import intersect_fibers
+from warp_hair.geometry.tubes import MAX_LEAF, _segment_boxes, _segment_frames
 from warp_hair.numerics import NO_HIT
-from warp_hair.geometry.tubes import _segment_boxes, _segment_frames
 from warp_hair.geometry.rays import intersect, occluded
 from warp_hair.parallel import default_threads
 from warp_hair.renderer.forward import prepare, render

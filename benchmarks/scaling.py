@@ -14,7 +14,7 @@ Writes OUT/scaling.md (the tables) and OUT/scaling.png (log-log plots), and prin
   interpreter, Warp and the kernels included, about 0.2 GiB) is its own; "BVH bytes" is what the render reads
   (nodes, tubes, segment and strand indices), "SAH" the tree's surface area heuristic cost (node visits at cost
   1 plus tube tests, each weighted by its box's area over the root's: the expected work of a ray through the
-  root, lower is better). With --numpy-build the NumPy build the Warp kernels replaced (tests/helpers/reference_bvh.py,
+  root, lower is better). With --numpy-build the NumPy reference build (tests/helpers/reference_bvh.py,
   the same tree) is timed on the same boxes too.
 
 The scene is prepared once (`prepare`) before a render is timed; preparation (tube frames and boxes, the BVH
@@ -104,8 +104,7 @@ def draped_swatch(segments: int):
 
 def sah_cost(nodes: np.ndarray) -> float:
     """The surface area heuristic cost of a 4-wide fiber BVH (its BvhNode records), relative to its root box."""
-    from warp_hair.geometry.bvh import leaf_range
-    from warp_hair.geometry.intersect import TRAVERSAL_COST
+    from warp_hair.geometry.bvh import TRAVERSAL_COST, leaf_range
 
     lo = np.stack([nodes[f"lo_{a}"] for a in "xyz"], axis=-1).astype(np.float64)
     hi = np.stack([nodes[f"hi_{a}"] for a in "xyz"], axis=-1).astype(np.float64)
@@ -146,9 +145,8 @@ def build_times(scene, threads) -> dict:
     sys.path.insert(0, str(HERE.parent / "tests"))
     from helpers import reference_bvh
 
-    from warp_hair.geometry.bvh import build_bvh
-    from warp_hair.geometry.intersect import MAX_LEAF, TRAVERSAL_COST
-    from warp_hair.geometry.tubes import _segment_boxes, _segment_frames
+    from warp_hair.geometry.bvh import TRAVERSAL_COST, build_bvh
+    from warp_hair.geometry.tubes import MAX_LEAF, _segment_boxes, _segment_frames
 
     p0, p1, r0, r1, strand, _ = scene.fibers.segments()
     lowers, uppers = _segment_boxes(_segment_frames(p0, p1, r0, r1, strand))
@@ -233,7 +231,7 @@ def main() -> None:
     parser.add_argument("--quick", action="store_true", help="segments up to 10⁵ only")
     parser.add_argument("--out", type=Path, default=HERE.parent / "docs")
     parser.add_argument("--numpy-build", action="store_true",
-                        help="also time the NumPy BVH build the kernels replaced (17 s at 10⁶ segments)")
+                        help="also time the NumPy reference BVH build (tests/helpers/reference_bvh.py; slow at 10⁶ segments)")
     parser.add_argument("--segments-case", type=int, help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.segments_case:

@@ -7,16 +7,13 @@
 All are means over the unmasked pixels and the three channels, and L2 and L1 are divided by the target's own
 scale, so losses of differently sized and differently bright images add up on one scale. That matters for a
 target's joint fit: a back-lit swatch can be ten times brighter than the front-lit one, and unnormalised its
-noise would drown the front image's signal (measured: a 24×24 test target fitted red albedo 0.73 against a
-true 0.55, the front image that carries the colour weighing 1% of the sum). The mask (H, W) of booleans marks the pixels that count (e.g. the fibers, not the background).
+noise would drown the signal of the front image, which carries the colour. The mask (H, W) of booleans marks the pixels that count (e.g. the fibers, not the background).
 
 `pool` k > 1 compares the images averaged over k×k blocks (masked pixels left out of the averages): the loss
 then measures appearance at the scale of a few fibers rather than per pixel. Why it matters: a target rendered
 with a delta light is noisiest exactly at the fibers' highlight pixels, which are also the pixels most
 sensitive to the roughnesses, so per-pixel L2 lets the fit explain the target's own noise with wrong
-roughnesses (measured on blonde_straight at 128 target spp: the per-pixel optimum sat at β_n 0.65 against a
-true 0.35, while the 4×4-pooled loss is lowest at the truth). Averaging within blocks cancels that noise before
-it is compared.
+roughnesses. Averaging within blocks cancels that noise before it is compared.
 """
 
 from __future__ import annotations

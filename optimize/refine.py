@@ -2,28 +2,25 @@
 
 Adam's steps are sized by its learning rate, not by the loss's curvature, and where two controls trade off
 (albedo against β_n through the albedo inversion) the loss has a long shallow valley that its last, small
-steps cross slowly: measured before this stage existed, blonde_straight's fit ended 0.038 off in red albedo and
-the first fur_patch's 0.17 off in albedo and β_n. The loss is a sum of squared residuals (`linearize.py`), so the Gauss–Newton step solves
+steps cross slowly. The loss is a sum of squared residuals (`linearize.py`), so the Gauss–Newton step solves
 
     (H + λ diag(H)) δx = −Aᵀ r,     H ≈ Aᵀ A,  A = ∂r/∂x,
 
 A and H from the Jacobians of the last JACOBIAN_WINDOW linearisations (`Linearization.earlier_jacobians`:
 each residual pass meets the mean of the Jacobians but its own, and H is unbiased), A and r weighted as the loss
 weighs them; in the controls themselves (not Adam's latents: in log σ_a a high albedo's image is so curved that
-a step from 0.87 overshot to 0.63), and shortened where it would go more than half way to a bound. A step is
-kept when it lowers the loss as estimated by the trapezoid rule on the slopes along it,
-½ (∇ℓ(x) + ∇ℓ(x + δx))·δx (exact for a quadratic). Gradients are unbiased and their noise is modest; loss
-values are not: each carries our render's Monte Carlo
-variance, which grows with the radiance, so that comparing losses (even with common random numbers) undid
-steps on fur_patch that landed on the truth, and the noise-free `misfit` of independent passes scattered by as
-much as the steps changed it. λ then shrinks, else it grows and the step is retried from the same
-linearisation.
+a step overshoots), and shortened where it would go more than half way to a bound. A step is kept when it
+lowers the loss as estimated by the trapezoid rule on the slopes along it, ½ (∇ℓ(x) + ∇ℓ(x + δx))·δx (exact
+for a quadratic). Gradients are unbiased and their noise is modest; loss values are not: each carries our
+render's Monte Carlo variance, which grows with the radiance, so comparing losses (even with common random
+numbers) would undo steps that land on the truth. λ then shrinks, else it grows and the step is retried from
+the same linearisation.
 
-Every linearisation renders with fresh seeds, so each step's end point carries that render's own noise (on
-blonde_straight at 64 spp per render, about ±0.03 in red albedo: with common seeds every step converged to
-the same noisy point, 0.05 off). The result is the mean of the later half of the kept points after the
-first, which scatter around the optimum as Adam's last iterates do; `mean_covariance` is its Monte Carlo error.
-L2 and relative L2 are sums of squares as they stand; the L1 loss is not, and is not refined.
+Every linearisation renders with fresh seeds, so each step's end point carries that render's own noise (with
+common seeds every step would converge to the same noisy point). The result is the mean of the later half of
+the kept points after the first, which scatter around the optimum as Adam's last iterates do;
+`mean_covariance` is its Monte Carlo error. L2 and relative L2 are sums of squares as they stand; the L1 loss
+is not, and is not refined.
 """
 
 from __future__ import annotations
@@ -89,10 +86,9 @@ def refine(target, start: dict, settings, spp: int, seed: int, steps: int, on_st
         return dataclasses.replace(lin_at, earlier_jacobians=np.concatenate(earlier), curvature=None)
 
     # One linearisation's Jacobian is noisy, and so then are the curvature (where it comes out too small, a step
-    # overshoots: on fur_patch, single estimates sent the steps oscillating ever wider around the optimum) and
-    # the gradient. Those of the last few linearisations together are steadier, and unlike all of them they
-    # forget the start's (auburn_curly's curvature from β_m 0.23, far higher than at the true 0.30, kept its
-    # steps short).
+    # overshoots and the steps oscillate around the optimum) and the gradient. Those of the last few
+    # linearisations together are steadier, and unlike all of them they forget the start's, whose curvature far
+    # from the optimum would keep the steps short.
     jacobians = []  # each linearisation's pair, in order
     lin = with_earlier(linearized(x, 0))
     kept, scatters = [], []  # the kept end points and their linearisations' scatter estimates

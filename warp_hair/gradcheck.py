@@ -23,14 +23,13 @@ Both are averaged over the K seed pairs, with standard errors from their spread;
 Cost: 1 target render at target_spp, then per seed pair 1 render, 2 gradient passes (each a few renders' cost)
 and, per checked component (albedo and σ_a count 3), 8 renders (θ ± ε and θ ± ε/2, seeds a and b), all at spp:
 `render_count` = 1 + K (3 + 8 × components) calls. With the defaults (spp 16, K 4, a colour triple + 5 scalar
-controls = 8 components) that is 269 calls, about 4,300 spp of rendering per pixel. Measured on a shared 2-core
-CPU: the 12×12 test scene takes ~13 s for all controls; the 256×256 benchmark swatch ~8–23 s per call, so ~9 min
-for `--params eta --seeds 2` (23 calls) and over an hour with the defaults. For quick checks lower the scene's
-resolution and check fewer controls (--params).
+controls = 8 components) that is 269 calls, about 4,300 spp of rendering per pixel: seconds on a 12×12 scene,
+over an hour on a 256×256 swatch. For quick checks lower the scene's resolution and check fewer controls
+(--params).
 
 At low spp the differences are much noisier than the gradient (a change of θ flips discrete choices of the paths,
-lobe and fiber, with a variance ∝ 1/ε), so "OK" there may only mean "within a wide 3 SE": read the ± columns. On
-the test scene the difference resolves the gradient to ~10% at --spp 128 --seeds 8, where all controls agree.
+lobe and fiber, with a variance ∝ 1/ε), so "OK" there may only mean "within a wide 3 SE": read the ± columns. More
+samples and seeds (--spp 128 --seeds 8 on a small scene) resolve the gradient to about 10%.
 """
 
 from __future__ import annotations

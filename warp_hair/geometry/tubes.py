@@ -10,7 +10,8 @@ import warp as wp
 from .bvh import TRAVERSAL_COST, build_bvh
 from .intersect import STACK_SIZE, BvhNode, FiberGeometry, Tube
 
-# Tubes per BVH leaf, at most (the cost of a node visit relative to a tube test is bvh.TRAVERSAL_COST). Measured on the benchmark swatch: leaves of 1 or 2 tubes are a few percent faster than of 4 or 7.
+# Tubes per BVH leaf, at most (the cost of a node visit relative to a tube test is bvh.TRAVERSAL_COST): leaves
+# of 1 or 2 tubes render a swatch a few percent faster than leaves of 4 or 7.
 MAX_LEAF = 2
 # Mitre joints overlap by this many radii past the mitre plane (see the module docstring).
 JOINT_OVERLAP = 1.0e-3
