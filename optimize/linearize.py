@@ -90,8 +90,8 @@ class Linearization:
     def noise_covariance(self) -> np.ndarray:
         """(p, p): the covariance of the gradient Aᵀ W r̄ from our render noise in the mean residual r̄,
         Aᵀ W C W A. A pixel's channels come from the same paths, so C is block diagonal, one 3×3 block per pixel
-        (or pooled block), not diagonal: the Monte Carlo variances V alone understated this covariance along β_m
-        2-fold on fur_patch. It is estimated from the passes' half difference d = (r₁ − r₂)/2, which has r̄'s
+        (or pooled block), not diagonal: the Monte Carlo variances V alone understate this covariance (along β_m
+        2-fold on fur_patch). It is estimated from the passes' half difference d = (r₁ − r₂)/2, which has r̄'s
         noise covariance and none of the target's scatter: Σ over pixels of (Σ_c w a d)(Σ_c w a d)ᵀ."""
         w, a = self.loss_weights, self.mean_jacobian
         half_difference = 0.5 * (self.residuals[0] - self.residuals[1])
@@ -144,8 +144,8 @@ def crossed_curvature(jacobians: np.ndarray, weights: np.ndarray) -> np.ndarray:
     """The Gauss–Newton matrix Σ w aᵢ aⱼ (½ the loss's Hessian without residual curvature) from n ≥ 2 independent
     estimates of the Jacobian, unbiased: the mean over every pair of distinct ones. A Jacobian's product with
     itself adds its own Monte Carlo variance to the diagonal, and where a column is mostly noise that dominates:
-    on fur_patch it overstated β_n's curvature up to 15-fold, so steps along β_n were that much too short and
-    its uncertainty that much too small. When noise leaves the crossed matrix not positive definite, the mean
+    on fur_patch it would overstate β_n's curvature up to 15-fold, making steps along β_n that much too short
+    and its uncertainty that much too small. When noise leaves the crossed matrix not positive definite, the mean
     Jacobian's product with itself is used instead."""
     n = len(jacobians)
     total = jacobians.sum(axis=0)

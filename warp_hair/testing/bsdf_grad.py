@@ -154,7 +154,7 @@ def longitudinal_norm(v: float):
 
     Not `lobes.one_minus_exp_neg`: its 4-term series is exact enough for the value, but its derivative is
     off by up to (2/v)³/24 relative, and d log norm/dv ≈ −1/v + 1/v − 1/v² + … cancels to O(1/v²) for rough
-    lobes: that gave errors of up to 2 % in ∂S/∂β_m near β_m ≈ 0.9. In float64, 1 − e^(−y) keeps 1e-12 of
+    lobes: the series would put errors of up to 2 % in ∂S/∂β_m near β_m ≈ 0.9. In float64, 1 − e^(−y) keeps 1e-12 of
     its digits even at y = 2/v ~ 1e-4, and no series is needed.
     """
     vd = wp.float64(v)
