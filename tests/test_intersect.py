@@ -201,7 +201,7 @@ def test_perpendicular_rays_hit_the_surface_with_the_signed_offset_as_h():
     # The signed offset is measured along a × d.
     side = np.cross(axis, -v)
     np.testing.assert_allclose(hit["h"], offsets * np.dot(u, side) / r, atol=1e-5)
-    # ... which is the h of MODEL.md in the frame the hit returns.
+    # ... which is the h of docs/MODEL.md in the frame the hit returns.
     wo = -np.asarray(directions)
     y = np.cross(hit["normal"], hit["tangent"])
     wo_y, wo_z = np.sum(wo * y, axis=1), np.sum(wo * hit["normal"], axis=1)
@@ -703,7 +703,7 @@ def test_shading_tangent_follows_the_curve_and_is_continuous_at_joints():
 
 def test_shading_frame_is_orthonormal_and_h_is_its_cos_phi():
     """x ⊥ z, both unit, z the cylinder normal turned only as far as x requires, and h = −cos φ_o in that frame
-    (MODEL.md: the BSDF assumes frame and offset agree)."""
+    (docs/MODEL.md: the BSDF assumes frame and offset agree)."""
     rng = np.random.default_rng(11)
     fibers = wavy(count=12, layers=2, length=0.6, radius=0.01, amplitude=0.03, wavelength=0.15, seed=4)
     lo, hi = fibers.points.min(axis=0), fibers.points.max(axis=0)

@@ -1,7 +1,7 @@
 """Lobe plots of the hair BSDF, for checking a material by eye.
 
 The profiles are luminances of the four terms of S (R, TT, TRT, residual; `bsdf.eval_lobes`) in the local
-frame of MODEL.md. With h = None they are the far-field look, S averaged over the fiber offset h ∈ [−1, 1];
+frame of docs/MODEL.md. With h = None they are the far-field look, S averaged over the fiber offset h ∈ [−1, 1];
 otherwise S at that one offset.
 
     dphi, lobes = azimuthal_profile(params, theta_o_deg)       # S at θ_i = −θ_o against Δφ = φ_i − φ_o

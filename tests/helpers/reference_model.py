@@ -7,7 +7,7 @@ over N directions.  Lobe order everywhere: [R, TT, TRT, residual] (p = 0..3).
 import numpy as np
 from scipy.special import i0e
 
-_EU = np.array([0.419, 0.697, 1.37])    # MODEL.md "From artist controls": eumelanin
+_EU = np.array([0.419, 0.697, 1.37])    # docs/MODEL.md "From artist controls": eumelanin
 _PHEO = np.array([0.187, 0.4, 1.05])    # ... and pheomelanin absorption per unit radius
 _BETA_MIN = 0.01                        # project convention: roughness floor
 
@@ -27,7 +27,7 @@ def coefficients(controls):
     if len(kinds) != 1:
         raise ValueError(f"need exactly one colour control, got {kinds}")
     if kinds[0] == "albedo":
-        # Albedo inversion (talk, Controllability; MODEL.md), using the floored beta_n; an "albedo_inversion"
+        # Albedo inversion (talk, Controllability; docs/MODEL.md), using the floored beta_n; an "albedo_inversion"
         # entry (p_0 ... p_5) replaces the talk's polynomial.
         if "albedo_inversion" in c:
             poly = sum(float(p) * bn**k for k, p in enumerate(c["albedo_inversion"]))
@@ -37,9 +37,9 @@ def coefficients(controls):
         sigma_a = (np.log(_rgb(c["albedo"])) / poly) ** 2
     elif kinds[0] == "sigma_a":
         sigma_a = _rgb(c["sigma_a"])
-    else:  # d'Eon 2011 melanin coefficients (MODEL.md)
+    else:  # d'Eon 2011 melanin coefficients (docs/MODEL.md)
         sigma_a = float(c.get("eumelanin", 0.0)) * _EU + float(c.get("pheomelanin", 0.0)) * _PHEO
-    # Longitudinal variance (MODEL.md "Roughness mappings"); R scaled by the species factor.
+    # Longitudinal variance (docs/MODEL.md "Roughness mappings"); R scaled by the species factor.
     v = (0.726 * bm + 0.812 * bm**2 + 3.7 * bm**20) ** 2
     v_lobes = np.array([v * float(c.get("r_roughness_scale", 1.0)), 0.25 * v, 4.0 * v, 4.0 * v])
     # Azimuthal logistic scale, with pbrt/Mitsuba/Cycles' sqrt(pi/8) factor.
@@ -49,7 +49,7 @@ def coefficients(controls):
 
 
 def _angles(w):
-    """sin theta = w.x, cos theta = sqrt(1 - sin^2), phi = atan2(w.z, w.y) (MODEL.md "Frame")."""
+    """sin theta = w.x, cos theta = sqrt(1 - sin^2), phi = atan2(w.z, w.y) (docs/MODEL.md "Frame")."""
     w = np.asarray(w, dtype=np.float64)
     sin_t = np.clip(w[:, 0], -1.0, 1.0)
     return sin_t, np.sqrt(np.maximum(0.0, 1.0 - sin_t**2)), np.arctan2(w[:, 2], w[:, 1])
@@ -60,7 +60,7 @@ def _fiber(co, wo, h):
     h = np.clip(np.asarray(h, dtype=np.float64), -1.0, 1.0)
     sin_o, cos_o, _ = _angles(wo)
     eta = co["eta"]
-    # MODEL.md "Refraction": sin gamma_t = h / eta', eta' = sqrt(eta^2 - sin^2 theta_o) / cos theta_o.
+    # docs/MODEL.md "Refraction": sin gamma_t = h / eta', eta' = sqrt(eta^2 - sin^2 theta_o) / cos theta_o.
     # Written as h cos / sqrt(.) so that cos theta_o = 0 gives 0 instead of h / inf.
     sin_gt = h * cos_o / np.sqrt(eta**2 - sin_o**2)
     cos_gt = np.sqrt(np.maximum(0.0, 1.0 - sin_gt**2))
@@ -72,7 +72,7 @@ def _fiber(co, wo, h):
     r_par = (eta * ci - ct) / (eta * ci + ct)
     r_perp = (ci - eta * ct) / (ci + eta * ct)
     f = (0.5 * (r_par**2 + r_perp**2))[:, None]
-    # MODEL.md "The lobes": A0..A3; A3 sums the geometric series of all paths after TRT.
+    # docs/MODEL.md "The lobes": A0..A3; A3 sums the geometric series of all paths after TRT.
     A = np.empty((len(h), 4, 3))
     A[:, 0] = np.broadcast_to(f, T.shape)
     A[:, 1] = (1.0 - f) ** 2 * T
@@ -84,7 +84,7 @@ def _fiber(co, wo, h):
 
 
 def _tilted(co, wo):
-    """Cuticle tilt (MODEL.md): theta_o + 2a (R), - a (TT), - 4a (TRT), unchanged (residual): the scales'
+    """Cuticle tilt (docs/MODEL.md): theta_o + 2a (R), - a (TT), - 4a (TRT), unchanged (residual): the scales'
     normals lean toward the root (-x), so R moves toward the root. Returns sin theta_o' and |cos theta_o'|, each (N,4)."""
     sin_o, cos_o, _ = _angles(wo)
     d = co["alpha"] * np.array([2.0, -1.0, -4.0, 0.0])
@@ -94,7 +94,7 @@ def _tilted(co, wo):
 
 
 def _M(sin_i, cos_i, sin_o, cos_o, v):
-    """d'Eon's M in log space (MODEL.md "Longitudinal M_p"), safe for any v > 0:
+    """d'Eon's M in log space (docs/MODEL.md "Longitudinal M_p"), safe for any v > 0:
     log I0(x) = log i0e(x) + x, and log(2 v sinh(1/v)) = log v + 1/v + log(1 - e^(-2/v)).
     The x and 1/v terms are combined as (cos_i cos_o - sin_i sin_o - 1) / v <= 0."""
     x = cos_i * cos_o / v
@@ -108,7 +108,7 @@ def _Phi(p, gamma_o, gamma_t):
 
 
 def _trimmed_logistic(x, s):
-    """Logistic(s) on [-pi, pi] (MODEL.md "Azimuthal N_p"); CDF(pi) - CDF(-pi) = tanh(pi / 2s)."""
+    """Logistic(s) on [-pi, pi] (docs/MODEL.md "Azimuthal N_p"); CDF(pi) - CDF(-pi) = tanh(pi / 2s)."""
     e = np.exp(-np.abs(x) / s)
     return e / (s * (1.0 + e) ** 2) / np.tanh(np.pi / (2.0 * s))
 
@@ -169,7 +169,7 @@ def sample(controls, wo, h, u):
     pp = prob[rows, p]
     with np.errstate(divide="ignore", invalid="ignore"):
         u_r = np.clip(np.where(pp > 0.0, (u[:, 0] - cdf[rows, p]) / pp, 0.0), 0.0, 1.0)
-    # 2. Longitudinal (MODEL.md "Sampling" 3): t = 1 - cos theta.  ln(u + (1-u) e^(-2/v)) = ln(1 - x)
+    # 2. Longitudinal (docs/MODEL.md "Sampling" 3): t = 1 - cos theta.  ln(u + (1-u) e^(-2/v)) = ln(1 - x)
     # with x = (1-u)(1 - e^(-2/v)): log1p(-x) where x is small (no cancellation at large v), the direct
     # form where x is near 1 (there 1 - x would lose the e^(-2/v) that sets the far tail).
     sin_p, cos_p = _tilted(co, wo)

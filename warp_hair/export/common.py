@@ -1,6 +1,6 @@
 """What the exporters share: the controls as every renderer's hair model takes them, and how they report loss.
 
-Tilt sign, stated once for all exporters: warp-hair's α > 0 is the physical cuticle tilt (MODEL.md, "Cuticle
+Tilt sign, stated once for all exporters: warp-hair's α > 0 is the physical cuticle tilt (docs/MODEL.md, "Cuticle
 tilt"): for strands listed root first, the R lobe shifts toward the root (it peaks at θ_i + θ_o = −2α with θ
 positive toward the tip). Blender Cycles' `Offset` and MaterialX's `cuticle_angle` rotate the same way;
 pbrt-v4's `alpha` and Mitsuba 3's `scale_tilt` rotate the other way, so they get −α (`TILT_SIGN`).

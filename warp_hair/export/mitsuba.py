@@ -16,7 +16,7 @@ Conversion (Mitsuba 3.9, src/bsdfs/hair.cpp, class Hair: the constructor's prope
 - No R-roughness scale: a scale other than 1 is dropped with a LossyExportWarning.
 
 Render it on `bsplinecurve` with a polyline's vertices as control points: Mitsuba's `linearcurve` hands the
-BSDF a frame whose tangent is not the fiber's (MODEL.md), and both shapes flip the tangent with the side of
+BSDF a frame whose tangent is not the fiber's (docs/MODEL.md), and both shapes flip the tangent with the side of
 the fiber hit, so the tilt acts with opposite signs on the two halves of a fiber.
 """
 

@@ -29,7 +29,7 @@ The quadratic is solved relative to the segment centre in a cancellation-free fo
 centre, b = a × d and A = |b|², the signed distance between the ray and the axis is (w·b)/√A = h·r, and the
 entering root is t = −(w⊥·d + sqrt(A·r² − (w·b)²)) / A, w⊥ the part of w perpendicular to the axis.
 
-Hit frame (MODEL.md, "Frame and angles")
+Hit frame (docs/MODEL.md, "Frame and angles")
 ---------------------------------------
 x = `tangent` (unit axis, root → tip), z = `normal` (outward cylinder normal, ⊥ x), y = z × x, and
 h = −(wo·y) / sqrt((wo·y)² + (wo·z)²) = −cos φ_o with wo = −direction. For a ray perpendicular to the fiber,

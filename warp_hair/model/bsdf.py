@@ -1,6 +1,6 @@
 """Batch API of the hair BSDF over NumPy arrays, running the renderer's own Warp functions.
 
-Directions are in the local frame of MODEL.md (x along the fiber, z the normal at the hit), wo toward the
+Directions are in the local frame of docs/MODEL.md (x along the fiber, z the normal at the hit), wo toward the
 viewer, wi toward the light; h is the signed fiber offset in [−1, 1]. A single direction (3,) or a scalar h
 broadcasts against the others. Results are float32, as the renderer computes them.
 

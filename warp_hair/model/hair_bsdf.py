@@ -1,6 +1,6 @@
 """The Chiang et al. hair/fur BSDF as Warp functions for the renderer's kernels.
 
-Local frame (MODEL.md, pbrt-v4): x along the fiber, z the surface normal at the hit, y = z × x;
+Local frame (docs/MODEL.md, pbrt-v4): x along the fiber, z the surface normal at the hit, y = z × x;
 sin θ = w.x, φ = atan2(w.z, w.y). wo points toward the viewer, wi toward the light, h ∈ [−1, 1] is the
 signed offset of the hit from the fiber axis.
 
@@ -95,7 +95,7 @@ def lobe_setup(c: HairCoefficients, wo: wp.vec3, h: float):
     cos_o = cos_from_sin(sin_o)
     h = wp.clamp(h, -1.0, 1.0)
 
-    # Refraction: θ_t by Snell, γ_t in the normal plane with the Bravais index η' (MODEL.md); the form
+    # Refraction: θ_t by Snell, γ_t in the normal plane with the Bravais index η' (docs/MODEL.md); the form
     # h cos θ_o / sqrt(η² − sin² θ_o) = h / η' has no division by cos θ_o. An η within float32 rounding of 1
     # makes both square roots 0 at grazing: the floors give the η → 1⁺ limits there (γ_t = 0, an infinitely
     # long path that transmits nothing unless σ_a = 0) instead of 0/0. For η > 1 they change nothing.
@@ -117,7 +117,7 @@ def lobe_setup(c: HairCoefficients, wo: wp.vec3, h: float):
         mean_a[p] = (L.A[p, 0] + L.A[p, 1] + L.A[p, 2]) / 3.0
     L.prob = mean_a / (mean_a[0] + mean_a[1] + mean_a[2] + mean_a[3])
 
-    # Cuticle tilt (MODEL.md "Cuticle tilt α"): the scales' normals lean toward the root (−x) by α, so R
+    # Cuticle tilt (docs/MODEL.md "Cuticle tilt α"): the scales' normals lean toward the root (−x) by α, so R
     # mirrors about θ_o + 2α (its peak moves toward the root) and the refracted lobes the other way: TT about
     # θ_o − α, TRT about θ_o − 4α. pbrt-v4 and Mitsuba 3 rotate the opposite way. |cos| keeps the rotated
     # angle in [−π/2, π/2] when the rotation passes the pole.

@@ -22,7 +22,7 @@ from ..controls import COLOUR_CONTROL_NAMES, CONTROL_NAMES, CONTROLS, controls_o
 # v = s = 0 (a delta lobe no path tracer can sample). pbrt, Mitsuba and Cycles clamp the same way.
 BETA_FLOOR = 0.01
 
-# d'Eon et al. 2011 absorption of the two melanins per unit fiber radius (MODEL.md, "From artist controls").
+# d'Eon et al. 2011 absorption of the two melanins per unit fiber radius (docs/MODEL.md, "From artist controls").
 EUMELANIN_SIGMA_A = np.array([0.419, 0.697, 1.37])
 PHEOMELANIN_SIGMA_A = np.array([0.187, 0.4, 1.05])
 
@@ -37,7 +37,7 @@ def effective_beta(beta):
 
 
 def longitudinal_variance(beta_m):
-    """v(β_m) = (0.726 β + 0.812 β² + 3.7 β²⁰)², the variance of the R... TRT base lobe (MODEL.md)."""
+    """v(β_m) = (0.726 β + 0.812 β² + 3.7 β²⁰)², the variance of the R... TRT base lobe (docs/MODEL.md)."""
     b = effective_beta(beta_m)
     return (0.726 * b + 0.812 * b**2 + 3.7 * b**20) ** 2
 
