@@ -335,7 +335,10 @@ def test_ctrl_c_stops_within_a_second(tmp_path, command):
     out = tmp_path / "slow.exr"
     arguments = [{"SCENE": str(scene), "OUT": str(out)}.get(a, a) for a in command] + ["--threads", "2"]
     code = (
-        "import sys, threading, time, warp\n"
+        "import signal, sys, threading, time, warp\n"
+        # Python's own Ctrl-C handler, as in a terminal: a test runner started in the background inherits SIGINT
+        # ignored, and its children with it.
+        "signal.signal(signal.SIGINT, signal.default_int_handler)\n"
         "from optimize.cli import main\n"
         "launch, said = warp.launch, threading.Event()\n"
         "def announced(*args, **kwargs):  # says when the first range is done: the render is under way\n"
