@@ -1,7 +1,7 @@
 """Profile: where a standard-swatch render and a fit iteration spend their time (preparation, BVH build,
 traversal of each kind of ray, shading).
 
-    python benchmarks/profile_render.py [--spp 16] [--record-spp 2] [--target brown_wavy] [--threads N]
+    python benchmarks/profile_render.py [--spp 16] [--record-spp 2] [--target brown_wavy] [--threads N] [--mitsuba]
 
 1. Preparation of a scene (`warp_hair.prepare`), split into its steps: the segments of the assembly, the
    tubes' frames and boxes, the BVH build (`bvh.build_bvh`), and the rest (tube arrays in leaf order, lights,
@@ -16,7 +16,8 @@ traversal of each kind of ray, shading).
    per core. The traversal share of the render is Σ count × time per ray, scaled from --record-spp to --spp;
    the rest of the render's CPU time is shading, sampling and the loop. Rays traced in a batch of one kind, in
    pixel order, are somewhat more coherent than in the render, where each thread alternates kinds: the
-   traversal share is a lower bound.
+   traversal share is a lower bound. With --mitsuba, Mitsuba 3 (Embree) traces the same rays on one thread,
+   for its rays per second per core beside ours: how much of the gap to Mitsuba the traversal explains.
 
 Timings: wall-clock and CPU seconds (time.process_time: all threads of this process). On a shared machine the
 wall times are inflated by other jobs; the CPU times much less.
@@ -165,9 +166,8 @@ def recorded_rays(prepared, spp, seed=0) -> dict:
     return out
 
 
-def ray_rates(prepared, spp_record, spp) -> list:
-    """[(kind, rays in the render at spp, seconds per ray on one core)]."""
-    rays = recorded_rays(prepared, spp_record)
+def ray_rates(prepared, rays, spp_record, spp) -> list:
+    """[(kind, rays in the render at spp, seconds per ray on one core)] of `recorded_rays(prepared, spp_record)`."""
     rows = []
     for kind, (o, d) in rays.items():
         trace = occluded if kind == "shadow" else intersect
@@ -176,6 +176,37 @@ def ray_rates(prepared, spp_record, spp) -> list:
             trace(prepared.bvh, o, d)
         rows.append((kind, len(o) * spp / spp_record, c.cpu / max(len(o), 1)))
     return rows
+
+
+def mitsuba_ray_rates(scene, rays) -> dict:
+    """{kind: seconds per ray on one core} of Mitsuba 3 (llvm_ad_rgb, Embree) tracing the same recorded rays in
+    the same swatch (`linearcurve` over the same vertices, as `render_swatch.py` renders it): closest hits by
+    `ray_intersect_preliminary` (no shading frame: traversal and the curve test), shadow rays by `ray_test`;
+    or {} without Mitsuba. One Dr.Jit thread, so that the figures compare with ours per core."""
+    from mitsuba_peer import import_mitsuba, mitsuba_scene
+
+    mi = import_mitsuba()
+    if mi is None:
+        return {}
+    import drjit as dr
+
+    dr.set_thread_count(1)
+    mi_scene = mitsuba_scene(mi, scene, 1)
+    out = {}
+    for kind, (o, d) in rays.items():
+        def trace(o, d):
+            ray = mi.Ray3f(mi.Point3f(*(o[:, k].astype(np.float32) for k in range(3))),
+                           mi.Vector3f(*(d[:, k].astype(np.float32) for k in range(3))))
+            dr.eval(ray)
+            with Clock() as c:
+                result = mi_scene.ray_test(ray) if kind == "shadow" else mi_scene.ray_intersect_preliminary(ray).t
+                dr.eval(result)
+                dr.sync_thread()
+            return c.cpu
+
+        trace(o[:1000], d[:1000])  # JIT-compile outside the timing
+        out[kind] = trace(o, d) / max(len(o), 1)
+    return out
 
 
 def fit_iteration(target_dir, spp, threads) -> dict:
@@ -216,6 +247,7 @@ def main() -> None:
     parser.add_argument("--target", default="brown_wavy", help="shipped target for the fit iteration")
     parser.add_argument("--fit-spp", type=int, default=16, help="the fit's final spp (FitSettings.spp)")
     parser.add_argument("--threads", type=int, default=None)
+    parser.add_argument("--mitsuba", action="store_true", help="also time Mitsuba 3 tracing the same rays")
     args = parser.parse_args()
     threads = args.threads or default_threads()
     wp.init()
@@ -243,7 +275,8 @@ def main() -> None:
     print(f"\n## Standard swatch {w}×{h}, {args.spp} spp, depth {swatch.render.max_depth}: render {c.wall:.2f} s wall, "
           f"{c.cpu:.2f} s CPU\n\n| rays | count | µs per ray, one core | rays/s per core | CPU s in the render | share |"
           "\n|---|---:|---:|---:|---:|---:|")
-    rows = ray_rates(prepared, args.record_spp, args.spp)
+    rays = recorded_rays(prepared, args.record_spp)
+    rows = ray_rates(prepared, rays, args.record_spp, args.spp)
     traversal = 0.0
     for kind, count, per_ray in rows:
         seconds = count * per_ray
@@ -251,6 +284,18 @@ def main() -> None:
         print(f"| {kind} | {count:.3g} | {per_ray * 1e6:.2f} | {1 / per_ray:.3g} | {seconds:.2f} | {seconds / c.cpu:.0%} |")
     rest = c.cpu - traversal
     print(f"| shading, sampling, the loop (the rest) | | | | {rest:.2f} | {rest / c.cpu:.0%} |")
+    if args.mitsuba:
+        theirs = mitsuba_ray_rates(swatch, rays)
+        if theirs:
+            print("\n## The same rays traced by Mitsuba 3 (Embree, one thread)\n\n| rays | warp-hair µs per ray | "
+                  "Mitsuba µs per ray | ratio | CPU s in our render | at Mitsuba's rate |\n|---|---:|---:|---:|---:|---:|")
+            at_theirs = 0.0
+            for kind, count, per_ray in rows:
+                at_theirs += count * theirs[kind]
+                print(f"| {kind} | {per_ray * 1e6:.2f} | {theirs[kind] * 1e6:.2f} | {per_ray / theirs[kind]:.2f} | "
+                      f"{count * per_ray:.2f} | {count * theirs[kind]:.2f} |")
+            print(f"\nOur render at Mitsuba's ray rates: {at_theirs + rest:.2f} s CPU instead of {c.cpu:.2f} s "
+                  f"(traversal {traversal:.2f} → {at_theirs:.2f} s, the rest {rest:.2f} s unchanged).")
 
 
 if __name__ == "__main__":

@@ -84,12 +84,28 @@ def add_fit(subparsers) -> None:
     parser.add_argument("--patience", type=int, default=defaults.patience, metavar="P",
                         help=f"stop after P iterations without improvement at the final spp (default {defaults.patience})")
     parser.add_argument("--refine", type=int, metavar="K",
-                        help="Gauss-Newton steps after Adam (default 16, or more for a target rendered at more samples "
-                        "per pixel than 16 steps render; 0 with --loss l1, which is not a sum of squares)")
+                        help="Gauss-Newton steps after Adam (default 8, or more for a target rendered at more samples "
+                        "per pixel than 8 steps average; 0 with --loss l1, which is not a sum of squares)")
+    parser.add_argument("--batch", type=_batch, default=defaults.batch, metavar="N|all",
+                        help=f"pixels of an image per render (default {defaults.batch}): a larger image's Adam "
+                        "iterations render random blocks adding up to N of its pixels, its Gauss-Newton steps all of "
+                        "them at proportionally fewer samples; 'all' renders every pixel at the full samples")
     parser.add_argument("--export", metavar="RENDERERS",
                         help="also write the fitted look for these renderers beside params.json (comma-separated: "
                         "mitsuba, pbrt, cycles, materialx; files hair_<renderer>.*, as `warp-hair export` writes)")
     parser.set_defaults(run=run_fit)
+
+
+def _batch(text: str) -> int | None:
+    if text == "all":
+        return None
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"--batch must be a whole number of pixels >= 1 or 'all', got {text!r}")
+    return value
 
 
 def run_fit(args: argparse.Namespace) -> None:
@@ -112,7 +128,7 @@ def run_fit(args: argparse.Namespace) -> None:
         _fix_controls(target, fixed)
     settings = FitSettings(controls=tuple(names), iters=args.iters, spp=args.spp, loss=args.loss, lr=args.lr,
                            seed=args.seed, patience=args.patience, init=parse_assignments(args.init, "--init"),
-                           threads=args.threads, refine=args.refine)
+                           threads=args.threads, refine=args.refine, batch=args.batch)
     sizes = ", ".join(f"{im.name} {im.image.shape[1]}x{im.image.shape[0]}" for im in target.images)
     print(f"fitting {', '.join(names)} of {target.name} ({sizes})")
     result = fit(target, settings)

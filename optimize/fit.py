@@ -9,7 +9,8 @@ each (`warp_hair.torch.render_torch_pair`: one gradient pass per render gives it
 each render's adjoint meets the other's Jacobian, so the gradient is unbiased without `render_torch`'s separate
 forward render, which would cost a forward pass more per iteration), sums the image losses, and takes one torch.optim.Adam step on the controls' latents (`latents.py`: no step
 leaves a control's range). Fresh seeds every iteration, so the Monte Carlo noise averages out over the
-iterations instead of biasing every step alike.
+iterations instead of biasing every step alike. An image larger than `batch` pixels is rendered on a random
+mini-batch of its loss blocks each iteration (`Batches`), so an iteration costs the same whatever the size.
 
 Schedules: the samples per pixel grow from spp/4 over the first quarter of the iterations to spp/2 and then
 spp (noisy, cheap steps while far away; precise ones near the optimum), and the learning rate stays at lr for
@@ -35,12 +36,12 @@ import torch
 from tqdm import tqdm
 
 from warp_hair.model.params import effective_beta
-from warp_hair.renderer.forward import prepare
-from warp_hair.torch import render_torch_pair
+from warp_hair.renderer.forward import prepare, render
+from warp_hair.torch import render_torch_pair, scene_with_controls
 
 from .latents import DEFAULT_FIT, EXPOSURE, SPECS, as_values, parse_control_names
 from .linearize import linearize
-from .losses import LOSSES, image_loss
+from .losses import LOSSES, image_loss, loss_scale
 from .refine import REFINABLE_LOSSES, refine
 from .target import Target
 from .uncertainty import estimate_uncertainty
@@ -52,13 +53,17 @@ PLATEAU_TOLERANCE = 1e-3
 SMOOTHING = 0.9  # of the loss's exponential moving average, for the plateau test
 AVERAGED_FRACTION = 0.2
 FINAL_SPP_FACTOR = 4
-DEFAULT_REFINE_STEPS = 16
+DEFAULT_REFINE_STEPS = 8
+# Pixels per image per render at the default sample counts: the shipped own targets' 48×48, at which those were
+# chosen. A larger image's iterations render this many of its pixels (`Batches`); its linearisations render all
+# of them at proportionally fewer samples (`gauss_newton_spp`).
+BATCH_PIXELS = 48 * 48
 
 
 @dataclass
 class FitSettings:
     controls: tuple = DEFAULT_FIT
-    iters: int = 150
+    iters: int = 60
     spp: int = 16  # at the end of the schedule
     loss: str = "l2"
     pool: int = 4  # compare k×k block averages (losses.py says why)
@@ -69,6 +74,7 @@ class FitSettings:
     threads: int | None = None
     uncertainty: bool = True
     refine: int | None = None  # Gauss–Newton steps after Adam (refine.py); None: `_refine_steps`, 0 for L1
+    batch: int | None = BATCH_PIXELS  # pixels of an image per render (see BATCH_PIXELS); None: every pixel, always
 
 
 @dataclass
@@ -113,8 +119,10 @@ def check_settings(target: Target, settings: FitSettings) -> tuple:
     names = parse_control_names(settings.controls, target.hair.colour_input)
     if settings.loss not in LOSSES:
         raise ValueError(f"unknown loss {settings.loss!r}; allowed: {list(LOSSES)}")
-    for key, minimum in (("iters", 1), ("spp", 1), ("patience", 1), ("pool", 1)):
+    for key, minimum in (("iters", 1), ("spp", 1), ("patience", 1), ("pool", 1), ("batch", 1)):
         value = getattr(settings, key)
+        if key == "batch" and value is None:
+            continue
         if not isinstance(value, int) or value < minimum:
             raise ValueError(f"{key} must be an integer >= {minimum}, got {value!r}")
     if not (isinstance(settings.lr, (int, float)) and math.isfinite(settings.lr) and settings.lr > 0):
@@ -178,16 +186,59 @@ def _mean_values(history_values: dict, window: int) -> dict:
             for name, vals in history_values.items()}
 
 
-def _loss(target: Target, scenes, values: dict, spp: int, seeds, settings: FitSettings, targets, masks):
+class Batches:
+    """Random mini-batches of one target image's pooled blocks, for the iterations of a fit.
+
+    An image of more than `batch` counted pixels is rendered, each iteration, on a uniformly drawn set of its
+    k×k loss blocks (k = the loss's pool) that add up to about `batch` pixels; the loss over those blocks,
+    divided by the whole image's scale (`losses.loss_scale`), is an unbiased estimate of the whole image's, and
+    so is its gradient: a stochastic optimiser's mini-batch. The pixels of a block are rendered as they come
+    out in the whole image (one random stream per pixel), so a batch changes what is rendered, not how.
+    """
+
+    def __init__(self, image, pool: int, batch: int | None):
+        height, width = image.image.shape[:2]
+        counted = np.ones((height, width), bool) if image.mask is None else image.mask > 0
+        rows, cols = np.nonzero(counted)
+        block = (rows // pool) * (-(-width // pool)) + cols // pool
+        self.blocks, inverse = np.unique(block, return_inverse=True)
+        order = np.argsort(inverse, kind="stable")
+        self.pixels_of = np.split((rows * width + cols)[order], np.cumsum(np.bincount(inverse))[:-1])
+        self.shape = (height, width)
+        self.size = len(self.blocks) if batch is None else min(len(self.blocks), max(1, round(batch / pool**2)))
+
+    @property
+    def whole(self) -> bool:
+        return self.size == len(self.blocks)
+
+    def draw(self, seed: int):
+        """(pixel indices to render or None for all, the loss's mask of them (H, W) or None)."""
+        if self.whole:
+            return None, None
+        chosen = np.random.default_rng(seed).choice(len(self.blocks), self.size, replace=False)
+        pixels = np.sort(np.concatenate([self.pixels_of[b] for b in chosen]))
+        mask = np.zeros(self.shape[0] * self.shape[1], bool)
+        mask[pixels] = True
+        return pixels, torch.from_numpy(mask.reshape(self.shape))
+
+
+def _loss(target: Target, scenes, values: dict, spp: int, seeds, settings: FitSettings, targets, masks, batches,
+          scales):
     """The mean image loss over the target's images (`scenes`: theirs, prepared), each rendered as a decorrelated
-    pair of spp/2 each."""
+    pair of spp/2 each, on a mini-batch of its blocks where it is larger than settings.batch."""
     hair = {name: v for name, v in values.items() if name != EXPOSURE}
     gain = values.get(EXPOSURE, 1.0)
     total = 0.0
     for k, image in enumerate(target.images):
-        pair = render_torch_pair(scenes[k], hair, spp=max(1, spp // 2), seed=seeds[k], threads=settings.threads)
+        pixels, mask = batches[k].draw(seeds[k])
+        if mask is None:
+            mask = masks[k]
+        elif masks[k] is not None:
+            mask = mask & masks[k]
+        pair = render_torch_pair(scenes[k], hair, spp=max(1, spp // 2), seed=seeds[k], threads=settings.threads,
+                                 pixels=pixels)
         for rendered in pair:
-            total = total + image_loss(rendered * gain, targets[k], settings.loss, masks[k], settings.pool)
+            total = total + image_loss(rendered * gain, targets[k], settings.loss, mask, settings.pool, scales[k])
     return total / (2 * len(target.images))
 
 
@@ -213,6 +264,8 @@ def fit(target: Target, settings: FitSettings | None = None, progress: bool = Tr
     schedule = torch.optim.lr_scheduler.LambdaLR(optimizer, lambda it: lr_factor(it, settings.iters))
     targets = [torch.from_numpy(image.image) for image in target.images]
     masks = [None if image.mask is None else torch.from_numpy(image.mask) for image in target.images]
+    scales = [loss_scale(t, settings.loss, m, settings.pool) for t, m in zip(targets, masks)]
+    batches = [Batches(image, settings.pool, settings.batch) for image in target.images]
 
     history = {"loss": [], "spp": [], "lr": [], "values": {name: [] for name in names}}
     stop_reason = "iterations"
@@ -229,7 +282,7 @@ def fit(target: Target, settings: FitSettings | None = None, progress: bool = Tr
             optimizer.zero_grad()
             values = latents.values()
             seeds = [iteration_seed(settings.seed, it, k) for k in range(len(target.images))]
-            loss = _loss(target, scenes, values, spp, seeds, settings, targets, masks)
+            loss = _loss(target, scenes, values, spp, seeds, settings, targets, masks, batches, scales)
             loss.backward()
             history["loss"].append(float(loss.detach()))
             history["spp"].append(spp)
@@ -266,7 +319,7 @@ def fit(target: Target, settings: FitSettings | None = None, progress: bool = Tr
 def _finish(target, scenes, settings, names, start, estimate, history, done, stop_reason, begun, progress) -> FitResult:
     """Gauss–Newton refinement (unless interrupted), then the final renders and the uncertainties from the
     loss linearised at the result, all at FINAL_SPP_FACTOR × spp per render."""
-    final_spp = settings.spp * FINAL_SPP_FACTOR
+    final_spp = gauss_newton_spp(settings, target)
     seed = iteration_seed(settings.seed, 2**31, 0)
     steps = 0 if stop_reason == "interrupted" else _refine_steps(settings, target)
     history["refine"] = []
@@ -276,14 +329,16 @@ def _finish(target, scenes, settings, names, start, estimate, history, done, sto
 
         def on_step(record):
             history["refine"].append(record)
+            if bar.n >= bar.total:  # the refinement runs on while its points still move (refine.py)
+                bar.total = bar.n + 1
             bar.set_postfix_str(f"loss={record['loss']:.3g} {'kept' if record['accepted'] else 'undone'} "
                                 f"{_describe(record['values'])}", refresh=False)
             bar.update()
 
-        lin, mc_covariance = None, None
+        lin, mc_covariance, notes = None, None, []
         try:
-            estimate, lin, mc_covariance = refine(target, estimate, settings, final_spp, seed, steps, on_step,
-                                      lambda values: last_kept.update(values=values), scenes=scenes)
+            estimate, lin, mc_covariance, notes = refine(target, estimate, settings, final_spp, seed, steps, on_step,
+                                                         lambda values: last_kept.update(values=values), scenes=scenes)
         except KeyboardInterrupt:
             stop_reason = "interrupted"
             estimate = last_kept["values"]
@@ -292,9 +347,17 @@ def _finish(target, scenes, settings, names, start, estimate, history, done, sto
     if not steps or lin is None:
         lin, mc_covariance = linearize(target, estimate, settings, final_spp, seed, threads=settings.threads,
                                        scenes=scenes), None
+    images = lin.images
+    if final_spp < settings.spp * FINAL_SPP_FACTOR and stop_reason != "interrupted":
+        # The linearisations of a large image rendered few samples a pixel: a picture of the fit that a person
+        # compares with the target (comparison.png) wants the full samples.
+        try:
+            images = _render_fitted(scenes, estimate, settings.spp * FINAL_SPP_FACTOR, seed, settings.threads)
+        except KeyboardInterrupt:
+            stop_reason = "interrupted"
     losses = [image_loss(torch.from_numpy(fitted), torch.from_numpy(image.image), settings.loss,
                          None if image.mask is None else torch.from_numpy(image.mask), settings.pool)
-              for fitted, image in zip(lin.images, target.images)]
+              for fitted, image in zip(images, target.images)]
     result = FitResult(
         target=target.name,
         values=estimate,
@@ -305,23 +368,46 @@ def _finish(target, scenes, settings, names, start, estimate, history, done, sto
         iterations=done,
         stop_reason=stop_reason,
         seconds=0.0,
-        images=lin.images,
+        images=images,
     )
+    if steps:
+        result.warnings.extend(notes)
     if settings.uncertainty and stop_reason != "interrupted":
         estimate_uncertainty(result, lin, mc_covariance)
     result.seconds = time.perf_counter() - begun
     return result
 
 
+def _render_fitted(scenes, values: dict, spp: int, seed: int, threads) -> list:
+    """Forward renders (H, W, 3) of the target's prepared scenes at the fitted controls, exposure applied."""
+    hair = {name: v for name, v in values.items() if name != EXPOSURE}
+    gain = float(values.get(EXPOSURE, 1.0))
+    return [gain * render(scene_with_controls(scene, hair), spp=spp, seed=seed + k, threads=threads)
+            for k, scene in enumerate(scenes)]
+
+
+def gauss_newton_spp(settings: FitSettings, target: Target) -> int:
+    """Samples per pixel of each linearisation's renders: FINAL_SPP_FACTOR × spp, and for an image larger than
+    settings.batch proportionally fewer, so that a linearisation renders the same number of paths whatever the
+    size, over every pixel (each of them carries the target's information; its noise averages over more of
+    them, so fewer samples each give the fit the same precision)."""
+    spp = settings.spp * FINAL_SPP_FACTOR
+    if settings.batch is None:
+        return spp
+    pixels = max(image.image.shape[0] * image.image.shape[1] for image in target.images)
+    return max(1, round(spp * min(1.0, settings.batch / pixels)))
+
+
 def _refine_steps(settings: FitSettings, target: Target) -> int:
     """settings.refine; by default at least DEFAULT_REFINE_STEPS, and enough that the refinement's renders add up
-    to the samples per pixel the target was rendered with (its scenes' [render] spp): the estimate's Monte Carlo
-    error then compares with the target's own noise, and a target rendered at more samples to be less noisy
-    (fur_patch) gets more steps."""
+    to half the samples per pixel the target was rendered with (its scenes' [render] spp). The later half of the
+    steps is averaged into the estimate, so its Monte Carlo variance is then about four times what the target's
+    own noise gives it (the reported σ counts both), and a target rendered at more samples to be less noisy
+    (fur_patch) gets more steps. refine.py may run more while its steps still move."""
     if settings.refine is not None:
         return settings.refine
     if settings.loss not in REFINABLE_LOSSES:
         return 0
-    per_step = 2 * settings.spp * FINAL_SPP_FACTOR  # two passes per linearisation
+    per_step = 2 * gauss_newton_spp(settings, target)  # two passes per linearisation
     target_spp = max(image.scene.render.spp for image in target.images)
-    return max(DEFAULT_REFINE_STEPS, math.ceil(target_spp / per_step))
+    return max(DEFAULT_REFINE_STEPS, math.ceil(target_spp / (2 * per_step)))

@@ -31,20 +31,43 @@ def block_mean(image: torch.Tensor, weight: torch.Tensor, pool: int):
     return (summed / total.clamp_min(1e-12))[0].permute(1, 2, 0), total[0, 0]
 
 
-def image_loss(image: torch.Tensor, target: torch.Tensor, kind: str = "l2", mask: torch.Tensor | None = None, pool: int = 1):
-    if kind not in LOSSES:
-        raise ValueError(f"unknown loss {kind!r}; allowed: {list(LOSSES)}")
+def _pooled(image: torch.Tensor, target: torch.Tensor, mask, pool: int):
+    """Both images over k×k blocks (masked pixels left out) and the mask of the blocks that count."""
     if pool > 1:
         weight = torch.ones(image.shape[:2], dtype=image.dtype) if mask is None else mask.to(image.dtype)
         image, total = block_mean(image, weight, pool)
         target, _ = block_mean(target.to(image.dtype), weight, pool)
         mask = total > 0
+    return image, target, mask
+
+
+def loss_scale(target: torch.Tensor, kind: str = "l2", mask: torch.Tensor | None = None, pool: int = 1) -> torch.Tensor:
+    """The target's own scale that `image_loss` divides by (mean T² for L2, mean |T| for L1, the mean T of
+    relative L2's ε), over the counted (pooled) pixels."""
+    _, pooled, mask = _pooled(target, target, mask, pool)
+    if mask is not None:
+        pooled = pooled[mask]
+    if kind == "l2":
+        return (pooled * pooled).mean()
+    return pooled.abs().mean()
+
+
+def image_loss(image: torch.Tensor, target: torch.Tensor, kind: str = "l2", mask: torch.Tensor | None = None, pool: int = 1,
+               scale: torch.Tensor | None = None):
+    """The loss of `image` against `target` over the pixels `mask` counts. `scale`: the target's scale to divide
+    by (`loss_scale`), by default its own under `mask`; a mini-batch of blocks passes the whole image's, so that
+    its loss is an unbiased estimate of the whole image's rather than a ratio of two estimates."""
+    if kind not in LOSSES:
+        raise ValueError(f"unknown loss {kind!r}; allowed: {list(LOSSES)}")
+    if scale is None:
+        scale = loss_scale(target.to(image.dtype), kind, mask, pool)
+    scale = scale.to(image.dtype)
+    image, target, mask = _pooled(image, target, mask, pool)
     if mask is not None:
         image, target = image[mask], target[mask]
     diff = image - target
     if kind == "l2":
-        return (diff * diff).mean() / (target * target).mean().clamp_min(1e-30)
+        return (diff * diff).mean() / scale.clamp_min(1e-30)
     if kind == "l1":
-        return diff.abs().mean() / target.abs().mean().clamp_min(1e-30)
-    scale = target + REL_EPSILON * target.mean()
-    return ((diff / scale) ** 2).mean()
+        return diff.abs().mean() / scale.clamp_min(1e-30)
+    return ((diff / (target + REL_EPSILON * scale)) ** 2).mean()

@@ -13,19 +13,24 @@ a step overshoots), and shortened where it would go more than half way to a boun
 lowers the loss as estimated by the trapezoid rule on the slopes along it, ½ (∇ℓ(x) + ∇ℓ(x + δx))·δx (exact
 for a quadratic). Gradients are unbiased and their noise is modest; loss values are not: each carries our
 render's Monte Carlo variance, which grows with the radiance, so comparing losses (even with common random
-numbers) would undo steps that land on the truth. λ then shrinks, else it grows and the step is retried from
-the same linearisation.
+numbers) would undo steps that land on the truth. A step no longer than render noise alone makes one is kept
+too (`within_noise`): there the slope test is a coin flip. λ then shrinks, else it grows and the step is
+retried from the same linearisation.
 
 Every linearisation renders with fresh seeds, so each step's end point carries that render's own noise (with
 common seeds every step would converge to the same noisy point). The result is the mean of the later half of
 the kept points after the first, which scatter around the optimum as Adam's last iterates do;
-`mean_covariance` is its Monte Carlo error. L2 and relative L2 are sums of squares as they stand; the L1 loss
+`mean_covariance` is its Monte Carlo error. From a start far from the optimum, in a curved valley, the steps
+can creep: while the averaged points still follow a trend (`drift_statistic`), the refinement takes more steps,
+up to MAX_EXTENSION times as many, and says so if they never settle. L2 and relative L2 are sums of squares as they stand; the L1 loss
 is not, and is not refined.
 """
 
 from __future__ import annotations
 
 import dataclasses
+
+from statistics import NormalDist
 
 import numpy as np
 
@@ -39,6 +44,10 @@ SEED_STRIDE = 7919  # each linearisation renders with its own seeds
 JACOBIAN_WINDOW = 8  # linearisations whose Jacobians are pooled
 EMPIRICAL_POINTS = 4  # end points needed before their own scatter is trusted to tell their noise
 REFINABLE_LOSSES = ("l2", "rel_l2")
+NOISE_QUANTILE = 0.99  # a step shorter than this quantile of pure-noise steps is kept (`within_noise`)
+DRIFT_T = 3.0  # a trend in the averaged points this many standard errors strong means they still move
+DRIFT_POINTS = 5  # fewer averaged points do not tell a trend (a t statistic with 3 degrees of freedom or more)
+MAX_EXTENSION = 3  # a refinement whose points still move runs on, up to this many times its planned steps
 
 
 def _flat(values: dict) -> np.ndarray:
@@ -61,7 +70,8 @@ def inside(x: np.ndarray, step: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> n
 
 
 def refine(target, start: dict, settings, spp: int, seed: int, steps: int, on_step=None, on_keep=None, scenes=None):
-    """(values, Linearization at them, the Monte Carlo covariance of `values` or None) after `steps` steps.
+    """(values, Linearization at them, the Monte Carlo covariance of `values` or None, warnings) after `steps`
+    steps, or more while the averaged points still move (up to MAX_EXTENSION × steps).
 
     start: the controls to refine from ({name: float or list of 3}). `on_keep(values)` is called with each kept
     step (the fit keeps it, to return after a KeyboardInterrupt), and `on_step(record)` after every step with
@@ -93,14 +103,16 @@ def refine(target, start: dict, settings, spp: int, seed: int, steps: int, on_st
     lin = with_earlier(linearized(x, 0))
     kept, scatters = [], []  # the kept end points and their linearisations' scatter estimates
     damping = LAMBDA_START
-    for k in range(1, steps + 1):
+    limit, k = steps, 0
+    while k < limit:
+        k += 1
         h = lin.curvature
         step = inside(x, -np.linalg.solve(h + damping * np.diag(np.diag(h)) + 1e-12 * np.eye(len(x)), lin.gradient), lo, hi)
         lin_new = with_earlier(linearized(x + step, k))
         # The change of ½·loss along the step by the trapezoid rule on its slopes at both ends: exact for a
         # quadratic, and built from unbiased gradients instead of noisy loss values.
         change = 0.5 * float(lin.gradient @ step + lin_new.gradient @ step)
-        accepted = bool(np.isfinite(change) and change < 0)
+        accepted = bool(np.isfinite(change) and (change < 0 or within_noise(step, lin)))
         if accepted:
             x, lin = x + step, lin_new
             kept.append(x)
@@ -115,17 +127,70 @@ def refine(target, start: dict, settings, spp: int, seed: int, steps: int, on_st
                      "change": 2.0 * change, "accepted": accepted})
         if damping > LAMBDA_MAX:
             break
+        if k == limit and limit < MAX_EXTENSION * steps and _drifting(_later(kept)):
+            limit += 1
+    notes = []
+    if _drifting(_later(kept)):
+        moved = np.ptp(np.array(_later(kept)), axis=0)
+        labels = [f"{name}[{'rgb'[c]}]" if SPECS[name].size == 3 else name
+                  for name in names for c in range(SPECS[name].size)]
+        worst = int(np.argmax(drift_statistic(_later(kept))))
+        notes.append(f"the Gauss-Newton steps had not settled after {k} steps ({labels[worst]} still moving, by "
+                     f"{moved[worst]:.3g} over the last {len(_later(kept))}): the estimate may be off by more than its "
+                     "uncertainty; fit again from this result (--init) or with more steps (--refine)")
     if len(kept) < 2:
-        return lin.values, lin, None
+        return lin.values, lin, None, notes
     # Each linearisation's own render noise moves its step's end point; the later kept points scatter around
     # the optimum, and their mean scatters less.
-    later = _later(kept)
-    final = with_earlier(linearized(np.mean(later, axis=0), steps + 1))
+    averaged = _later(kept)
+    final = with_earlier(linearized(np.mean(averaged, axis=0), k + 1))
     # One linearisation's scatter estimate is noisy where our render is much noisier than the target.
     final = dataclasses.replace(final, scatter=float(np.mean(_later(scatters) + [final.scatter_estimate])))
     if on_keep is not None:
         on_keep(final.values)
-    return final.values, final, mean_covariance(later, final)
+    return final.values, final, mean_covariance(averaged, final), notes
+
+
+def within_noise(step: np.ndarray, lin: Linearization) -> bool:
+    """Whether `step` is no longer than our render noise alone would make a step from the optimum:
+    δᵀ Σ⁻¹ δ ≤ χ²_p(NOISE_QUANTILE), Σ = `Linearization.step_covariance`. Such a step is kept whatever its
+    slope test says. At the optimum the trapezoid estimate of the change is −½ n₂ᵀ H⁻¹ n₁ for the two
+    linearisations' independent gradient noises n₁, n₂: its sign is a coin flip, and undoing half the steps
+    there only wastes their renders (the retry reuses the same noisy gradient, shorter). Far from the optimum
+    the steps are longer than the noise and the slope test decides, as before."""
+    cov = lin.step_covariance
+    if not np.all(np.isfinite(cov)) or not np.all(np.isfinite(step)):
+        return False
+    distance = float(step @ np.linalg.pinv(cov) @ step)
+    return distance <= chi2_quantile(NOISE_QUANTILE, len(step))
+
+
+def chi2_quantile(q: float, dof: int) -> float:
+    """The q-quantile of χ² with `dof` degrees of freedom, by Wilson and Hilferty's cube-root normal
+    approximation (1931): within 1% of the exact value at q = 0.99 for dof ≥ 2."""
+    c = 2.0 / (9.0 * dof)
+    return dof * (1.0 - c + NormalDist().inv_cdf(q) * c**0.5) ** 3
+
+
+def drift_statistic(points: list) -> np.ndarray:
+    """Per component, |slope| / its standard error of a straight line through the points in their order, the
+    error from their scatter about the line. (Not from the steps' render noise, `step_covariance`: consecutive
+    steps share pooled Jacobians, so their end points scatter less than independent steps would, and a trend
+    that stands out clearly from their scatter can still be within that noise.)"""
+    y = np.array(points)
+    m = len(y)
+    i = np.arange(m) - (m - 1) / 2
+    sxx = float(i @ i)
+    slope = i @ (y - y.mean(axis=0)) / sxx
+    residual = y - y.mean(axis=0) - np.outer(i, slope)
+    variance = (residual**2).sum(axis=0) / max(m - 2, 1)
+    return np.abs(slope) / np.sqrt(np.maximum(variance, 1e-300) / sxx)
+
+
+def _drifting(points: list) -> bool:
+    """Whether the points averaged into the estimate still move along a trend (a curved valley that the steps
+    creep along, from a start far from the optimum): their mean would then lag behind the optimum."""
+    return len(points) >= DRIFT_POINTS and bool(np.max(drift_statistic(points)) > DRIFT_T)
 
 
 def _later(kept: list) -> list:

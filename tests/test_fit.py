@@ -54,9 +54,12 @@ def test_fit_rejects_an_unknown_export_before_fitting(small_target, tmp_path, ca
     assert not (tmp_path / "o").exists()
 
 
-def test_reduced_fit_recovers_the_true_controls(small_target):
+@pytest.mark.parametrize("batch", [None, 144], ids=["whole", "mini-batch"])
+def test_reduced_fit_recovers_the_true_controls(small_target, batch):
+    """With `batch` 144 each iteration renders 9 of the 36 4×4 blocks of the 24×24 images, and the
+    Gauss–Newton passes all pixels at a quarter of the samples: the same bounds must hold."""
     target = load_target(small_target)
-    result = fit(target, iters=80, spp=16, pool=4, progress=False)
+    result = fit(target, iters=80, spp=16, pool=4, progress=False, batch=batch)
     assert result.iterations >= 40
     albedo_error = np.abs(np.subtract(result.values["albedo"], TRUTH["albedo"]))
     assert albedo_error.max() < 0.03, result.values

@@ -14,10 +14,10 @@ from helpers.scenes import front_camera, toml_text
 
 from optimize.cli import main
 from optimize.latents import SPECS, parse_control_names
-from optimize.fit import FitSettings, check_settings, spp_at
+from optimize.fit import Batches, FitSettings, check_settings, spp_at
 from optimize.linearize import Linearization, linearize
-from optimize.losses import image_loss
-from optimize.refine import inside, mean_covariance
+from optimize.losses import image_loss, loss_scale
+from optimize.refine import _drifting, chi2_quantile, inside, mean_covariance, within_noise
 from optimize.uncertainty import estimate_uncertainty
 from optimize.target import SHIPPED_TARGETS, load_target, make_target, shipped_targets
 from warp_hair.io import read_exr, write_exr
@@ -274,6 +274,73 @@ def test_step_covariance_predicts_the_scatter_of_gauss_newton_steps():
     np.testing.assert_allclose(np.diag(np.cov(np.array(steps).T)), np.diag(np.mean(predicted, axis=0)), rtol=0.25)
 
 
+def test_steps_within_the_noise_are_kept_and_long_ones_are_tested():
+    """At the optimum a Gauss–Newton step is render noise: the slope test's sign is then a coin flip, so such
+    steps are kept (`within_noise`); about 1% of pure-noise steps fall outside the 0.99 quantile. A step from
+    far away, many noise lengths long, is left to the slope test."""
+    rng = np.random.default_rng(12)
+    n = 3999
+    jacobian = rng.standard_normal((n, 3)) * np.array([1.0, 0.5, 0.2])
+
+    def kept_fraction(offset):
+        kept = 0
+        for _ in range(200):
+            lin = _noisy_linearization(rng, jacobian, np.asarray(offset), 0.2, 0.0)
+            kept += within_noise(-np.linalg.solve(lin.curvature, lin.gradient), lin)
+        return kept / 200
+
+    assert kept_fraction([0.0, 0.0, 0.0]) >= 0.95
+    assert kept_fraction([0.05, -0.05, 0.1]) == 0.0
+
+
+def test_a_trend_in_the_averaged_steps_is_seen_and_noise_rarely():
+    """Points that creep along a line (a curved valley, a far start) are still moving; points that scatter
+    about a fixed optimum mostly are not (at |t| > 3 with 3 or more degrees of freedom and 5 components, a few
+    in ten are, which costs an extra step each, not a wrong answer)."""
+    rng = np.random.default_rng(13)
+    trend = [np.r_[0.01 * k, 0.0, 0.0, 0.0, 0.0] + 0.002 * rng.standard_normal(5) for k in range(8)]
+    assert _drifting(trend)
+    assert not _drifting(trend[:4])  # too few points to tell
+    still = [_drifting(list(0.01 * rng.standard_normal((8, 5)))) for _ in range(400)]
+    assert np.mean(still) < 0.35
+
+
+@pytest.mark.parametrize("dof", [2, 3, 5, 8, 12])
+def test_chi2_quantile_against_scipy(dof):
+    from scipy.stats import chi2
+
+    assert chi2_quantile(0.99, dof) == pytest.approx(chi2.ppf(0.99, dof), rel=0.01)
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Mini-batches
+
+
+def test_a_mini_batch_loss_is_unbiased_for_the_whole_image():
+    """The loss over a random set of blocks, divided by the whole image's scale, averages to the whole image's
+    loss (a ratio of two subset means would not); masked pixels never enter a batch."""
+    gen = torch.Generator().manual_seed(3)
+    target = torch.rand(22, 18, 3, generator=gen) * torch.linspace(0.1, 2.0, 18)[None, :, None]
+    image = target + 0.3 * torch.rand(22, 18, 3, generator=gen)
+    mask = torch.ones(22, 18, dtype=torch.bool)
+    mask[:5, :] = False
+    batches = Batches(types.SimpleNamespace(image=target.numpy(), mask=mask.numpy()), pool=4, batch=64)
+    assert batches.size == 4 and len(batches.blocks) == 25 and not batches.whole  # 6×5 blocks, the top 5 masked
+    scale = loss_scale(target, "l2", mask, 4)
+    whole = float(image_loss(image, target, "l2", mask, 4))
+    draws = []
+    for seed in range(3000):
+        pixels, chosen = batches.draw(seed)
+        assert not chosen[~mask].any() and chosen.sum() == len(pixels)
+        draws.append(float(image_loss(image, target, "l2", chosen, 4, scale)))
+    assert abs(np.mean(draws) - whole) < 4 * np.std(draws) / np.sqrt(len(draws))
+    assert np.std(draws) > 0.05 * whole  # the batches do differ
+    # Without the whole image's scale each batch is normalised by its own blocks: a biased ratio.
+    ratio = [float(image_loss(image, target, "l2", batches.draw(seed)[1], 4)) for seed in range(3000)]
+    assert abs(np.mean(ratio) - whole) > 4 * np.std(ratio) / np.sqrt(len(ratio))
+    assert Batches(types.SimpleNamespace(image=target.numpy(), mask=None), pool=4, batch=None).draw(0) == (None, None)
+
+
 def test_step_covariance_counts_the_correlation_of_a_pixels_channels():
     """A pixel's channels share their paths, so their noise correlates (here 0.8), and a control that moves all
     three alike (a β) gets (1 + 2·0.8)-fold the gradient noise that independent channels would give. The steps
@@ -381,7 +448,7 @@ def test_fit_command_names_a_missing_target(tmp_path, capsys):
 
 def test_shipped_targets_are_complete():
     names = [d.name for d in shipped_targets()]
-    own = ["auburn_curly", "black_straight", "blonde_straight", "brown_wavy", "fur_patch"]
+    own = ["auburn_curly", "black_straight", "blonde_straight", "brown_wavy", "chestnut_straight", "fur_patch"]
     peers = [f"{peer}_{look}" for peer in ("cycles", "mitsuba") for look in ("blonde_straight", "brown_straight", "dark_wavy")]
     assert names == sorted(own + peers)
     for name in peers:
@@ -396,6 +463,9 @@ def test_shipped_targets_are_complete():
         assert len(target.images) >= 2 and target.truth is not None
         assert target.truth.to_dict() == target.hair.to_dict()
     assert load_target(SHIPPED_TARGETS / "fur_patch").truth.r_roughness_scale != 1.0
+    # A look-development-sized one, front- and back-lit, for the fit's mini-batches (issue 14).
+    large = load_target(SHIPPED_TARGETS / "chestnut_straight")
+    assert all(image.image.shape == (128, 128, 3) for image in large.images) and len(large.images) == 2
 
 
 def test_make_target_reproduces_the_committed_files(tmp_path):

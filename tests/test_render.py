@@ -8,6 +8,7 @@ from helpers.scenes import front_camera, swatch_scene
 
 from warp_hair.geometry.assembly import FiberAssembly
 from warp_hair.renderer.forward import render
+from warp_hair.renderer.jacobian import render_jacobian
 from warp_hair.scene import EnvironmentLight, scene_from_dict
 
 
@@ -122,6 +123,32 @@ def test_threads_do_not_change_the_image():
     np.testing.assert_array_equal(one, render(scene, threads=2))
     np.testing.assert_array_equal(one, render(scene, threads=3))
     assert not np.array_equal(one, render(scene, seed=10))
+
+
+def test_a_subset_of_pixels_renders_as_in_the_whole_image():
+    """A fit's mini-batch renders some pixels only: each must come out as in the whole image (its own random
+    stream), image, standard error and Jacobian alike, and the others 0."""
+    scene = swatch_scene({"albedo": [0.6, 0.4, 0.2]},
+                         [{"type": "directional", "direction": [0.3, -0.4, -1.0], "irradiance": [3.0, 3.0, 3.0]}],
+                         resolution=(20, 16), render_table={"spp": 4, "max_depth": 16, "seed": 9})
+    pixels = np.random.default_rng(0).choice(20 * 16, 37, replace=False)
+    chosen = np.zeros(20 * 16, bool)
+    chosen[pixels] = True
+    chosen = chosen.reshape(16, 20)
+    whole, whole_err = render(scene, threads=2, return_stderr=True)
+    part, part_err = render(scene, threads=2, return_stderr=True, pixels=pixels)
+    assert whole[chosen].max() > 0
+    np.testing.assert_array_equal(part[chosen], whole[chosen])
+    np.testing.assert_array_equal(part_err[chosen], whole_err[chosen])
+    assert not part[~chosen].any()
+    jacobian, image, _ = render_jacobian(scene, threads=2, pixels=pixels)
+    whole_jacobian, _, _ = render_jacobian(scene, threads=2)
+    np.testing.assert_array_equal(jacobian[chosen], whole_jacobian[chosen])
+    np.testing.assert_allclose(image[chosen], whole[chosen], rtol=1e-6, atol=1e-7)
+    assert not jacobian[~chosen].any()
+    for bad, message in (([-1], "must lie in"), ([320], "must lie in"), ([[1, 2]], "1-D array"), ([0.5], "integer")):
+        with pytest.raises(ValueError, match=message):
+            render(scene, pixels=np.array(bad))
 
 
 def test_image_orientation():

@@ -196,11 +196,11 @@ class _RenderFunction(torch.autograd.Function):
 class _PairFunction(torch.autograd.Function):
     @staticmethod
     def forward(ctx, config, names, *tensors):
-        scene, spp, seeds, threads = config
+        scene, spp, seeds, threads, pixels = config
         scene = _begin(ctx, scene, names, tensors)
         images, ctx.jacobians = [], []
         for seed in seeds:
-            jacobian, image, _ = render_jacobian(scene, spp=spp, seed=seed, threads=threads, device="cpu")
+            jacobian, image, _ = render_jacobian(scene, spp=spp, seed=seed, threads=threads, device="cpu", pixels=pixels)
             images.append(image)
             ctx.jacobians.append(jacobian)
         return _as_image(np.stack(images), tensors)
@@ -237,7 +237,8 @@ def render_torch(scene: Scene | PreparedScene, controls: dict, spp=None, seed=0,
     return _RenderFunction.apply(config, tuple(checked), *checked.values())
 
 
-def render_torch_pair(scene: Scene | PreparedScene, controls: dict, spp=None, seed=0, threads=None) -> torch.Tensor:
+def render_torch_pair(scene: Scene | PreparedScene, controls: dict, spp=None, seed=0, threads=None,
+                      pixels=None) -> torch.Tensor:
     """Two independent renders (2, H, W, 3) of `scene` with `controls`, each at `spp`, in one pass each.
 
     For losses that add a term per image, ℓ(pair[0]) + ℓ(pair[1]): the backward pass contracts each image's
@@ -247,10 +248,11 @@ def render_torch_pair(scene: Scene | PreparedScene, controls: dict, spp=None, se
     passes at spp and gives the gradient and the loss of 2·spp samples, where `render_torch` costs a forward
     render and a gradient pass at spp for those of spp. (A loss that couples the two images, such as
     (pair[0] − T)·(pair[1] − T), would pair each adjoint with its own paths: use `render_torch` for those.)
-    The seeds are `seed` and (seed + 1_000_003) mod 2**32.
+    The seeds are `seed` and (seed + 1_000_003) mod 2**32. `pixels`: render only these flat pixel indices
+    (`render`); the others are 0 in both images, and so is their gradient.
     """
     checked = _check_controls(scene, controls)
     spp, _ = sampling(scene, spp)
     seed = _checked_seed("seed", seed)
-    config = (scene, spp, (seed, default_grad_seed(seed)), threads)
+    config = (scene, spp, (seed, default_grad_seed(seed)), threads, pixels)
     return _PairFunction.apply(config, tuple(checked), *checked.values())

@@ -10,6 +10,7 @@ pixel owns its random stream, so the image depends on the seed only, not on the 
 
 from __future__ import annotations
 
+import numpy as np
 import warp as wp
 
 from ..model.jacobian import CoefficientDerivatives, coefficient_derivatives, value_jacobian_mat
@@ -45,9 +46,10 @@ def make_render_kernel(differentiable: bool):
         image: wp.array(dtype=wp.vec3),
         stderr: wp.array(dtype=wp.vec3),
         jacobian: wp.array(dtype=value_jacobian_mat),
+        pixels: wp.array(dtype=wp.int32),
         first: int,
     ):
-        pixel = wp.tid() + first
+        pixel = pixels[wp.tid() + first]
         px, py, rng = pixel_start(scene, pixel, seed)
         total = wp.vec3(0.0)
         total_sq = wp.vec3(0.0)
@@ -79,13 +81,32 @@ render_kernel = make_render_kernel(False)
 render_jacobian_kernel = make_render_kernel(True)
 
 
-def trace_pixels(scene: Scene | PreparedScene, spp, seed, threads, device, differentiable: bool, progress=None):
-    """(image (H, W, 3), stderr (H, W, 3), jacobian (H, W, 3, 8) or None): the launch of both passes."""
+def pixel_indices(pixels, resolution) -> np.ndarray:
+    """The flat pixel indices (row · width + column) to render, checked: all of them when `pixels` is None."""
+    width, height = resolution
+    n = width * height
+    if pixels is None:
+        return np.arange(n, dtype=np.int32)
+    flat = np.asarray(pixels)
+    if flat.ndim != 1 or not (flat.size == 0 or np.issubdtype(flat.dtype, np.integer)):
+        raise ValueError(f"pixels must be a 1-D array of integer pixel indices (row * width + column), got shape "
+                         f"{flat.shape} of {flat.dtype}")
+    if flat.size and (flat.min() < 0 or flat.max() >= n):
+        raise ValueError(f"pixels must lie in [0, {n}) for a {width}x{height} image, got {flat.min()}..{flat.max()}")
+    return flat.astype(np.int32)
+
+
+def trace_pixels(scene: Scene | PreparedScene, spp, seed, threads, device, differentiable: bool, progress=None,
+                 pixels=None):
+    """(image (H, W, 3), stderr (H, W, 3), jacobian (H, W, 3, 8) or None): the launch of both passes, over
+    `pixels` (flat indices; default all). Every pixel draws from its own random stream, so a pixel rendered
+    alone has the value it has in the whole image; the pixels not rendered are 0."""
     spp, seed = sampling(scene, spp, seed)
     prepared = prepare(scene, device)
     device = prepared.device
     width, height = prepared.resolution
     n = width * height
+    indices = pixel_indices(pixels, prepared.resolution)
     image = wp.zeros(n, dtype=wp.vec3, device=device)
     stderr = wp.zeros(n, dtype=wp.vec3, device=device)
     if differentiable:
@@ -96,8 +117,8 @@ def trace_pixels(scene: Scene | PreparedScene, spp, seed, threads, device, diffe
         kernel, derivs, jacobian = render_kernel, CoefficientDerivatives(), None
     launch_ranges(
         kernel,
-        n,
-        [prepared.data, derivs, spp, seed, image, stderr, jacobian],
+        len(indices),
+        [prepared.data, derivs, spp, seed, image, stderr, jacobian, wp.array(indices, dtype=wp.int32, device=device)],
         threads=threads,
         device=device,
         chunk=tile_pixels(spp),
@@ -134,6 +155,7 @@ def render(
     device: str | None = None,
     progress=None,
     return_stderr: bool = False,
+    pixels=None,
 ):
     """Linear radiance, float32 (H, W, 3), row 0 at the top.
 
@@ -141,9 +163,10 @@ def render(
     to the prepared scene's, else "cpu". spp and seed default to the scene's [render] table.
     `progress(done, total)` is called as tiles finish.
     With `return_stderr`, returns (image, stderr): the standard error of each pixel's mean, estimated from
-    the spread of its own samples.
+    the spread of its own samples. `pixels`: the flat indices (row · width + column) of the pixels to render,
+    each as it comes out in the whole image; the others are 0 (a fit's mini-batches).
     """
-    image, stderr, _ = trace_pixels(scene, spp, seed, threads, device, False, progress)
+    image, stderr, _ = trace_pixels(scene, spp, seed, threads, device, False, progress, pixels)
     if return_stderr:
         return image, stderr
     return image

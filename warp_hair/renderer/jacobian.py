@@ -17,11 +17,12 @@ from .prepare import PreparedScene
 
 
 def render_jacobian(scene: Scene | PreparedScene, spp: int | None = None, seed: int | None = None,
-                    threads: int | None = None, device: str | None = None):
+                    threads: int | None = None, device: str | None = None, pixels=None):
     """(jacobian (H, W, 3, 8) float32, image (H, W, 3), stderr (H, W, 3)) of `scene` at its own controls.
 
     `scene` is a Scene or a PreparedScene (`prepare`, built once for many renders); spp and seed default to the
     scene's [render] table; the image is `render(scene, spp, seed)`'s up to float rounding (the same paths).
+    `pixels`: only these flat pixel indices, as in `render`; the others are 0.
     """
-    image, stderr, jacobian = trace_pixels(scene, spp, seed, threads, device, True)
+    image, stderr, jacobian = trace_pixels(scene, spp, seed, threads, device, True, pixels=pixels)
     return jacobian, image, stderr
