@@ -5,8 +5,9 @@
 Runs `optimize.fit` with its default settings (what `warp-hair fit TARGET -o OUT` runs) on each target in
 targets/ (or the named ones), writes each fit's params.json, convergence.png and comparison.png under --out, and
 prints a Markdown table: per target who rendered it, the true and fitted albedo, β_m and β_n, the largest albedo
-error, the β errors, the largest error over the fit's own reported uncertainty (σ), whether they meet the
-acceptance bounds (albedo within 0.02 per channel, β within 0.03) and the wall time.
+error, the β errors, the largest error over the fit's own reported uncertainty (σ: its noise and, for a target
+warp-hair did not render, a 1% brightness disagreement, `optimize/uncertainty.py`), whether they meet the
+acceptance bounds (`optimize.identify.BOUNDS`: albedo within 0.02 per channel, β within 0.03) and the wall time.
 Timings are wall-clock seconds on whatever else the machine is doing at the time.
 """
 
@@ -18,12 +19,12 @@ from pathlib import Path
 import numpy as np
 
 from optimize.fit import fit
+from optimize.identify import ALBEDO_BOUND, BETA_BOUND
 from optimize.report import true_values, write_outputs
 from optimize.target import load_target, shipped_targets
 from warp_hair.cli import exit_on_interrupt
 
 HERE = Path(__file__).resolve().parent
-ALBEDO_BOUND, BETA_BOUND = 0.02, 0.03
 
 
 def fmt(v):

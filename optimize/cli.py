@@ -2,9 +2,10 @@
 
     warp-hair fit TARGET -o OUT_DIR [--fit albedo,beta_m,beta_n] [--iters N] [--spp N] [--loss l2]
                   [--lr LR] [--init NAME=V ...] [--fix NAME=V ...] [--seed S] [--patience P] [--refine K] [--threads T]
-                  [--export mitsuba,pbrt,cycles,materialx]
+                  [--model-error E] [--export mitsuba,pbrt,cycles,materialx]
     warp-hair targets make [NAME ...] [--threads T]
-    warp-hair targets list
+    warp-hair targets list [NAME ...]
+    warp-hair targets check TARGET [--fit NAMES] [--at NAME=V ...] [--spp N] [--model-error E] [--threads T]
 
 TARGET is a target directory (optimize/target.py describes the layout) or the name of a shipped one in
 targets/ (e.g. blonde_straight).
@@ -90,6 +91,10 @@ def add_fit(subparsers) -> None:
                         help=f"pixels of an image per render (default {defaults.batch}): a larger image's Adam "
                         "iterations render random blocks adding up to N of its pixels, its Gauss-Newton steps all of "
                         "them at proportionally fewer samples; 'all' renders every pixel at the full samples")
+    parser.add_argument("--model-error", type=float, metavar="E",
+                        help="relative brightness disagreement between the target's renderer and warp-hair, counted in "
+                        "the uncertainties (>= 0; default 0 for warp-hair's own targets, 0.01 for another renderer's "
+                        "or a target of unknown origin)")
     parser.add_argument("--export", metavar="RENDERERS",
                         help="also write the fitted look for these renderers beside params.json (comma-separated: "
                         "mitsuba, pbrt, cycles, materialx; files hair_<renderer>.*, as `warp-hair export` writes)")
@@ -116,6 +121,10 @@ def run_fit(args: argparse.Namespace) -> None:
     render_cli.check_sampling_args(args)
     from warp_hair.export import parse_renderers
 
+    from .uncertainty import check_model_error
+
+    check_model_error(args.model_error, "--model-error")
+
     # Checked before the fit, not after it.
     renderers = [] if args.export is None else parse_renderers(args.export)
     target = load_target(resolve_target(args.target))
@@ -128,7 +137,8 @@ def run_fit(args: argparse.Namespace) -> None:
         _fix_controls(target, fixed)
     settings = FitSettings(controls=tuple(names), iters=args.iters, spp=args.spp, loss=args.loss, lr=args.lr,
                            seed=args.seed, patience=args.patience, init=parse_assignments(args.init, "--init"),
-                           threads=args.threads, refine=args.refine, batch=args.batch)
+                           threads=args.threads, refine=args.refine, batch=args.batch,
+                           model_error=args.model_error)
     sizes = ", ".join(f"{im.name} {im.image.shape[1]}x{im.image.shape[0]}" for im in target.images)
     print(f"fitting {', '.join(names)} of {target.name} ({sizes})")
     result = fit(target, settings)
@@ -136,7 +146,7 @@ def run_fit(args: argparse.Namespace) -> None:
         print("interrupted: saving the estimate so far (no uncertainties)")
     paths = write_outputs(args.output, result, target)
     paths += _export(args.output / "params.json", renderers)
-    print(format_table(result, true_values(target, result.values)))
+    print(format_table(result, true_values(target, result.values), target.origin))
     print(f"{result.iterations} iterations ({result.stop_reason}), {result.seconds:.0f} s, final loss {result.loss:.4g}")
     for warning in result.warnings:
         print(f"{render_cli.PROG}: warning: {warning}", file=sys.stderr)
@@ -162,26 +172,57 @@ def _fix_controls(target, fixed: dict) -> None:
 def add_targets(subparsers) -> None:
     parser = subparsers.add_parser(
         "targets",
-        parents=[render_cli.common_flags()],
-        help="list or regenerate the shipped fit targets",
-        description="make: render each target's images from its scene files (at their [render] spp and seed) and "
-        "write truth.json, reproducing the committed files; list: the shipped targets and their true controls.",
+        parents=[render_cli.common_flags(threads=False)],
+        help="list, regenerate or check the fit targets",
+        description="list: the shipped targets and their true controls; make: render each target's images from "
+        "its scene files (at their [render] spp and seed) and write truth.json, reproducing the committed files; "
+        "check: whether a target's images identify its controls (exit status 1 when they do not).",
     )
-    parser.add_argument("action", choices=("make", "list"))
-    parser.add_argument("names", nargs="*", metavar="NAME", help="shipped target names or target directories (default: all shipped)")
-    parser.set_defaults(run=run_targets)
+    actions = parser.add_subparsers(dest="action", required=True, metavar="ACTION")
+    names_help = "shipped target names or target directories (default: all shipped)"
+    listing = actions.add_parser("list", parents=[render_cli.common_flags(threads=False)],
+                                 help="the shipped targets, their truth and who rendered them")
+    listing.add_argument("names", nargs="*", metavar="NAME", help=names_help)
+    make = actions.add_parser("make", parents=[render_cli.common_flags()],
+                              help="re-render warp-hair's targets from their scene files")
+    make.add_argument("names", nargs="*", metavar="NAME", help=names_help)
+    check = actions.add_parser(
+        "check",
+        parents=[render_cli.common_flags(
+            spp="samples per pixel the target's noise is taken at (default: its scenes' [render] spp, what it "
+            "was rendered with); to see what more samples would give", spp_default=None)],
+        help="whether a target's images identify its controls",
+        description="Linearise the fit's loss at the target's true controls (truth.json, or --at) and print, per "
+        "fitted control, the 1-sigma the target's own noise leaves (its Fisher information: our render's noise "
+        "at the target's spp), the shift of the estimate were the target 1% brighter (another renderer's "
+        "disagreement), the expected sigma of both (the model error as the fit counts it: 0 for warp-hair's own "
+        "targets, 1% for others) and the largest correlation with another control. Identifiable when every "
+        "control's expected sigma is below its acceptance bound (albedo 0.02, beta_m and beta_n 0.03); else exit "
+        "status 1, naming the control and what to add. Costs 8 renders of each image at 64 spp.",
+    )
+    check.add_argument("target", metavar="TARGET", help="a target directory, or the name of a shipped target")
+    check.add_argument("--fit", default=",".join(DEFAULT_FIT), metavar="NAMES",
+                       help=f"the controls a fit would fit (default {','.join(DEFAULT_FIT)})")
+    check.add_argument("--at", nargs="+", metavar="NAME=V", help="check at these values instead of truth.json's")
+    check.add_argument("--model-error", type=float, metavar="E",
+                       help="relative brightness disagreement to count (default as the fit: 0 for warp-hair's own "
+                       "targets, 0.01 for others)")
+    for sub in (listing, make, check):
+        sub.set_defaults(run=run_targets)
 
 
-def run_targets(args: argparse.Namespace) -> None:
+def run_targets(args: argparse.Namespace) -> int:
     from .target import load_target, make_target, shipped_targets, target_renderer
 
     render_cli.check_sampling_args(args)
+    if args.action == "check":
+        return _check_target(args)
     directories = [resolve_target(n) for n in args.names] if args.names else shipped_targets()
     for directory in directories:
         if args.action == "list":
             target = load_target(directory)
             truth = "" if target.truth is None else " ".join(f"{k}={v}" for k, v in target.truth.to_dict().items())
-            by = "" if target.renderer == "warp-hair" else f" (rendered by {target.renderer})"
+            by = {"warp-hair": "", "unknown": " (of unknown origin)"}.get(target.origin, f" (rendered by {target.origin})")
             print(f"{directory.name}: {', '.join(im.name for im in target.images)}{by}; {truth}")
             continue
         if not args.names and target_renderer(directory) != "warp-hair":
@@ -192,6 +233,27 @@ def run_targets(args: argparse.Namespace) -> None:
         with render_cli.progress_bar(unit="px", desc=f"make {directory.name}") as progress:
             written = make_target(directory, threads=args.threads, progress=progress)
         print(f"{directory.name}: wrote {', '.join(p.name for p in written)} ({time.perf_counter() - start:.0f} s)")
+    return 0
+
+
+def _check_target(args: argparse.Namespace) -> int:
+    from .identify import check_target, describe
+    from .target import load_target
+    from .uncertainty import check_model_error
+
+    check_model_error(args.model_error, "--model-error")
+    target = load_target(resolve_target(args.target))
+    names = [n.strip() for n in args.fit.split(",") if n.strip()]
+    start = time.perf_counter()
+    result = check_target(target, parse_assignments(args.at, "--at"), names, spp=args.spp,
+                          model_error=args.model_error, threads=args.threads)
+    print(describe(result))
+    print(f"({time.perf_counter() - start:.0f} s)")
+    if not result.identifiable:
+        print(f"{render_cli.PROG}: {target.name} is a bad target: its images do not pin down "
+              f"{', '.join(p.split(':')[0] for p in result.problems)}", file=sys.stderr)
+        return 1
+    return 0
 
 
 def main(argv: list[str] | None = None) -> int:

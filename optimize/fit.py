@@ -44,7 +44,7 @@ from .linearize import linearize
 from .losses import LOSSES, image_loss, loss_scale
 from .refine import REFINABLE_LOSSES, refine
 from .target import Target
-from .uncertainty import estimate_uncertainty
+from .uncertainty import check_model_error, estimate_uncertainty, target_model_error
 
 SPP_STAGES = ((0.25, 4), (0.5, 2), (1.0, 1))  # (fraction of the iterations, divisor of spp) in order
 FINAL_LR_FRACTION = 0.05
@@ -75,6 +75,9 @@ class FitSettings:
     uncertainty: bool = True
     refine: int | None = None  # Gauss–Newton steps after Adam (refine.py); None: `_refine_steps`, 0 for L1
     batch: int | None = BATCH_PIXELS  # pixels of an image per render (see BATCH_PIXELS); None: every pixel, always
+    # Relative brightness disagreement between the target's renderer and ours, counted in the uncertainties
+    # (uncertainty.py); None: 0 for warp-hair's own targets, 0.01 for any other (`target_model_error`).
+    model_error: float | None = None
 
 
 @dataclass
@@ -92,6 +95,7 @@ class FitResult:
     images: list  # the fitted renders (H, W, 3) of the final evaluation, one per target image
     warnings: list = field(default_factory=list)
     correlations: dict = field(default_factory=dict)  # "a/b" → correlation of the two estimates
+    uncertainty_parts: dict | None = None  # the noise and model-error parts of `uncertainties` (uncertainty.py)
 
 
 def spp_at(iteration: int, iters: int, spp: int) -> int:
@@ -133,6 +137,7 @@ def check_settings(target: Target, settings: FitSettings) -> tuple:
         if settings.refine > 0 and settings.loss not in REFINABLE_LOSSES:
             raise ValueError(f"refine: Gauss–Newton steps need a sum-of-squares loss ({', '.join(REFINABLE_LOSSES)}), "
                              f"not {settings.loss!r}; use refine=0 (--refine 0) with it")
+    check_model_error(settings.model_error)
     unknown = sorted(set(settings.init) - set(names))
     if unknown:
         raise ValueError(f"init gives control(s) {unknown} that are not fitted (fitted: {list(names)}); the scene files set the others")
@@ -373,7 +378,7 @@ def _finish(target, scenes, settings, names, start, estimate, history, done, sto
     if steps:
         result.warnings.extend(notes)
     if settings.uncertainty and stop_reason != "interrupted":
-        estimate_uncertainty(result, lin, mc_covariance)
+        estimate_uncertainty(result, lin, mc_covariance, target_model_error(target, settings.model_error))
     result.seconds = time.perf_counter() - begun
     return result
 

@@ -47,6 +47,8 @@ class Linearization:
     jacobians: np.ndarray  # (2, N, p): ∂residual/∂x, x the fitted control components in order
     images: list  # per target image, the mean of its two renders (H, W, 3), gain applied
     loss_weights: np.ndarray  # (N,): the loss is Σ loss_weights · r² (a mean per image, then over the images)
+    targets: np.ndarray | None = None  # (N,): the weighted, pooled target values t, r = weight · (gain·I) − t
+    image_residuals: tuple | None = None  # how many of the N residuals each target image gives, in order
     earlier_jacobians: np.ndarray | None = None  # (n, N, p): of earlier, independent renders near `values`
     curvature: np.ndarray | None = None  # (p, p) Gauss–Newton matrix; default: `crossed_curvature` of all Jacobians
     scatter: float | None = None  # s² of `statistical_covariance`; default: this linearisation's `scatter_estimate`
@@ -82,9 +84,14 @@ class Linearization:
     def gradient(self) -> np.ndarray:
         """½ ∂loss/∂x = ∂(½ Σ w r²)/∂x, each pass's residual met with the mean of every Jacobian but its own pass's
         (unbiased; without earlier ones, the other pass's)."""
+        return self.crossed(self.residuals)
+
+    def crossed(self, vectors: np.ndarray) -> np.ndarray:
+        """(p,): ½ Σ over the two passes of Aᵀ W v, each pass's v (2, N) met with the mean of every Jacobian but
+        its own pass's: unbiased where v carries that pass's noise (its residual, its image)."""
         w, jacobians = self.loss_weights, self.all_jacobians
         total, n = jacobians.sum(axis=0), len(jacobians)
-        return 0.5 * sum(((total - a) / (n - 1)).T @ (w * r) for a, r in zip(self.jacobians, self.residuals))
+        return 0.5 * sum(((total - a) / (n - 1)).T @ (w * v) for a, v in zip(self.jacobians, vectors))
 
     @property
     def noise_covariance(self) -> np.ndarray:
@@ -170,17 +177,19 @@ def linearize(target, values: dict, settings, spp: int, seed: int, threads=None,
     passes."""
     gain = float(values.get(EXPOSURE, 1.0))
     rs, vs, js = [[], []], [[], []], [[], []]
-    images, weights = [], []
+    images, weights, ts = [], [], []
     scenes = [prepare(image.scene) for image in target.images] if scenes is None else scenes
     for k, image in enumerate(target.images):
         scene = scene_with_controls(scenes[k], _hair(values))
         reference, _ = _reduce(image, image.image, None, settings.pool)
         weight = _weight(reference, settings.loss)
+        ts.append(reference * weight)
         pair = []
         for half, pass_seed in enumerate((seed + k, default_grad_seed(seed + k))):
-            jac, rendered, stderr = render_jacobian(scene, spp=spp, seed=pass_seed, threads=threads)
-            rendered = gain * rendered
-            columns = [rendered[..., None] if name == EXPOSURE else gain * jac[..., COLUMNS[name]] for name in values]
+            jac, raw, stderr = render_jacobian(scene, spp=spp, seed=pass_seed, threads=threads)
+            rendered = gain * raw
+            # r = weight · (gain·I − T): ∂r/∂gain = weight · I, ∂r/∂θ = weight · gain · ∂I/∂θ.
+            columns = [raw[..., None] if name == EXPOSURE else gain * jac[..., COLUMNS[name]] for name in values]
             a, _ = _reduce(image, np.concatenate(columns, axis=-1).astype(np.float64), None, settings.pool)
             r, var = _reduce(image, rendered - image.image, (gain * stderr) ** 2, settings.pool)
             rs[half].append(r * weight)
@@ -196,6 +205,8 @@ def linearize(target, values: dict, settings, spp: int, seed: int, threads=None,
         jacobians=np.stack([np.concatenate(j) for j in js]),
         images=images,
         loss_weights=np.concatenate(weights),
+        targets=np.concatenate(ts),
+        image_residuals=tuple(len(t) for t in ts),
     )
 
 

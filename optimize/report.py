@@ -49,6 +49,8 @@ def write_params(path: Path, result: FitResult, truth: dict, look: HairParams) -
         "fitted": result.values,
         "look": look.to_dict(),
         "uncertainty": result.uncertainties,
+        # uncertainty = √(noise² + model²): the Monte Carlo part and a model_error brightness disagreement's.
+        "uncertainty_parts": result.uncertainty_parts,
         "start": result.start,
         "loss": result.loss,
         "iterations": result.iterations,
@@ -71,18 +73,28 @@ def _fmt(value, digits=3) -> str:
     return f"{value:.{digits}f}"
 
 
-def format_table(result: FitResult, truth: dict) -> str:
-    """A plain-text table: control, fitted ± uncertainty, true, error."""
-    header = ("control", "fitted", "± 1σ", "true", "error")
+def format_table(result: FitResult, truth: dict, renderer: str | None = None) -> str:
+    """A plain-text table: control, fitted ± uncertainty, true, error. Where a model error is counted, the
+    uncertainty's noise and model parts get columns of their own and a line says what the model part is;
+    `renderer`: who rendered the target, for that line."""
+    parts = result.uncertainty_parts or {}
+    split = result.uncertainties is not None and parts.get("model_error", 0.0) > 0
+    header = ("control", "fitted", "± 1σ") + (("± noise", "± model") if split else ()) + ("true", "error")
     rows = []
     for name, value in result.values.items():
-        sigma = "" if result.uncertainties is None else _fmt(result.uncertainties[name])
+        sigma = ("",) if result.uncertainties is None else (_fmt(result.uncertainties[name]),)
+        if split:
+            sigma += (_fmt(parts["noise"][name]), _fmt(parts["model"][name]))
         true = truth.get(name)
-        rows.append((name, _fmt(value), sigma, "" if true is None else _fmt(true),
+        rows.append((name, _fmt(value)) + sigma + ("" if true is None else _fmt(true),
                      "" if true is None else _fmt(np.asarray(value) - np.asarray(true), 3)))
     widths = [max(len(r[k]) for r in rows + [header]) for k in range(len(header))]
     lines = ["  ".join(cell.ljust(w) for cell, w in zip(row, widths)).rstrip() for row in [header] + rows]
     lines.insert(1, "  ".join("-" * w for w in widths))
+    if split:
+        by = f"{renderer}, which rendered the target," if renderer else "the target's renderer"
+        lines.append(f"± 1σ = √(noise² + model²); model: what a {100 * parts['model_error']:g}% disagreement in "
+                     f"brightness between {by} and warp-hair moves the fit by (--model-error)")
     return "\n".join(lines)
 
 

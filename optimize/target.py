@@ -28,13 +28,16 @@ says so): remake them in a source checkout, or copy one elsewhere and make the c
 A target rendered by another renderer says so in target.toml, `renderer = "cycles"` or `"mitsuba"` (default
 "warp-hair"): its scene files describe for warp-hair what that renderer rendered, and `make_target` leaves its
 images alone (`python benchmarks/make_peer_targets.py NAME` re-renders them, with that renderer installed).
+A target that says nothing of its renderer, but whose images lack warp-hair's render record in their EXR headers
+(what `make_target` and `warp-hair render` write), is of unknown origin (`Target.origin`): a photograph, or an
+image from elsewhere. The fit assumes a brightness disagreement with such targets (`uncertainty.py`).
 """
 
 from __future__ import annotations
 
 import json
 import tomllib
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -61,6 +64,7 @@ class TargetImage:
     image: np.ndarray  # (H, W, 3) float32 linear radiance
     mask: np.ndarray | None  # (H, W) bool, True where the pixel counts
     image_path: Path
+    metadata: dict = field(default_factory=dict)  # the EXR header's string attributes (`warp_hair.io.read_exr`)
 
 
 @dataclass
@@ -75,6 +79,18 @@ class Target:
     def hair(self) -> HairParams:
         """The hair of the target's scenes: the values of the controls that are not fitted."""
         return self.images[0].scene.hair
+
+    @property
+    def origin(self) -> str:
+        """Who rendered the images: target.toml's renderer, or "unknown" where it says warp-hair (the default) but
+        an image's header lacks warp-hair's own render record (`render_metadata`: a version, no peer renderer)."""
+        if self.renderer != "warp-hair":
+            return self.renderer
+        for image in self.images:
+            record = image.metadata.get("warp_hair")
+            if not (isinstance(record, dict) and "version" in record and "renderer" not in record):
+                return "unknown"
+        return "warp-hair"
 
 
 def read_target_spec(directory) -> list[dict]:
@@ -129,18 +145,18 @@ def load_target(directory) -> Target:
     for entry in entries:
         scene = load_scene(directory / entry["scene"])
         image_path = directory / entry["image"]
-        image = _read_target_image(image_path, scene)
+        image, metadata = _read_target_image(image_path, scene)
         mask = None if "mask" not in entry else _read_mask(directory / entry["mask"], image.shape[:2])
-        images.append(TargetImage(Path(entry["image"]).stem, scene, image, mask, image_path))
+        images.append(TargetImage(Path(entry["image"]).stem, scene, image, mask, image_path, metadata))
     _check_consistent(images)
     truth = _read_truth(directory / TRUTH_FILE)
     return Target(directory.resolve().name, directory, images, truth, target_renderer(directory))
 
 
-def _read_target_image(path: Path, scene: Scene) -> np.ndarray:
+def _read_target_image(path: Path, scene: Scene) -> tuple:
     if not path.is_file():
         raise FileNotFoundError(f"{path}: target image not found")
-    image, _ = read_exr(path)
+    image, metadata = read_exr(path)
     width, height = scene.camera.resolution
     if image.shape[:2] != (height, width):
         raise ValueError(
@@ -154,7 +170,7 @@ def _read_target_image(path: Path, scene: Scene) -> np.ndarray:
     if (image < 0).any():
         y, x, c = np.argwhere(image < 0)[0]
         raise ValueError(f"{path}: negative radiance {image[y, x, c]} at pixel (x={x}, y={y}); targets are linear radiance >= 0")
-    return image
+    return image, metadata
 
 
 def _read_mask(path: Path, shape) -> np.ndarray:

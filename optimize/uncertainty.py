@@ -16,6 +16,18 @@ correlate within a pixel as our render's noise does, measured from the differenc
 its linearisation's render noise; Cov_MC is that mean's covariance (`refine.mean_covariance`). After Adam alone
 it is left out.
 
+Model error: a target made by another renderer differs from ours in brightness (docs/benchmarks.md, "Against
+other renderers": Cycles and warp-hair within 0.5%, Mitsuba 1.0–1.3% brighter on a draped swatch), and the fit
+turns that into controls, most into a light hair's albedo, whose image hardly changes with it. No number of
+samples averages that away, so it is a term of its own: with ε the relative brightness disagreement
+(`FitSettings.model_error`) and s the estimate's change per unit ε (`brightness_sensitivity`),
+
+    Cov(x) += ε² s sᵀ,
+
+reported apart as well (`result.uncertainty_parts`), so that it shows which part of a σ is noise and which the
+renderers' disagreement. The correlations and their warnings come from the noise part alone: they say how the
+images constrain the controls, and the rank-one model term would read as a trade-off that no extra view undoes.
+
 Identifiability: two components whose estimates correlate by |ρ| > 0.95 trade off against each other in these
 images (albedo and β_n can, through the albedo inversion, under a single front light); a control the images do
 not change with has a zero column in A. Both end in `result.warnings` with what to do about them.
@@ -24,6 +36,7 @@ not change with has a zero column in A. Both end in `result.warnings` with what 
 from __future__ import annotations
 
 import itertools
+import math
 
 import numpy as np
 
@@ -31,6 +44,53 @@ from .latents import SPECS, by_control
 from .linearize import Linearization
 
 CORRELATION_WARNING = 0.95
+# The relative brightness disagreement assumed for a target warp-hair did not render: the measured disagreement
+# on a draped swatch at full depth is within 0.5% for Cycles and 1.0–1.3% for Mitsuba (docs/benchmarks.md,
+# "Against other renderers"), so 1% is the size of what a peer renderer (or a photograph, whose light level
+# and camera response are known no better) brings. Our own targets have none: the same renderer made them.
+PEER_MODEL_ERROR = 0.01
+
+
+def target_model_error(target, model_error: float | None = None) -> float:
+    """The model error counted for `target`: `model_error` when given, else 0 for a target warp-hair rendered
+    and PEER_MODEL_ERROR for any other (another renderer's, or one of unknown origin: `Target.origin`)."""
+    if model_error is not None:
+        return float(model_error)
+    return 0.0 if target.origin == "warp-hair" else PEER_MODEL_ERROR
+
+
+def check_model_error(value, where: str = "model_error") -> None:
+    """A relative brightness disagreement: a finite number >= 0, or None for the target's default."""
+    if value is None:
+        return
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0:
+        raise ValueError(f"{where} must be a finite number >= 0 (a relative brightness disagreement, e.g. 0.01 for "
+                         f"1%; 0 for none), got {value!r}")
+
+
+def brightness_sensitivity(lin: Linearization) -> np.ndarray:
+    """(p,): how far the least-squares estimate moves per unit ε when the target is (1 + ε) times as bright.
+
+    The loss is Σ w ρ² with ρ = ω (gain·I(x) − T) (ω the loss's own weights, `linearize._weight`). Near the
+    linearisation point x̂, with r = ω (gain·I(x̂) − T), A = ∂r/∂x and t = ω T (`lin.targets`), the target
+    (1 + ε) T gives ρ ≈ r + A δx − ε t, and the normal equations Aᵀ W (r + A δx − ε t) = 0 give
+
+        δx(ε) = δx(0) + ε s,    s = (Aᵀ W A)⁻¹ Aᵀ W t.
+
+    Scaling T also scales ω, but by 1/(1 + ε) for every residual alike (L2's 1/sqrt(mean T²) per image,
+    relative L2's 1/(T + ε' mean T)), and a common factor on the loss does not move its minimum. At the
+    least-squares estimate itself Aᵀ W r = 0, so there Aᵀ W t = Aᵀ W m with m = ω gain·I(x̂) = r + t, our own
+    render as the residuals weigh it; evaluated anywhere else (at the truth, in `identify`; at a fit's end, one
+    linearisation's noise away from it) the target form would add the Gauss–Newton step still to take,
+    −H⁻¹ Aᵀ W r, which is noise, and large where two controls trade off. So s = H⁻¹ Aᵀ W m, with H the unbiased
+    curvature and Aᵀ W m crossed between passes (`Linearization.crossed`), as the gradient is. A brighter target
+    moves a control the way that brightens our render (s > 0 for albedo). Where `exposure` is fitted its column
+    is ω·I = m / gain: s is then gain along exposure and zero along the rest (exactly for one linearisation's
+    two passes, up to the earlier Jacobians' noise when they are pooled in): exposure absorbs the disagreement."""
+    if lin.targets is None:
+        raise ValueError("the linearisation carries no target values (Linearization.targets): the sensitivity "
+                         "to a brightness disagreement needs them")
+    return np.linalg.pinv(lin.curvature) @ lin.crossed(lin.residuals + lin.targets)
 
 
 def component_labels(names) -> list[str]:
@@ -40,9 +100,12 @@ def component_labels(names) -> list[str]:
     return labels
 
 
-def estimate_uncertainty(result, lin: Linearization, mc_covariance: np.ndarray | None = None) -> None:
-    """Fill result.uncertainties, result.correlations and identifiability warnings (see the module docstring).
-    mc_covariance: the estimate's own Monte Carlo covariance (`refine`); None leaves it out."""
+def estimate_uncertainty(result, lin: Linearization, mc_covariance: np.ndarray | None = None,
+                         model_error: float = 0.0) -> None:
+    """Fill result.uncertainties, result.uncertainty_parts, result.correlations and identifiability warnings
+    (see the module docstring). mc_covariance: the estimate's own Monte Carlo covariance (`refine`); None leaves
+    it out. model_error: ε, the relative brightness disagreement between the target's renderer and ours; 0 adds
+    nothing, and the uncertainties are the noise's alone."""
     names = list(lin.values)
     A = lin.mean_jacobian
     p = A.shape[1]
@@ -54,7 +117,19 @@ def estimate_uncertainty(result, lin: Linearization, mc_covariance: np.ndarray |
     if mc_covariance is not None:
         cov = cov + mc_covariance
     sigma = np.sqrt(np.maximum(np.diag(cov), 0.0))
-    result.uncertainties = by_control(names, sigma)
+    sensitivity = brightness_sensitivity(lin) if lin.targets is not None else None
+    if model_error and sensitivity is None:
+        raise ValueError("model_error > 0 needs the linearisation's target values (Linearization.targets)")
+    model = np.abs(model_error * sensitivity) if model_error else np.zeros(p)
+    # The diagonal of cov + ε² s sᵀ; with ε = 0 the noise's σ as it stands.
+    result.uncertainties = by_control(names, np.sqrt(sigma**2 + model**2) if model_error else sigma)
+    result.uncertainty_parts = {
+        "model_error": float(model_error),
+        "noise": by_control(names, sigma),
+        "model": by_control(names, model),
+        # The estimate's change were the target 1% brighter (s · 0.01), signed.
+        "shift_per_percent_brightness": None if sensitivity is None else by_control(names, 0.01 * sensitivity),
+    }
     with np.errstate(invalid="ignore", divide="ignore"):
         rho = cov / np.outer(sigma, sigma)
     owners = [label.split("[")[0] for label in labels]

@@ -12,7 +12,7 @@ and its traceback under `--debug`.
     warp-hair export LOOK --to mitsuba|pbrt|cycles|materialx [-o FILE]
     warp-hair calibrate SCENE.toml [-o COPY.toml] [--sigma-a S ...] [--beta-n B ...] [--spp N] [--seed S] [--threads T]
 
-and, added by optimize/cli.py, `warp-hair fit` and `warp-hair targets make`.
+and, added by optimize/cli.py, `warp-hair fit` and `warp-hair targets list|make|check`.
 """
 
 from __future__ import annotations
@@ -328,7 +328,8 @@ def main(argv: list[str] | None = None, extra=()) -> int:
         # Users of the command see the library's warnings as messages, not as source locations.
         warnings.showwarning = _show_warning
         try:
-            args.run(args)
+            # A command's own verdict (e.g. `targets check` on a bad target) may set the exit status.
+            status = args.run(args)
         except KeyboardInterrupt:
             print(f"{PROG}: interrupted", file=sys.stderr)
             return 130
@@ -349,7 +350,7 @@ def main(argv: list[str] | None = None, extra=()) -> int:
                 file=sys.stderr,
             )
             return 1
-    return 0
+    return int(status or 0)
 
 
 if __name__ == "__main__":

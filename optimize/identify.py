@@ -1,0 +1,245 @@
+"""Whether a target's images identify its controls: the fit's expected uncertainty, before any fit is run.
+
+    warp-hair targets check TARGET [--fit NAMES] [--at NAME=V ...] [--spp N] [--model-error E] [--threads T]
+
+The loss is linearised at the target's true controls (truth.json, or given values) as the fit linearises it
+(`linearize.py`: weighted, pooled residuals, their Jacobian A, loss weights W; CHECK_LINEARISATIONS of them at
+CHECK_SPP per render, their Jacobians pooled). The target's own noise then moves the least-squares estimate by
+
+    Cov_target = H⁻¹ Aᵀ W C W A H⁻¹,     H = Aᵀ W A,
+
+C the covariance of the target's pooled pixels: the inverse of the target's Fisher information, the σ no fit of
+these images can beat. Our render of the same scene has the target's noise per sample (the same paths, when
+warp-hair made the target; a peer's sampling differs, and its noise is taken as ours), so C is our render's,
+times CHECK_SPP / the target's spp (its scenes' [render] spp, or `spp`: the variance of a mean of n independent
+samples falls as 1/n; `_target_gradient_covariance` says how it is measured). A fit adds its own Monte Carlo
+error on top (its refinement renders about as many samples as the target has, `fit._refine_steps`).
+
+The model-error part is the estimate's shift per relative brightness disagreement (`uncertainty.
+brightness_sensitivity`, here over every linearisation's passes) times the model error counted for the target
+(`uncertainty.target_model_error`: 0 for warp-hair's own targets, 1% for others). The rule: a control is
+identified when its expected σ, √(σ_target² + (model error · shift per unit)²), is below its acceptance bound
+(BOUNDS: albedo 0.02 a channel, β_m and β_n 0.03, what `benchmarks/fit_targets.py` holds fits to); a control
+the images do not change with is not. Controls without a bound (α, η, exposure, ...) are reported, not judged.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import itertools
+
+import numpy as np
+
+from warp_hair.renderer.forward import prepare
+
+from .latents import DEFAULT_FIT, SPECS, as_values, parse_control_names
+from .linearize import CHANNELS, crossed_curvature, linearize
+from .uncertainty import (
+    CORRELATION_WARNING,
+    check_model_error,
+    component_labels,
+    target_model_error,
+)
+
+# The acceptance bounds of a fit: its error per component, against the truth (docs/acceptance.md).
+ALBEDO_BOUND, BETA_BOUND = 0.02, 0.03
+BOUNDS = {"albedo": ALBEDO_BOUND, "beta_m": BETA_BOUND, "beta_n": BETA_BOUND}
+CHECK_SPP = 64  # per render: the fit's final linearisations' (fit.FINAL_SPP_FACTOR × its default spp)
+CHECK_LINEARISATIONS = 4  # their Jacobians pooled: H and A as steady as the refinement's
+SEED_STRIDE = 7919
+MANY_SAMPLES = 64  # a factor on a target's samples beyond which they are not offered as the remedy
+
+
+@dataclasses.dataclass
+class Identifiability:
+    target: str
+    origin: str  # who rendered it (`Target.origin`)
+    values: dict  # the controls it was checked at
+    labels: list  # one per fitted component, "albedo[r]", "beta_m", ...
+    target_spp: list  # per image, the samples per pixel its noise was taken at
+    noise: np.ndarray  # (p,) the expected σ from the target's own noise
+    shift: np.ndarray  # (p,) the estimate's change were the target 1% brighter
+    model_error: float  # relative; the model part of σ is model_error / 0.01 · |shift|
+    correlation: list  # per component: (label of the other control's component most correlated, ρ) or None
+    bounds: np.ndarray  # (p,) the acceptance bound, NaN where there is none
+    problems: list  # what keeps a control from being identified, with what to add
+
+    @property
+    def sigma(self) -> np.ndarray:
+        """The expected σ: the target's noise and the model error together."""
+        return np.sqrt(self.noise**2 + (self.model_error / 0.01 * self.shift) ** 2)
+
+    @property
+    def identifiable(self) -> bool:
+        return not self.problems
+
+    def table(self) -> str:
+        header = ("control", "value", "σ target noise", "shift per 1% brighter", "σ expected", "bound",
+                  "largest correlation")
+        values = np.concatenate([np.atleast_1d(v) for v in self.values.values()])
+        rows = []
+        for k, label in enumerate(self.labels):
+            other = self.correlation[k]
+            rows.append((label, f"{values[k]:.3f}", f"{self.noise[k]:.4f}", f"{self.shift[k]:+.4f}",
+                         f"{self.sigma[k]:.4f}", "" if np.isnan(self.bounds[k]) else f"{self.bounds[k]:g}",
+                         "" if other is None else f"{other[1]:+.2f} with {other[0]}"))
+        widths = [max(len(r[i]) for r in rows + [header]) for i in range(len(header))]
+        lines = ["  ".join(cell.ljust(w) for cell, w in zip(row, widths)).rstrip() for row in [header] + rows]
+        lines.insert(1, "  ".join("-" * w for w in widths))
+        return "\n".join(lines)
+
+    def summary(self) -> str:
+        rule = (f"σ expected = √(σ target noise² + ({100 * self.model_error:g}% model error · shift per 1%)²), "
+                "below its bound for every control")
+        if self.identifiable:
+            return f"identifiable: {rule}"
+        return "not identifiable (" + rule + " fails):\n" + "\n".join(f"  {p}" for p in self.problems)
+
+
+def check_target(target, values: dict | None = None, controls=DEFAULT_FIT, spp: int | None = None,
+                 model_error: float | None = None, render_spp: int = CHECK_SPP,
+                 linearisations: int = CHECK_LINEARISATIONS, seed: int = 0, threads=None, settings=None,
+                 scenes=None) -> Identifiability:
+    """Linearise the loss at the target's true controls (or `values`, {name: float or list}, which override
+    them) and judge each fitted control (see the module docstring). spp: the samples per pixel the target's
+    noise is taken at (default: each image's scene [render] spp, what it was rendered with); settings: the
+    fit's (`FitSettings`: loss and pooling), default FitSettings(); scenes: the target's images' scenes,
+    prepared."""
+    from .fit import FitSettings
+    from .report import true_values
+
+    names = parse_control_names(controls, target.hair.colour_input)
+    check_model_error(model_error)
+    if spp is not None and (not isinstance(spp, int) or isinstance(spp, bool) or spp < 1):
+        raise ValueError(f"spp must be an integer >= 1, got {spp!r}")
+    if not isinstance(linearisations, int) or linearisations < 2:
+        raise ValueError(f"linearisations must be an integer >= 2, got {linearisations!r}")
+    at = {name: as_values(name, v) for name, v in true_values(target, names).items()}
+    at.update({name: as_values(name, v) for name, v in (values or {}).items()})
+    missing = [name for name in names if name not in at]
+    if missing:
+        raise ValueError(f"{target.name}: no true value for {', '.join(missing)} (the target has "
+                         f"{'no truth.json' if target.truth is None else 'none in truth.json'}); give the controls "
+                         "to check at (--at NAME=V)")
+    unknown = sorted(set(at) - set(names))
+    if unknown:
+        raise ValueError(f"values given for {unknown}, which are not checked (checked: {list(names)})")
+    for name in names:
+        SPECS[name].check_start(at[name], "--at")
+    at = {name: at[name] if SPECS[name].size == 3 else at[name][0] for name in names}
+    settings = settings or FitSettings(controls=names)
+    model_error = target_model_error(target, model_error)
+    scenes = [prepare(image.scene) for image in target.images] if scenes is None else scenes
+
+    lins = [linearize(target, at, settings, render_spp, seed + SEED_STRIDE * k, threads=threads, scenes=scenes)
+            for k in range(linearisations)]
+    jacobians = np.concatenate([lin.jacobians for lin in lins])
+    w = lins[0].loss_weights
+    h_inv = np.linalg.pinv(crossed_curvature(jacobians, w))
+    total = jacobians.sum(axis=0)
+    p = total.shape[1]
+
+    target_spp = [image.scene.render.spp if spp is None else spp for image in target.images]
+    gradient_cov = _target_gradient_covariance(lins, total / len(jacobians), [render_spp / n for n in target_spp])
+    cov = h_inv @ gradient_cov @ h_inv
+    noise = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    # `uncertainty.brightness_sensitivity` over every pass: each pass's render met with every other Jacobian.
+    n = len(jacobians)
+    renders = np.concatenate([lin.residuals + lin.targets for lin in lins])
+    crossed = sum(((total - a) / (n - 1)).T @ (w * m) for a, m in zip(jacobians, renders)) / n
+    shift = 0.01 * h_inv @ crossed
+
+    labels = component_labels(names)
+    owners = [label.split("[")[0] for label in labels]
+    flat = np.abs(total).max(axis=0) == 0
+    noise[flat] = np.inf
+    with np.errstate(invalid="ignore", divide="ignore"):
+        rho = cov / np.outer(noise, noise)
+    correlation = [None] * p
+    for i, j in itertools.permutations(range(p), 2):
+        if owners[i] != owners[j] and np.isfinite(rho[i, j]) and (correlation[i] is None or abs(rho[i, j]) > abs(correlation[i][1])):
+            correlation[i] = (labels[j], float(rho[i, j]))
+    bounds = np.array([BOUNDS.get(owner, np.nan) for owner in owners])
+    result = Identifiability(target.name, target.origin, at, labels, target_spp, noise, shift, model_error,
+                             correlation, bounds, [])
+    result.problems = _problems(result, flat)
+    return result
+
+
+def _target_gradient_covariance(lins, a, variance_factors) -> np.ndarray:
+    """(p, p): the covariance of Aᵀ W t from the target's noise, Σ over pooled pixels of aᵀ W C W a with C the
+    pixel's 3×3 noise covariance. Each channel's variance is our render's, from each pixel's own samples
+    (`Linearization.variances`, one pass at CHECK_SPP) times `variance_factors` (per image: our spp over the
+    target's); the channels' correlation is that of the passes' half differences, pooled over the image. The
+    half differences alone give a 3×3 covariance per pixel too, but from as many values as there are
+    linearisations, and on highlight pixels, whose rare bright paths make the variance, these fall short of it
+    in most draws (a check on a small target came out 0.19–0.24 for a σ of 0.235, with each pixel's own samples
+    0.216–0.224)."""
+    variances = np.mean([lin.variances.mean(axis=0) for lin in lins], axis=0)
+    halves = np.stack([0.5 * (lin.residuals[0] - lin.residuals[1]) for lin in lins])
+    w, p = lins[0].loss_weights, a.shape[1]
+    covariance, start = np.zeros((p, p)), 0
+    for count, factor in zip(lins[0].image_residuals, variance_factors):
+        part = slice(start, start + count)
+        d = halves[:, part].reshape(-1, CHANNELS)
+        products = d.T @ d
+        scale = np.sqrt(np.diag(products))
+        with np.errstate(invalid="ignore", divide="ignore"):
+            correlation = np.where(np.outer(scale, scale) > 0, products / np.outer(scale, scale), np.eye(CHANNELS))
+        sd = np.sqrt(factor * variances[part]).reshape(-1, CHANNELS)
+        weighted = (w[part, None] * a[part]).reshape(-1, CHANNELS, p) * sd[:, :, None]
+        covariance += np.einsum("bcp,cd,bdq->pq", weighted, correlation, weighted)
+        start += count
+    return covariance
+
+
+def _problems(result: Identifiability, flat: np.ndarray) -> list:
+    """Per control that fails the rule, what fails and what would help."""
+    problems = []
+    model = result.model_error / 0.01 * np.abs(result.shift)
+    for k, label in enumerate(result.labels):
+        bound, sigma = result.bounds[k], result.sigma[k]
+        if flat[k]:
+            problems.append(f"{label}: the images do not change with it at all; add a view or a light in which it "
+                            "shows, or fix it")
+            continue
+        if np.isnan(bound) or sigma < bound:
+            continue
+        message = (f"{label}: expected σ {sigma:.3g} ≥ its bound {bound:g} (target noise {result.noise[k]:.3g}, "
+                   f"model error {model[k]:.3g})")
+        if model[k] >= bound:
+            message += (f"; a {100 * result.model_error:g}% brightness disagreement alone moves it by {model[k]:.3g}, "
+                        "and no number of samples removes that: fit exposure as well, which absorbs a uniform "
+                        "disagreement but may trade off against it (check with --fit ...,exposure), or add a view in "
+                        "which it changes the image otherwise than brightness does")
+        else:
+            factor = result.noise[k] ** 2 / (bound**2 - model[k] ** 2)
+            spp = ", ".join(str(int(np.ceil(factor * n))) for n in sorted(set(result.target_spp)))
+            samples = f"render the target with {factor:.2g}× the samples ({spp} spp; σ falls as 1/√spp)"
+            other = result.correlation[k]
+            if other is not None and abs(other[1]) > CORRELATION_WARNING:
+                message += (f"; it trades off with {other[0]} (correlation {other[1]:+.2f}): add a view that tells "
+                            "them apart (a light from another side, another camera)"
+                            + (f", or {samples}" if factor <= MANY_SAMPLES else
+                               f"; more samples alone would take {factor:.2g}× as many"))
+            else:
+                message += f"; {samples}, or add another view (a light from another side, another camera)"
+        problems.append(message)
+    return problems
+
+
+def describe(result: Identifiability) -> str:
+    """What `warp-hair targets check` prints."""
+    by = {"warp-hair": "rendered by warp-hair", "unknown": "of unknown origin"}.get(result.origin,
+                                                                                 f"rendered by {result.origin}")
+    spp = ", ".join(f"{n}" for n in result.target_spp)
+    head = (f"{result.target} ({by}; its noise taken at {spp} spp per image), checked at "
+            + " ".join(f"{name}={_fmt(v)}" for name, v in result.values.items())
+            + f"; model error {100 * result.model_error:g}%")
+    return f"{head}\n{result.table()}\n{result.summary()}"
+
+
+def _fmt(value) -> str:
+    if isinstance(value, list):
+        return "(" + ",".join(f"{v:g}" for v in value) + ")"
+    return f"{value:g}"

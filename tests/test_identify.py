@@ -1,0 +1,105 @@
+"""`warp-hair targets check`: whether a target's images identify its controls (optimize/identify.py)."""
+
+import copy
+
+import numpy as np
+import pytest
+from helpers.scenes import front_camera, toml_text
+
+from optimize.cli import main
+from optimize.fit import FitSettings
+from optimize.identify import ALBEDO_BOUND, BETA_BOUND, BOUNDS, check_target
+from optimize.linearize import _reduce, _weight, linearize
+from optimize.target import SHIPPED_TARGETS, load_target, make_target
+from warp_hair.renderer.forward import prepare, render
+
+HAIR = {"albedo": [0.7, 0.5, 0.3], "beta_m": 0.3, "beta_n": 0.4}
+
+
+def write_target(directory, lights, drape, spp):
+    """A 60-fiber swatch (flat without drape) seen head-on, one 16×16 image per light, rendered by warp-hair."""
+    directory.mkdir()
+    entries = []
+    for k, direction in enumerate(lights):
+        (directory / f"scene_{k}.toml").write_text(toml_text({
+            "camera": front_camera(0.2, (16, 16)),
+            "lights": [{"type": "directional", "direction": direction, "irradiance": [3.0, 3.0, 3.0]}],
+            "fibers": {"generator": "swatch", "count": 60, "layers": 3, "length": 0.4, "width": 0.24,
+                       "radius": 0.004, "segments": 12, "seed": 2, **({"drape": drape} if drape else {})},
+            "hair": HAIR,
+            "render": {"spp": spp, "max_depth": 16, "seed": 3},
+        }))
+        entries.append(f'[[images]]\nscene = "scene_{k}.toml"\nimage = "image_{k}.exr"\n')
+    (directory / "target.toml").write_text("\n".join(entries))
+    make_target(directory, threads=1)
+    return directory
+
+
+def test_the_bounds_are_the_acceptance_bounds():
+    assert BOUNDS == {"albedo": ALBEDO_BOUND, "beta_m": BETA_BOUND, "beta_n": BETA_BOUND}
+    assert (ALBEDO_BOUND, BETA_BOUND) == (0.02, 0.03)
+
+
+def test_a_flat_swatch_seen_head_on_under_a_front_light_is_a_bad_target(tmp_path, capsys):
+    """One angle between light, fiber and camera: albedo, β_m and β_n trade off, and no number of samples tells
+    them apart. The check fails it (exit status 1), naming the controls and what to add."""
+    directory = write_target(tmp_path / "flat", [[0.0, 0.0, -1.0]], None, 64)
+    assert main(["targets", "check", str(directory), "--threads", "1"]) == 1
+    captured = capsys.readouterr()
+    assert "is a bad target: its images do not pin down albedo[r]" in captured.err
+    assert "not identifiable" in captured.out and "add a view that tells them apart" in captured.out
+    result = check_target(load_target(directory), threads=1)
+    assert not result.identifiable
+    assert np.all(result.sigma[:3] > ALBEDO_BOUND) and max(abs(c[1]) for c in result.correlation) > 0.95
+
+
+def test_brown_wavy_is_identifiable():
+    """The shipped brown_wavy (front- and back-lit, draped, 1024 spp) pins every control down well within the
+    bounds: by the check, and by its fits (docs/acceptance.md: errors 0.003 and below)."""
+    target = load_target(SHIPPED_TARGETS / "brown_wavy")
+    result = check_target(target, render_spp=16, linearisations=2, threads=1)
+    assert result.identifiable, result.problems
+    assert result.model_error == 0.0 and result.target_spp == [1024, 1024]
+    assert np.all(result.sigma < 0.25 * result.bounds)
+
+
+def test_the_expected_sigma_is_the_scatter_that_the_targets_own_noise_gives_the_estimate(tmp_path):
+    """Render the target anew with 200 seeds at its spp: the least-squares estimate from each (one step of the
+    linearised loss, the same renders of ours throughout) scatters by what the check expects from one render of
+    it. Albedo and β_m only: with β_n too, albedo and β_n trade off here, and along that valley both σ's hang on
+    the curvature's smallest eigenvalue, which even 8 renders at 1024 spp leave uncertain by 10%. The check's σ
+    comes from 4 × 2 renders over 128 pooled blocks, the scatter from 200 targets (±5%): within 15%."""
+    directory = write_target(tmp_path / "draped", [[0.2, -0.3, -1.0], [0.0, -0.15, 1.0]], 0.15, 32)
+    target = load_target(directory)
+    settings = FitSettings(pool=2)
+    controls = {"albedo": HAIR["albedo"], "beta_m": HAIR["beta_m"]}
+    result = check_target(target, controls=tuple(controls), settings=settings, render_spp=32, threads=1)
+    lin = linearize(target, controls, settings, spp=256, seed=9, threads=1)
+    scenes = [prepare(image.scene) for image in target.images]
+    h_inv = np.linalg.inv(lin.curvature)
+    # The loss's weights are the target's, one factor per image that does not move the minimum: the committed
+    # target's weights serve for every render of it.
+    weights = [_weight(_reduce(image, image.image, None, settings.pool)[0], settings.loss) for image in target.images]
+    estimates = []
+    for seed in range(200):
+        t = []
+        for image, scene, weight in zip(target.images, scenes, weights):
+            pooled, _ = _reduce(image, render(scene, spp=32, seed=1000 + seed, threads=1), None, settings.pool)
+            t.append(pooled * weight)
+        # The target enters the gradient as −Aᵀ W t: the estimate moves by H⁻¹ Aᵀ W t.
+        estimates.append(h_inv @ lin.crossed(np.stack([np.concatenate(t)] * 2)))
+    scatter = np.std(estimates, axis=0, ddof=1)
+    np.testing.assert_allclose(result.noise, scatter, rtol=0.15)
+
+
+def test_the_check_needs_values_to_check_at(tmp_path, capsys):
+    directory = write_target(tmp_path / "t", [[0.2, -0.3, -1.0]], 0.15, 8)
+    (directory / "truth.json").unlink()
+    assert main(["targets", "check", str(directory)]) == 2
+    assert "no true value for albedo, beta_m, beta_n (the target has no truth.json); give the controls to check " \
+           "at (--at NAME=V)" in capsys.readouterr().err
+    target = load_target(directory)
+    with pytest.raises(ValueError, match=r"values given for \['eta'\], which are not checked"):
+        check_target(copy.deepcopy(target), {**HAIR, "eta": 1.5})
+    result = check_target(target, HAIR, spp=4096, render_spp=8, linearisations=2, threads=1)
+    assert result.target_spp == [4096]
