@@ -49,7 +49,9 @@ def make_render_kernel(differentiable: bool):
         pixels: wp.array(dtype=wp.int32),
         first: int,
     ):
-        pixel = pixels[wp.tid() + first]
+        pixel = wp.tid() + first
+        if pixels.shape[0] > 0:  # a subset (a fit's mini-batch); empty: the whole image in order
+            pixel = pixels[pixel]
         px, py, rng = pixel_start(scene, pixel, seed)
         total = wp.vec3(0.0)
         total_sq = wp.vec3(0.0)
@@ -81,12 +83,12 @@ render_kernel = make_render_kernel(False)
 render_jacobian_kernel = make_render_kernel(True)
 
 
-def pixel_indices(pixels, resolution) -> np.ndarray:
-    """The flat pixel indices (row · width + column) to render, checked: all of them when `pixels` is None."""
+def pixel_indices(pixels, resolution) -> np.ndarray | None:
+    """The flat pixel indices (row · width + column) to render, checked; None (every pixel) when `pixels` is."""
     width, height = resolution
     n = width * height
     if pixels is None:
-        return np.arange(n, dtype=np.int32)
+        return None
     flat = np.asarray(pixels)
     if flat.ndim != 1 or not (flat.size == 0 or np.issubdtype(flat.dtype, np.integer)):
         raise ValueError(f"pixels must be a 1-D array of integer pixel indices (row * width + column), got shape "
@@ -107,6 +109,8 @@ def trace_pixels(scene: Scene | PreparedScene, spp, seed, threads, device, diffe
     width, height = prepared.resolution
     n = width * height
     indices = pixel_indices(pixels, prepared.resolution)
+    count = n if indices is None else len(indices)
+    indices = np.zeros(0, np.int32) if indices is None else indices
     image = wp.zeros(n, dtype=wp.vec3, device=device)
     stderr = wp.zeros(n, dtype=wp.vec3, device=device)
     if differentiable:
@@ -117,7 +121,7 @@ def trace_pixels(scene: Scene | PreparedScene, spp, seed, threads, device, diffe
         kernel, derivs, jacobian = render_kernel, CoefficientDerivatives(), None
     launch_ranges(
         kernel,
-        len(indices),
+        count,
         [prepared.data, derivs, spp, seed, image, stderr, jacobian, wp.array(indices, dtype=wp.int32, device=device)],
         threads=threads,
         device=device,
