@@ -39,7 +39,7 @@ from warp_hair.model.params import effective_beta
 from warp_hair.renderer.forward import prepare, render
 from warp_hair.torch import render_torch_pair, scene_with_controls
 
-from .latents import DEFAULT_FIT, EXPOSURE, SPECS, as_values, parse_control_names
+from .latents import DEFAULT_FIT, SPECS, as_values, hair_and_gain, parse_control_names
 from .linearize import linearize
 from .losses import LOSSES, image_loss, loss_scale
 from .refine import REFINABLE_LOSSES, refine
@@ -231,15 +231,11 @@ def _loss(target: Target, scenes, values: dict, spp: int, seeds, settings: FitSe
           scales):
     """The mean image loss over the target's images (`scenes`: theirs, prepared), each rendered as a decorrelated
     pair of spp/2 each, on a mini-batch of its blocks where it is larger than settings.batch."""
-    hair = {name: v for name, v in values.items() if name != EXPOSURE}
-    gain = values.get(EXPOSURE, 1.0)
+    hair, gain = hair_and_gain(values)
     total = 0.0
     for k, image in enumerate(target.images):
-        pixels, mask = batches[k].draw(seeds[k])
-        if mask is None:
-            mask = masks[k]
-        elif masks[k] is not None:
-            mask = mask & masks[k]
+        pixels, batch_mask = batches[k].draw(seeds[k])  # of counted pixels only: it implies the target's mask
+        mask = masks[k] if batch_mask is None else batch_mask
         pair = render_torch_pair(scenes[k], hair, spp=max(1, spp // 2), seed=seeds[k], threads=settings.threads,
                                  pixels=pixels)
         for rendered in pair:
@@ -328,6 +324,7 @@ def _finish(target, scenes, settings, names, start, estimate, history, done, sto
     seed = iteration_seed(settings.seed, 2**31, 0)
     steps = 0 if stop_reason == "interrupted" else _refine_steps(settings, target)
     history["refine"] = []
+    notes = []  # the refinement's warnings
     if steps:
         last_kept = {"values": estimate}  # what a KeyboardInterrupt during the refinement returns
         bar = tqdm(total=steps, desc="Gauss-Newton", unit="step", disable=not progress)
@@ -340,7 +337,7 @@ def _finish(target, scenes, settings, names, start, estimate, history, done, sto
                                 f"{_describe(record['values'])}", refresh=False)
             bar.update()
 
-        lin, mc_covariance, notes = None, None, []
+        lin, mc_covariance = None, None
         try:
             estimate, lin, mc_covariance, notes = refine(target, estimate, settings, final_spp, seed, steps, on_step,
                                                          lambda values: last_kept.update(values=values), scenes=scenes)
@@ -375,8 +372,7 @@ def _finish(target, scenes, settings, names, start, estimate, history, done, sto
         seconds=0.0,
         images=images,
     )
-    if steps:
-        result.warnings.extend(notes)
+    result.warnings.extend(notes)
     if settings.uncertainty and stop_reason != "interrupted":
         estimate_uncertainty(result, lin, mc_covariance, target_model_error(target, settings.model_error))
     result.seconds = time.perf_counter() - begun
@@ -385,8 +381,8 @@ def _finish(target, scenes, settings, names, start, estimate, history, done, sto
 
 def _render_fitted(scenes, values: dict, spp: int, seed: int, threads) -> list:
     """Forward renders (H, W, 3) of the target's prepared scenes at the fitted controls, exposure applied."""
-    hair = {name: v for name, v in values.items() if name != EXPOSURE}
-    gain = float(values.get(EXPOSURE, 1.0))
+    hair, gain = hair_and_gain(values)
+    gain = float(gain)
     return [gain * render(scene_with_controls(scene, hair), spp=spp, seed=seed + k, threads=threads)
             for k, scene in enumerate(scenes)]
 

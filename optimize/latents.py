@@ -32,6 +32,11 @@ EXPOSURE = "exposure"
 DEFAULT_FIT = ("albedo", "beta_m", "beta_n")
 
 
+def hair_and_gain(values: dict) -> tuple:
+    """({control: value} of the hair among fitted `values`, the gain on every render: exposure, 1 unfitted)."""
+    return {name: v for name, v in values.items() if name != EXPOSURE}, values.get(EXPOSURE, 1.0)
+
+
 @dataclass(frozen=True)
 class ControlSpec:
     """A fittable control: its size (3 for RGB), its open interval, and the neutral starting guess."""

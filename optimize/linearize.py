@@ -30,7 +30,7 @@ from warp_hair.renderer.forward import prepare
 from warp_hair.renderer.jacobian import render_jacobian
 from warp_hair.torch import default_grad_seed, scene_with_controls
 
-from .latents import EXPOSURE
+from .latents import EXPOSURE, hair_and_gain
 from .losses import REL_EPSILON, block_mean
 
 CHANNELS = 3  # consecutive residuals of one pixel (or pooled block): R, G, B
@@ -165,22 +165,19 @@ def crossed_curvature(jacobians: np.ndarray, weights: np.ndarray) -> np.ndarray:
     return a.T @ a
 
 
-def _hair(values: dict) -> dict:
-    return {name: v for name, v in values.items() if name != EXPOSURE}
-
-
 def linearize(target, values: dict, settings, spp: int, seed: int, threads=None, scenes=None) -> Linearization:
     """Render every image of `target` twice at `values` (spp each) and linearise the loss there.
 
     `scenes`: the target's scenes prepared once (`warp_hair.render.prepare`, one per image, in order), so that
     repeated linearisations do not rebuild the BVH; by default each image's scene, prepared here once for both
     passes."""
-    gain = float(values.get(EXPOSURE, 1.0))
+    hair, gain = hair_and_gain(values)
+    gain = float(gain)
     rs, vs, js = [[], []], [[], []], [[], []]
     images, weights, ts = [], [], []
     scenes = [prepare(image.scene) for image in target.images] if scenes is None else scenes
     for k, image in enumerate(target.images):
-        scene = scene_with_controls(scenes[k], _hair(values))
+        scene = scene_with_controls(scenes[k], hair)
         reference, _ = _reduce(image, image.image, None, settings.pool)
         weight = _weight(reference, settings.loss)
         ts.append(reference * weight)

@@ -31,25 +31,24 @@ def block_mean(image: torch.Tensor, weight: torch.Tensor, pool: int):
     return (summed / total.clamp_min(1e-12))[0].permute(1, 2, 0), total[0, 0]
 
 
-def _pooled(image: torch.Tensor, target: torch.Tensor, mask, pool: int):
-    """Both images over k×k blocks (masked pixels left out) and the mask of the blocks that count."""
-    if pool > 1:
-        weight = torch.ones(image.shape[:2], dtype=image.dtype) if mask is None else mask.to(image.dtype)
-        image, total = block_mean(image, weight, pool)
-        target, _ = block_mean(target.to(image.dtype), weight, pool)
-        mask = total > 0
-    return image, target, mask
+def _pool(x: torch.Tensor, mask, pool: int):
+    """x over k×k blocks (masked pixels left out), and the mask of the blocks (or pixels) that count."""
+    if pool == 1:
+        return x, mask
+    weight = torch.ones(x.shape[:2], dtype=x.dtype) if mask is None else mask.to(x.dtype)
+    means, total = block_mean(x, weight, pool)
+    return means, total > 0
+
+
+def _scale(counted_target: torch.Tensor, kind: str) -> torch.Tensor:
+    return (counted_target * counted_target).mean() if kind == "l2" else counted_target.abs().mean()
 
 
 def loss_scale(target: torch.Tensor, kind: str = "l2", mask: torch.Tensor | None = None, pool: int = 1) -> torch.Tensor:
     """The target's own scale that `image_loss` divides by (mean T² for L2, mean |T| for L1, the mean T of
     relative L2's ε), over the counted (pooled) pixels."""
-    _, pooled, mask = _pooled(target, target, mask, pool)
-    if mask is not None:
-        pooled = pooled[mask]
-    if kind == "l2":
-        return (pooled * pooled).mean()
-    return pooled.abs().mean()
+    pooled, counted = _pool(target, mask, pool)
+    return _scale(pooled if counted is None else pooled[counted], kind)
 
 
 def image_loss(image: torch.Tensor, target: torch.Tensor, kind: str = "l2", mask: torch.Tensor | None = None, pool: int = 1,
@@ -59,12 +58,11 @@ def image_loss(image: torch.Tensor, target: torch.Tensor, kind: str = "l2", mask
     its loss is an unbiased estimate of the whole image's rather than a ratio of two estimates."""
     if kind not in LOSSES:
         raise ValueError(f"unknown loss {kind!r}; allowed: {list(LOSSES)}")
-    if scale is None:
-        scale = loss_scale(target.to(image.dtype), kind, mask, pool)
-    scale = scale.to(image.dtype)
-    image, target, mask = _pooled(image, target, mask, pool)
-    if mask is not None:
-        image, target = image[mask], target[mask]
+    image, counted = _pool(image, mask, pool)
+    target, _ = _pool(target.to(image.dtype), mask, pool)
+    if counted is not None:
+        image, target = image[counted], target[counted]
+    scale = _scale(target, kind) if scale is None else scale.to(image.dtype)
     diff = image - target
     if kind == "l2":
         return (diff * diff).mean() / scale.clamp_min(1e-30)

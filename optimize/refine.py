@@ -36,6 +36,7 @@ import numpy as np
 
 from .latents import SPECS, by_control
 from .linearize import Linearization, linearize
+from .uncertainty import component_labels
 
 LAMBDA_START = 1e-3
 LAMBDA_DOWN, LAMBDA_UP = 1 / 3, 5.0
@@ -129,26 +130,27 @@ def refine(target, start: dict, settings, spp: int, seed: int, steps: int, on_st
             break
         if k == limit and limit < MAX_EXTENSION * steps and _drifting(_later(kept)):
             limit += 1
-    notes = []
-    if _drifting(_later(kept)):
-        moved = np.ptp(np.array(_later(kept)), axis=0)
-        labels = [f"{name}[{'rgb'[c]}]" if SPECS[name].size == 3 else name
-                  for name in names for c in range(SPECS[name].size)]
-        worst = int(np.argmax(drift_statistic(_later(kept))))
-        notes.append(f"the Gauss-Newton steps had not settled after {k} steps ({labels[worst]} still moving, by "
-                     f"{moved[worst]:.3g} over the last {len(_later(kept))}): the estimate may be off by more than its "
-                     "uncertainty; fit again from this result (--init) or with more steps (--refine)")
-    if len(kept) < 2:
-        return lin.values, lin, None, notes
     # Each linearisation's own render noise moves its step's end point; the later kept points scatter around
     # the optimum, and their mean scatters less.
     averaged = _later(kept)
+    notes = [] if not _drifting(averaged) else [_unsettled(averaged, k, names)]
+    if len(kept) < 2:
+        return lin.values, lin, None, notes
     final = with_earlier(linearized(np.mean(averaged, axis=0), k + 1))
     # One linearisation's scatter estimate is noisy where our render is much noisier than the target.
     final = dataclasses.replace(final, scatter=float(np.mean(_later(scatters) + [final.scatter_estimate])))
     if on_keep is not None:
         on_keep(final.values)
     return final.values, final, mean_covariance(averaged, final), notes
+
+
+def _unsettled(points: list, steps: int, names) -> str:
+    """The warning for averaged points that still move: which component moves most, and by how much."""
+    worst = int(np.argmax(drift_statistic(points)))
+    moved = float(np.ptp(np.array(points)[:, worst]))
+    return (f"the Gauss-Newton steps had not settled after {steps} steps ({component_labels(names)[worst]} still "
+            f"moving, by {moved:.3g} over the last {len(points)}): the estimate may be off by more than its "
+            "uncertainty; fit again from this result (--init) or with more steps (--refine)")
 
 
 def within_noise(step: np.ndarray, lin: Linearization) -> bool:

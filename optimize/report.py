@@ -14,7 +14,7 @@ import numpy as np
 from warp_hair.io import srgb_encode
 from warp_hair.model.params import HairParams
 
-from .latents import EXPOSURE, SPECS
+from .latents import EXPOSURE, SPECS, hair_and_gain
 from .fit import FitResult
 from .target import Target
 
@@ -39,7 +39,7 @@ def fitted_look(result: FitResult, target: Target) -> HairParams:
     controls = target.hair.to_dict()
     # A fit's colour control is always the scenes' colour input (latents.parse_control_names), so a plain
     # update keeps the other melanin when only one is fitted.
-    controls.update({name: value for name, value in result.values.items() if name != EXPOSURE})
+    controls.update(hair_and_gain(result.values)[0])
     return HairParams(**controls)
 
 

@@ -9,7 +9,7 @@ import json
 
 import numpy as np
 import pytest
-from helpers.scenes import front_camera, toml_text
+from helpers.scenes import front_camera, toml_text, write_front_back_target
 
 from optimize.cli import main
 from optimize.fit import fit
@@ -37,13 +37,8 @@ TARGET_SPP = 4096
 
 @pytest.fixture(scope="module")
 def small_target(tmp_path_factory):
-    directory = tmp_path_factory.mktemp("small_target")
-    for name, direction in (("front", [0.2, -0.3, -1.0]), ("back", [0.0, -0.15, 1.0])):
-        (directory / f"scene_{name}.toml").write_text(scene_text(direction, TARGET_SPP))
-    (directory / "target.toml").write_text(
-        '[[images]]\nscene = "scene_front.toml"\nimage = "front.exr"\n\n'
-        '[[images]]\nscene = "scene_back.toml"\nimage = "back.exr"\n'
-    )
+    directory = write_front_back_target(tmp_path_factory.mktemp("small_target"),
+                                        lambda direction: scene_text(direction, TARGET_SPP))
     make_target(directory)
     return directory
 

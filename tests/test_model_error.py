@@ -7,7 +7,7 @@ import types
 
 import numpy as np
 import pytest
-from helpers.scenes import front_camera, toml_text
+from helpers.scenes import front_camera, toml_text, write_front_back_target
 
 from optimize.cli import main
 from optimize.fit import FitSettings, check_settings
@@ -41,11 +41,7 @@ def swatch_text(direction, spp=64):
 @pytest.fixture(scope="module")
 def own_target(tmp_path_factory):
     """Front- and back-lit, rendered by warp-hair (`make_target`, which records it in the EXR headers)."""
-    directory = tmp_path_factory.mktemp("own")
-    for name, direction in (("front", [0.2, -0.3, -1.0]), ("back", [0.0, -0.15, 1.0])):
-        (directory / f"scene_{name}.toml").write_text(swatch_text(direction))
-    (directory / "target.toml").write_text('[[images]]\nscene = "scene_front.toml"\nimage = "front.exr"\n\n'
-                                           '[[images]]\nscene = "scene_back.toml"\nimage = "back.exr"\n')
+    directory = write_front_back_target(tmp_path_factory.mktemp("own"), swatch_text)
     make_target(directory, threads=1)
     return directory
 

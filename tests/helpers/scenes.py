@@ -74,3 +74,17 @@ def sparse_scene_dict(hair, resolution=(16, 16), spp=128) -> dict:
 
 def sparse_scene(hair, resolution=(16, 16), spp=128):
     return scene_from_dict(sparse_scene_dict(hair, resolution, spp))
+
+
+# The shipped targets' two lights: from the viewer's side, and from behind the swatch.
+FRONT_BACK = (("front", [0.2, -0.3, -1.0]), ("back", [0.0, -0.15, 1.0]))
+
+
+def write_front_back_target(directory, scene_text):
+    """A target directory of the same scene lit from the front and from behind: `scene_text(direction)` gives
+    each scene file; target.toml lists them (the images are left to `make_target`)."""
+    for name, direction in FRONT_BACK:
+        (directory / f"scene_{name}.toml").write_text(scene_text(direction))
+    (directory / "target.toml").write_text("".join(
+        f'[[images]]\nscene = "scene_{name}.toml"\nimage = "{name}.exr"\n\n' for name, _ in FRONT_BACK))
+    return directory
