@@ -1,6 +1,6 @@
 """Acceptance: fit every shipped target from the neutral guess and tabulate fitted vs true controls and the time.
 
-    python benchmarks/fit_targets.py [NAME ...] [--out benchmarks/out/fits] [--threads N]
+    python benchmarks/fit_targets.py [NAME | DIRECTORY ...] [--out benchmarks/out/fits] [--threads N]
 
 Runs `optimize.fit` with its default settings (what `warp-hair fit TARGET -o OUT` runs) on each target in
 targets/ (or the named ones), writes each fit's params.json, convergence.png and comparison.png under --out, and
@@ -33,11 +33,12 @@ def fmt(v):
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("names", nargs="*")
+    parser.add_argument("names", nargs="*", help="shipped target names or target directories (default: all shipped)")
     parser.add_argument("--out", type=Path, default=HERE / "out" / "fits")
     parser.add_argument("--threads", type=int)
     args = parser.parse_args()
-    directories = [d for d in shipped_targets() if not args.names or d.name in args.names]
+    given = [Path(n) for n in args.names if Path(n).is_dir()]
+    directories = given + [d for d in shipped_targets() if not args.names or d.name in args.names]
     rows = []
     for directory in directories:
         target = load_target(directory)

@@ -10,7 +10,10 @@ mirrored at each end, so that the curve reaches the end vertices (benchmarks/mit
 strands are dense (a segment turns the tangent by well under a degree), so that the polyline warp-hair
 renders and the curves the peers render describe the same fibers. Mitsuba's targets have α = 0: its curve
 shapes flip the frame's tangent with the side of the fiber that is hit, which would turn the tilt around on
-half of each fiber. Cycles needs the `blender` extra, Mitsuba the `bench` extra and libLLVM.
+half of each fiber. Mitsuba's images are rendered with its hair sampler's residual lobe corrected
+(`mitsuba_peer.CorrectedHair`: Mitsuba 3.9.1 draws that lobe in the normal plane only, which makes light hair
+about 2% brighter front-lit); `--mitsuba-sampler stock` renders them with Mitsuba as shipped. Cycles needs the
+`blender` extra, Mitsuba the `bench` extra and libLLVM.
 """
 
 from __future__ import annotations
@@ -29,10 +32,10 @@ from warp_hair.parallel import default_threads
 from warp_hair.scene import load_scene
 
 from cycles_peer import import_bpy, render_cycles
-from mitsuba_peer import bspline_control_points, import_mitsuba, mitsuba_scene, time_mitsuba
+from mitsuba_peer import SAMPLERS, bspline_control_points, import_mitsuba, mitsuba_scene, time_mitsuba
 
 
-def peer_renderer(name):
+def peer_renderer(name, mitsuba_sampler="corrected"):
     """(render(scene) -> image, version string) for "cycles" or "mitsuba"; exits with the reason if missing."""
     if name == "cycles":
         bpy = import_bpy()
@@ -50,15 +53,16 @@ def peer_renderer(name):
         with tempfile.TemporaryDirectory() as tmp:
             fibers_file = Path(tmp) / "fibers.txt"
             save_fibers(bspline_control_points(scene.fibers), fibers_file)
-            mi_scene = mitsuba_scene(mi, scene, scene.render.spp, shape="bsplinecurve", fibers_file=fibers_file)
+            mi_scene = mitsuba_scene(mi, scene, scene.render.spp, shape="bsplinecurve", fibers_file=fibers_file,
+                                     sampler=mitsuba_sampler)
             return time_mitsuba(mi, mi_scene, scene.render.spp, scene.render.seed, threads, 1)[2]
 
-    return render_mitsuba, f"Mitsuba {mi.__version__} ({mi.variant()}, bsplinecurve)"
+    return render_mitsuba, f"Mitsuba {mi.__version__} ({mi.variant()}, bsplinecurve, {mitsuba_sampler} hair sampler)"
 
 
-def make_peer_target(directory, threads):
+def make_peer_target(directory, threads, mitsuba_sampler="corrected"):
     renderer = target_renderer(directory)
-    render, version = peer_renderer(renderer)
+    render, version = peer_renderer(renderer, mitsuba_sampler)
     hair = None
     for entry in read_target_spec(directory):
         scene = load_scene(directory / entry["scene"])
@@ -77,11 +81,13 @@ def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("names", nargs="*", help="target names (default: every shipped target a peer renders)")
     parser.add_argument("--threads", type=int, default=None)
+    parser.add_argument("--mitsuba-sampler", choices=SAMPLERS, default="corrected",
+                        help="Mitsuba's hair sampler as shipped, or with its residual lobe corrected (default)")
     args = parser.parse_args(argv)
     names = args.names or sorted(p.name for p in SHIPPED_TARGETS.iterdir()
                                  if (p / "target.toml").is_file() and target_renderer(p) != "warp-hair")
     for name in names:
-        make_peer_target(SHIPPED_TARGETS / name, args.threads or default_threads())
+        make_peer_target(SHIPPED_TARGETS / name, args.threads or default_threads(), args.mitsuba_sampler)
 
 
 if __name__ == "__main__":

@@ -2,12 +2,23 @@
 
     from mitsuba_peer import import_mitsuba, mitsuba_scene, time_mitsuba, bspline_control_points
     mi = import_mitsuba()                                     # None, with the reason printed, when not installed
-    image = time_mitsuba(mi, mitsuba_scene(mi, scene, spp, shape="bsplinecurve", fibers_file=f), spp, 0, 2, 1)[2]
+    scene_mi = mitsuba_scene(mi, scene, spp, shape="bsplinecurve", fibers_file=f, sampler="corrected")
+    image = time_mitsuba(mi, scene_mi, spp, 0, 2, 1)[2]
 
 The `bench` extra (`pip install -e ".[bench]"`); its LLVM back end needs libLLVM (`apt-get install libllvm19`):
 DRJIT_LIBLLVM_PATH is set to the system's libLLVM-19 when unset (it must be set before the import). The hair is
 the look as `warp_hair.export.mitsuba` writes it. Use `bsplinecurve` over `bspline_control_points(fibers)` for
 anything but fibers along y (docs/MODEL.md, "The peers as references").
+
+Mitsuba's hair sampler has a bug, measured by `benchmarks/mitsuba_residual_lobe.py`: `Hair::sample`
+(src/bsdfs/hair.cpp, 3.9.1 and its main branch) tilts sin/cos θ per lobe only for p < P_MAX and leaves both at 0
+for the residual lobe p = 3, so every sample it draws from that lobe has sin θ = 0: it leaves in the fiber's
+normal plane, wherever M_3 puts it. `eval` and `pdf` are right, so direct lighting is too, and the weight
+eval/pdf is formed at that wrong direction. Light hair, whose residual lobe carries the most, renders 2% brighter
+front-lit on a draped swatch. `sampler="corrected"` renders with `CorrectedHair`, Mitsuba's own `hair` BSDF
+(its eval, pdf and every other lobe's sampling) with the residual lobe's θ drawn as pbrt-v4 draws it
+(`HairBxDF::Sample_f`: the untilted θ_o for p = 3); `sampler="stock"` is Mitsuba as shipped (the speed
+benchmarks use it).
 """
 
 from __future__ import annotations
@@ -39,11 +50,18 @@ def import_mitsuba():
     return mi
 
 
-def mitsuba_scene(mi, scene, spp, shape="linearcurve", fibers_file=None):
+SAMPLERS = ("stock", "corrected")
+
+
+def mitsuba_scene(mi, scene, spp, shape="linearcurve", fibers_file=None, sampler="stock"):
     """The warp-hair `scene` as a Mitsuba 3 scene. Only what the comparison needs is translated: an
     orthographic or perspective camera, directional lights, a constant environment, fibers from a file
-    (`fibers_file`, default the scene's) as `shape`, the hair as warp_hair.export.mitsuba writes it."""
+    (`fibers_file`, default the scene's) as `shape`, the hair as warp_hair.export.mitsuba writes it, sampled
+    by Mitsuba's own `hair` (`sampler="stock"`) or with its residual lobe corrected (`"corrected"`)."""
     from warp_hair.export.mitsuba import bsdf_dict
+
+    if sampler not in SAMPLERS:
+        raise ValueError(f"sampler must be one of {SAMPLERS}, not {sampler!r}")
 
     cam = scene.camera
     width, height = cam.resolution
@@ -65,6 +83,8 @@ def mitsuba_scene(mi, scene, spp, shape="linearcurve", fibers_file=None):
     if hair.r_roughness_scale != 1.0:
         raise ValueError("Mitsuba's hair BSDF has no R-roughness scale; set r_roughness_scale = 1")
     bsdf = bsdf_dict(hair)  # scale_tilt = −α: Mitsuba rotates the lobes opposite to the physical tilt
+    if sampler == "corrected":
+        bsdf = corrected_hair(mi, bsdf)
     result = {
         "type": "scene",
         "sensor": sensor,
@@ -114,3 +134,71 @@ def bspline_control_points(fibers):
         points = np.concatenate([[2 * points[0] - points[1]], points, [2 * points[-1] - points[-2]]])
         strands.append((points, np.concatenate([radii[:1], radii, radii[-1:]])))
     return FiberAssembly.from_strands(strands)
+
+
+def corrected_hair(mi, hair_dict):
+    """A `load_dict` entry for `CorrectedHair` around Mitsuba's `hair` BSDF given by `hair_dict`."""
+    name = "warp_hair_corrected_hair"
+    if name not in _REGISTERED:
+        mi.register_bsdf(name, lambda props: _corrected_hair_class(mi)(props))
+        _REGISTERED.add(name)
+    return {"type": name, "hair": hair_dict}
+
+
+_REGISTERED = set()
+
+
+def _corrected_hair_class(mi):
+    """Mitsuba's `hair` with the residual lobe's longitudinal sample drawn right (module docstring).
+
+    Mitsuba's `sample` returns, for the residual lobe and only for it, a direction with wo.y (sin θ) exactly 0;
+    its azimuth is already right (uniform). For those samples θ is drawn again from the same two numbers
+    Mitsuba used (sample2: cos θ of the cone about the untilted θ_o, then the rotation), as pbrt-v4 draws it,
+    and the value and pdf are Mitsuba's own `eval_pdf` at the new direction. Another lobe's sample lands on
+    wo.y == 0 exactly with probability zero."""
+    import drjit as dr
+
+    from warp_hair.model.params import lobe_variances
+
+    class CorrectedHair(mi.BSDF):
+        def __init__(self, props):
+            mi.BSDF.__init__(self, props)
+            self.inner = props["hair"]  # Mitsuba instantiates the nested `hair` dictionary
+            beta_m = float(mi.traverse(self.inner)["longitudinal_roughness"][0])
+            self.v_residual = float(lobe_variances(beta_m)[3])
+            self.m_flags = self.inner.flags()
+            self.m_components = [self.inner.flags()]
+
+        def sample(self, ctx, si, sample1, sample2, active=True):
+            bs, weight = self.inner.sample(ctx, si, sample1, sample2, active)
+            residual = bs.wo.y == 0
+            v = self.v_residual
+            cos_cone = dr.clip(1 + v * dr.log(sample2.x + (1 - sample2.x) * dr.exp(-2 / v)), -1, 1)
+            sin_cone = dr.safe_sqrt(1 - cos_cone * cos_cone)
+            sin_i = si.wi.y
+            cos_i = dr.safe_sqrt(1 - sin_i * sin_i)
+            sin_o = -cos_cone * sin_i + sin_cone * dr.cos(2 * dr.pi * sample2.y) * cos_i
+            cos_o = dr.safe_sqrt(1 - sin_o * sin_o)
+            wo = mi.Vector3f(cos_o * bs.wo.x, sin_o, cos_o * bs.wo.z)  # bs.wo.x, .z: cos φ, sin φ
+            value, pdf = self.inner.eval_pdf(ctx, si, wo, active & residual)
+            bs.wo = dr.select(residual, wo, bs.wo)
+            bs.pdf = dr.select(residual, pdf, bs.pdf)
+            weight = dr.select(residual, dr.select(pdf > 0, value / pdf, 0), weight)
+            return bs, weight
+
+        def eval(self, ctx, si, wo, active=True):
+            return self.inner.eval(ctx, si, wo, active)
+
+        def pdf(self, ctx, si, wo, active=True):
+            return self.inner.pdf(ctx, si, wo, active)
+
+        def eval_pdf(self, ctx, si, wo, active=True):
+            return self.inner.eval_pdf(ctx, si, wo, active)
+
+        def traverse(self, callback):
+            self.inner.traverse(callback)
+
+        def to_string(self):
+            return f"CorrectedHair[{self.inner}]"
+
+    return CorrectedHair

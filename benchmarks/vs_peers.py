@@ -16,9 +16,15 @@ one mirrored control point at each end so that the curve reaches the end vertice
 a segment short, and the swatch's ends, which shadow and light the visible part, differ); its `linearcurve`
 hands the hair BSDF a wrong frame on fibers not along y. At α = 0 (on both of its curve
 shapes the frame's tangent flips with the side of the fiber that is hit): see `docs/MODEL.md` or the
-project's model notes. warp-hair renders the strands twice: with smooth shading tangents (the default) and
-with each segment's own axis (`[render] tangents = "segment"`), which shows what a polyline's joints do to
-the highlight.
+project's model notes. warp-hair renders the strands three times: as the polyline with smooth shading tangents
+(the default), with each segment's own axis (`[render] tangents = "segment"`), which shows what a polyline's
+joints do to the highlight, and as the Catmull-Rom curve through the vertices (`[fibers] curve = "catmull-rom"`,
+`warp_hair.geometry.curves`), the curve Cycles draws; on coarse strands (`--segments 6`) only that one is the
+same fiber as Cycles'.
+
+Mitsuba renders twice: as shipped (`stock`), and with its hair sampler's residual lobe corrected
+(`corrected`, `mitsuba_peer.CorrectedHair`): Mitsuba 3.9.1 samples that lobe in the fiber's normal plane
+only (`python benchmarks/mitsuba_residual_lobe.py`), which makes its light hair about 2% brighter front-lit.
 
 Both peers render the look as `warp_hair.export` writes it for them (Mitsuba's `hair` dictionary, the Cycles
 bpy script), so this is also the check of the exporters. Cycles (the `blender` extra, bpy 4.5) renders THICK
@@ -47,6 +53,7 @@ from pathlib import Path
 
 import numpy as np
 
+from warp_hair.geometry.curves import catmull_rom
 from warp_hair.geometry.formats import save_fibers
 from warp_hair.geometry.generators import swatch
 from warp_hair.io import write_exr, write_png
@@ -55,7 +62,7 @@ from warp_hair.renderer.forward import render
 from warp_hair.scene import scene_from_dict
 
 from cycles_peer import import_bpy, render_cycles
-from mitsuba_peer import bspline_control_points, import_mitsuba, mitsuba_scene, time_mitsuba
+from mitsuba_peer import SAMPLERS, bspline_control_points, import_mitsuba, mitsuba_scene, time_mitsuba
 
 HERE = Path(__file__).resolve().parent
 BLOCK = 8
@@ -149,12 +156,14 @@ def main(argv=None):
         for lighting in args.lightings.split(","):
             direction = LIGHTINGS[lighting]
             images = {}
-            for tangents in ("smooth", "segment"):
-                scene = scene_from_dict(scene_data(args.resolution, direction, args.spp, tangents, args.max_depth))
-                scene.fibers = fibers
+            for shape in ("smooth", "segment", "catmull-rom"):  # the polyline's two tangents, or the curve
+                scene = scene_from_dict(scene_data(args.resolution, direction, args.spp,
+                                                   "segment" if shape == "segment" else "smooth", args.max_depth))
+                scene.fibers = catmull_rom(fibers) if shape == "catmull-rom" else fibers
                 start = time.perf_counter()
-                images[tangents] = render(scene, threads=threads)
-                print(f"[{lighting}] warp-hair ({tangents} tangents): {time.perf_counter() - start:.1f} s")
+                images[shape] = render(scene, threads=threads)
+                print(f"[{lighting}] warp-hair ({shape}): {time.perf_counter() - start:.1f} s")
+            scene.fibers = fibers
             noise_scene = dataclasses.replace(scene, render=dataclasses.replace(scene.render, seed=1,
                                                                                 tangents="smooth"))
             noise = block_rmse(render(noise_scene, threads=threads), images["smooth"])
@@ -162,11 +171,12 @@ def main(argv=None):
             print(f"[{lighting}] noise level (two warp-hair seeds): block RMSE {noise:.2%}")
             print(f"[{lighting}] smooth vs segment tangents: block RMSE {block_rmse(images['segment'], images['smooth']):.2%}")
             peers = {}
-            if mi is not None:
-                mi_scene = mitsuba_scene(mi, scene, args.spp, shape="bsplinecurve", fibers_file=fibers_file)
+            for sampler in SAMPLERS if mi is not None else ():
+                mi_scene = mitsuba_scene(mi, scene, args.spp, shape="bsplinecurve", fibers_file=fibers_file,
+                                         sampler=sampler)
                 start = time.perf_counter()
-                peers[f"Mitsuba {mi.__version__}"] = time_mitsuba(mi, mi_scene, args.spp, 0, threads, 1)[2]
-                print(f"[{lighting}] Mitsuba bsplinecurve: {time.perf_counter() - start:.1f} s")
+                peers[f"Mitsuba_{sampler} {mi.__version__}"] = time_mitsuba(mi, mi_scene, args.spp, 0, threads, 1)[2]
+                print(f"[{lighting}] Mitsuba bsplinecurve, {sampler} sampler: {time.perf_counter() - start:.1f} s")
             if bpy is not None:
                 start = time.perf_counter()
                 peers[f"Cycles {bpy.app.version_string}"] = render_cycles(bpy, scene, args.spp, threads=threads)
@@ -175,9 +185,9 @@ def main(argv=None):
                 tag = peer.split()[0].lower()
                 write_exr(args.out / f"{tag}_{lighting}.exr", theirs)
                 mean_theirs = theirs.mean(axis=(0, 1))
-                for tangents, ours in images.items():
+                for shape, ours in images.items():
                     ratio = ours.mean(axis=(0, 1)) / mean_theirs
-                    print(f"[{lighting}] warp-hair ({tangents}) / {peer}: means {fmt(ours.mean(axis=(0, 1)))} / "
+                    print(f"[{lighting}] warp-hair ({shape}) / {peer}: means {fmt(ours.mean(axis=(0, 1)))} / "
                           f"{fmt(mean_theirs)} = {fmt(ratio)}; block RMSE {block_rmse(ours, theirs):.2%} "
                           f"(noise level {noise:.2%})")
                 ours = images["smooth"]

@@ -13,28 +13,10 @@ from warp_hair.geometry.formats import load_fibers, save_fibers
 from warp_hair.geometry.generators import swatch
 from warp_hair.scene import load_scene  # noqa: E402
 from warp_hair.geometry.usd import UsdCurveError, read_usd
+from helpers.curves import FORMS, dense_curve, distance_to_polyline  # noqa: E402
 
 RNG = np.random.default_rng(7)
 SEGMENTS = 5
-
-
-def bezier(p, t):
-    u = 1 - t
-    return u**3 * p[0] + 3 * u**2 * t * p[1] + 3 * u * t**2 * p[2] + t**3 * p[3]
-
-
-def bspline(p, t):
-    b = [(1 - t) ** 3 / 6, (3 * t**3 - 6 * t**2 + 4) / 6, (-3 * t**3 + 3 * t**2 + 3 * t + 1) / 6, t**3 / 6]
-    return sum(w * q for w, q in zip(b, p))
-
-
-def catmull_rom(p, t):
-    m1, m2 = (p[2] - p[0]) / 2, (p[3] - p[1]) / 2
-    h00, h10, h01, h11 = 2 * t**3 - 3 * t**2 + 1, t**3 - 2 * t**2 + t, -2 * t**3 + 3 * t**2, t**3 - t**2
-    return h00 * p[1] + h10 * m1 + h01 * p[2] + h11 * m2
-
-
-FORMS = {"bezier": (bezier, 3), "bspline": (bspline, 1), "catmullRom": (catmull_rom, 1)}
 
 
 def expected_polyline(cv, basis, wrap, segments=SEGMENTS):
@@ -91,6 +73,20 @@ def test_cubic_curves_follow_their_basis(tmp_path, basis, wrap):
         points, radii = fibers.strand(k)
         np.testing.assert_allclose(points, expected_polyline(cv, basis, wrap), rtol=1e-5, atol=1e-5)
         np.testing.assert_allclose(radii, 0.005, rtol=1e-6)
+
+
+@pytest.mark.parametrize("basis", list(FORMS))
+def test_cubic_curves_are_traced_within_the_tolerance(tmp_path, basis):
+    """Without `segments`, each span is cut finely enough that the polyline stays within tolerance × radius."""
+    (cv,) = control_points(1, 7 if basis == "bezier" else 6)
+    path = write_stage(tmp_path / "g.usda", [cv], basis=basis, widths=[0.02], interpolation="constant")
+    for tolerance in (None, 0.05):
+        fibers = read_usd(path) if tolerance is None else read_usd(path, tolerance=tolerance)
+        points, _ = fibers.strand(0)
+        allowed = (tolerance or 0.01) * 0.01  # radius 0.01
+        assert distance_to_polyline(dense_curve(cv, basis), points.astype(np.float64)).max() <= allowed * 1.01
+    with pytest.raises(UsdCurveError, match="give tolerance or segments, not both"):
+        read_usd(path, tolerance=0.01, segments=4)
 
 
 def test_pinned_curves_end_on_their_end_points(tmp_path):

@@ -24,6 +24,7 @@ import numpy as np
 from . import geometry as fiber_module
 from . import validate
 from .geometry.assembly import FiberAssembly
+from .geometry.curves import DEFAULT_TOLERANCE, catmull_rom
 from .geometry.formats import load_fibers
 from .geometry.usd import SUFFIXES as USD_SUFFIXES
 from .controls import CONTROL_NAMES
@@ -34,7 +35,11 @@ CAMERA_TYPES = ("orthographic", "perspective")
 TABLES = ("camera", "lights", "fibers", "hair", "render", "card")
 GENERATORS = {name: getattr(fiber_module, name) for name in ("swatch", "wavy", "curly", "fur")}
 # The [fibers] keys a USD file takes besides `file` (warp_hair.geometry.usd documents them).
-USD_FIBER_OPTIONS = ("prim", "radius", "segments")
+USD_FIBER_OPTIONS = ("prim", "radius", "tolerance", "segments")
+# What a polyline source (a .txt or .hair file, a generator) may be drawn as: its vertices joined by straight
+# segments, or the Catmull-Rom curve through them (warp_hair.geometry.curves), within `tolerance` radii.
+CURVE_KINDS = ("polyline", "catmull-rom")
+CURVE_OPTIONS = ("curve", "tolerance")
 # Generator arguments that must be integers; `patch` takes one number or two; every other argument one number.
 INTEGER_GENERATOR_ARGS = frozenset({"count", "layers", "segments", "seed"})
 PAIR_GENERATOR_ARGS = frozenset({"patch"})
@@ -399,9 +404,12 @@ def _path(value, base_dir, name):
 def _fibers(table, prefix, base_dir, source):
     if ("file" in table) == ("generator" in table):
         raise ValueError(f"{prefix} needs exactly one of file (a .txt, .hair or USD file) and generator")
+    usd = "file" in table and Path(str(table["file"])).suffix.lower() in USD_SUFFIXES
+    curve = {} if usd else {key: table[key] for key in CURVE_OPTIONS if key in table}
+    table = {key: value for key, value in table.items() if key not in curve}
     if "file" in table:
         path = _path(table["file"], base_dir, f"{prefix} file")
-        usd_options = USD_FIBER_OPTIONS if path.suffix.lower() in USD_SUFFIXES else []
+        usd_options = USD_FIBER_OPTIONS if usd else []
         _check_keys(table, ["file", *usd_options], prefix)
         source["fibers"]["file"] = str(path)
         try:
@@ -412,7 +420,23 @@ def _fibers(table, prefix, base_dir, source):
         fibers = _generate(table, prefix)
     if fibers.num_strands == 0:
         raise ValueError(f"{prefix} holds no strands")
-    return fibers
+    return _as_curve(fibers, curve, prefix)
+
+
+def _as_curve(fibers, options, prefix):
+    """The strands as `curve` says (CURVE_KINDS): as they are, or the Catmull-Rom curve through their vertices."""
+    kind = options.get("curve", "polyline")
+    if kind not in CURVE_KINDS:
+        raise ValueError(f"{prefix} curve must be one of {list(CURVE_KINDS)}, got {kind!r}")
+    if "tolerance" in options and kind != "catmull-rom":
+        raise ValueError(f"{prefix} tolerance applies to curve = \"catmull-rom\" (and to USD cubic curves)")
+    if kind == "polyline":
+        return fibers
+    try:
+        tolerance = validate.real("tolerance", options.get("tolerance", DEFAULT_TOLERANCE))
+        return catmull_rom(fibers, tolerance)
+    except ValueError as error:
+        raise ValueError(f"{prefix} {error}") from None
 
 
 def _generate(table, prefix):

@@ -17,7 +17,10 @@ Conversion (Mitsuba 3.9, src/bsdfs/hair.cpp, class Hair: the constructor's prope
 
 Render it on `bsplinecurve` with a polyline's vertices as control points: Mitsuba's `linearcurve` hands the
 BSDF a frame whose tangent is not the fiber's (docs/MODEL.md), and both shapes flip the tangent with the side of
-the fiber hit, so the tilt acts with opposite signs on the two halves of a fiber.
+the fiber hit, so the tilt acts with opposite signs on the two halves of a fiber. Expect light hair to render
+about 2% brighter there when lit from the front: Mitsuba's `Hair::sample` draws the residual lobe in the fiber's
+normal plane only (docs/MODEL.md, "The peers as references"; `benchmarks/mitsuba_residual_lobe.py` shows it),
+which the exported look cannot change.
 """
 
 from __future__ import annotations

@@ -9,17 +9,20 @@ in the generators: the cuticle tilt α shifts the primary highlight toward a str
 listed tip first would show it on the wrong side.
 
 assembly.py holds `FiberAssembly`, formats.py and usd.py the files, generators.py the procedural swatches and
-fur; bvh.py builds the BVH, tubes.py the tubes it bounds, intersect.py the device ray queries, rays.py their
+fur, curves.py cubic curves (Catmull-Rom through a strand's vertices, USD's bases) as polylines within a stated
+distance; bvh.py builds the BVH, tubes.py the tubes it bounds, intersect.py the device ray queries, rays.py their
 NumPy front, card.py the backing card.
 """
 
 from .assembly import FiberAssembly, FiberDataError
+from .curves import catmull_rom
 from .formats import load_fibers, read_hair, read_text, save_fibers, write_hair, write_text
 from .generators import curly, fur, swatch, wavy
 
 __all__ = [
     "FiberAssembly",
     "FiberDataError",
+    "catmull_rom",
     "curly",
     "fur",
     "load_fibers",

@@ -2,7 +2,7 @@
 
     from warp_hair.geometry import load_fibers, save_fibers
     fibers = load_fibers("groom.usda")                              # every BasisCurves prim on the stage
-    fibers = load_fibers("groom.usd", prim="/Groom/hair", radius=0.004, segments=8)
+    fibers = load_fibers("groom.usd", prim="/Groom/hair", radius=0.004, tolerance=0.01)
     save_fibers(fibers, "groom.usdc")                               # one linear BasisCurves prim, /Groom/hair
 
 and in a scene file:
@@ -11,7 +11,8 @@ and in a scene file:
     file = "groom.usda"
     prim = "/Groom/hair"      # optional: this prim and the BasisCurves under it (default: the whole stage)
     radius = 0.004            # optional: the radius of curves without widths (widths win where present)
-    segments = 8              # optional: straight pieces per cubic span (default 8)
+    tolerance = 0.01          # optional: how far the traced polyline may stray from a cubic curve, in radii
+    segments = 8              # optional, instead of tolerance: straight pieces per cubic span
 
 Reading: every active, visible BasisCurves prim under the stage's root (or under `prim`), except those of purpose
 "guide", at the earliest authored time sample. Points go through the prim's local-to-world transform; widths are
@@ -19,8 +20,10 @@ diameters (`constant`, `uniform` = one per curve, `varying` = one per span end, 
 and become radii, scaled by the transform's mean scale (the cube root of its determinant). Linear curves keep their
 vertices (periodic ones close on their first). Cubic curves (`bezier`, `bspline`, `catmullRom`; wrap `nonperiodic`,
 `periodic`, or `pinned`, whose phantom end points make B-spline and Catmull-Rom curves end on their end points) are
-evaluated with the basis matrices of the UsdGeom.BasisCurves schema at `segments` evenly spaced parameters per span;
-`vertex` widths are interpolated with the same basis, `varying` ones linearly within each span. Strands are
+traced as polylines within `tolerance` × the curve's smallest radius of the true curve (default 1%; each span cut
+into the fewest equal parameter steps that guarantee it, `warp_hair.geometry.curves`), or at `segments` evenly
+spaced parameters per span when that is given; `vertex` widths are interpolated with the curve's basis,
+`varying` ones linearly within each span. Strands are
 listed root first, as the fibers' convention is.
 
 Errors name the file and the prim: no BasisCurves found, vertex counts that do not add up to the points, curves
@@ -36,19 +39,10 @@ from pathlib import Path
 
 import numpy as np
 
+from .curves import BASIS_MATRICES, DEFAULT_TOLERANCE, WRAPS, span_count, tessellate
+
 SUFFIXES = (".usd", ".usda", ".usdc")
-DEFAULT_SEGMENTS = 8
 WRITE_PRIM = "/Groom/hair"
-
-# P(t) = [t³ t² t 1] · M · [P0 P1 P2 P3]ᵀ for one span (UsdGeom.BasisCurves schema, "Cubic Basis").
-BASIS_MATRICES = {
-    "bezier": np.array([[-1, 3, -3, 1], [3, -6, 3, 0], [-3, 3, 0, 0], [1, 0, 0, 0]], dtype=np.float64),
-    "bspline": np.array([[-1, 3, -3, 1], [3, -6, 3, 0], [-3, 0, 3, 0], [1, 4, 1, 0]], dtype=np.float64) / 6.0,
-    "catmullRom": np.array([[-1, 3, -3, 1], [2, -5, 4, -1], [-1, 0, 1, 0], [0, 2, 0, 0]], dtype=np.float64) / 2.0,
-}
-# How far the first control point moves from one span to the next.
-VSTEP = {"bezier": 3, "bspline": 1, "catmullRom": 1}
-
 
 class UsdCurveError(ValueError):
     """A problem with a USD groom, naming the file and (where known) the prim."""
@@ -68,14 +62,21 @@ def _pxr(path):
     return Usd, UsdGeom
 
 
-def read_usd(path, *, prim=None, radius=None, segments=DEFAULT_SEGMENTS):
+def read_usd(path, *, prim=None, radius=None, tolerance=None, segments=None):
     """A FiberAssembly from the BasisCurves of a USD stage (see the module docstring)."""
     from .assembly import FiberAssembly, FiberDataError
 
     path = Path(path)
     Usd, UsdGeom = _pxr(path)
-    if not isinstance(segments, int) or isinstance(segments, bool) or segments < 1:
+    if segments is not None and (not isinstance(segments, int) or isinstance(segments, bool) or segments < 1):
         raise UsdCurveError(path, f"segments must be an integer >= 1, got {segments!r}")
+    if tolerance is not None and segments is not None:
+        raise UsdCurveError(path, "give tolerance or segments, not both")
+    if tolerance is not None and not (isinstance(tolerance, numbers.Real) and not isinstance(tolerance, bool)
+                                      and math.isfinite(tolerance) and tolerance > 0):
+        raise UsdCurveError(path, f"tolerance must be a positive number (a fraction of the radius), got {tolerance!r}")
+    if segments is None and tolerance is None:
+        tolerance = DEFAULT_TOLERANCE
     real = isinstance(radius, numbers.Real) and not isinstance(radius, bool)
     if radius is not None and not (real and math.isfinite(radius) and radius > 0):
         raise UsdCurveError(path, f"radius must be a positive number, got {radius!r}")
@@ -102,7 +103,7 @@ def read_usd(path, *, prim=None, radius=None, segments=DEFAULT_SEGMENTS):
         if imageable.ComputeVisibility() == UsdGeom.Tokens.invisible or imageable.ComputePurpose() == UsdGeom.Tokens.guide:
             continue
         found += 1
-        strands.extend(_curves(path, UsdGeom.BasisCurves(node), Usd, UsdGeom, radius, segments))
+        strands.extend(_curves(path, UsdGeom.BasisCurves(node), Usd, UsdGeom, radius, tolerance, segments))
     if not found:
         under = "the stage" if prim is None else repr(prim)
         raise UsdCurveError(path, f"no (visible, non-guide) BasisCurves prim under {under}")
@@ -116,7 +117,7 @@ def _get(attribute, Usd):
     return attribute.Get(Usd.TimeCode.EarliestTime()) if attribute else None
 
 
-def _curves(path, curves, Usd, UsdGeom, radius, segments):
+def _curves(path, curves, Usd, UsdGeom, radius, tolerance, segments):
     name = str(curves.GetPath())
     fail = lambda problem: UsdCurveError(path, problem, name)  # noqa: E731
     points = _get(curves.GetPointsAttr(), Usd)
@@ -133,7 +134,7 @@ def _curves(path, curves, Usd, UsdGeom, radius, segments):
     kind = _get(curves.GetTypeAttr(), Usd) or "cubic"
     basis = _get(curves.GetBasisAttr(), Usd) or "bezier"
     wrap = _get(curves.GetWrapAttr(), Usd) or "nonperiodic"
-    if kind not in ("linear", "cubic") or basis not in BASIS_MATRICES or wrap not in ("nonperiodic", "periodic", "pinned"):
+    if kind not in ("linear", "cubic") or basis not in BASIS_MATRICES or wrap not in WRAPS:
         raise fail(f"unsupported curve type {kind!r} / basis {basis!r} / wrap {wrap!r}")
 
     matrix = np.array(UsdGeom.Xformable(curves.GetPrim()).ComputeLocalToWorldTransform(Usd.TimeCode.EarliestTime()),
@@ -188,12 +189,16 @@ def _curves(path, curves, Usd, UsdGeom, radius, segments):
                 w = widths[varying_start:varying_start + count]
                 w = np.concatenate([w, w[:1]]) if wrap == "periodic" else w
         else:
-            p, w = _tessellate(cv, cv_width, basis, wrap, segments)
+            count = spans[k] + (0 if wrap == "periodic" else 1)
+            ends = widths[varying_start:varying_start + count]
+            smallest = cv_width.min() if cv_width is not None else ends.min()
+            deviation = None if segments is not None else tolerance * 0.5 * scale * smallest
+            p, params, w = tessellate(cv, basis, wrap, max_deviation=deviation, segments=segments, values=cv_width)
             if w is None:
-                count = spans[k] + (0 if wrap == "periodic" else 1)
-                ends = widths[varying_start:varying_start + count]
                 ends = np.concatenate([ends, ends[:1]]) if wrap == "periodic" else ends
-                w = np.interp(np.arange(spans[k] * segments + 1) / segments, np.arange(len(ends)), ends)
+                w = np.interp(params, np.arange(len(ends)), ends)
+            else:
+                w = w[:, 0]
         varying_start += spans[k] + (0 if wrap == "periodic" else 1)
         yield p, 0.5 * scale * np.asarray(w)
 
@@ -201,42 +206,7 @@ def _curves(path, curves, Usd, UsdGeom, radius, segments):
 def _span_count(kind, basis, wrap, n):
     if kind == "linear":
         return n if wrap == "periodic" else n - 1
-    if wrap == "periodic":
-        return n // VSTEP[basis]
-    if wrap == "pinned" and basis != "bezier":
-        n += 2
-    return (n - 4) // VSTEP[basis] + 1 if n >= 4 else 0
-
-
-def _control_points(cv, basis, wrap):
-    """The control points the spans step over: periodic curves wrap around, pinned ones get phantom ends."""
-    if wrap == "periodic":
-        return np.concatenate([cv, cv[:4 - VSTEP[basis]]])
-    if wrap == "pinned" and basis != "bezier":
-        return np.concatenate([2 * cv[:1] - cv[1:2], cv, 2 * cv[-1:] - cv[-2:-1]])
-    return cv
-
-
-def _tessellate(cv, cv_width, basis, wrap, segments):
-    """(polyline points, widths or None) of one cubic curve: `segments` pieces per span."""
-    control = _control_points(cv, basis, wrap)
-    widths = None if cv_width is None else _control_points(cv_width[:, None], basis, wrap)
-    spans = _span_count("cubic", basis, wrap, len(cv))
-    t = np.arange(segments) / segments
-    weights = np.stack([t**3, t**2, t, np.ones_like(t)], axis=1) @ BASIS_MATRICES[basis]  # (segments, 4)
-    end = np.array([[1.0, 1.0, 1.0, 1.0]]) @ BASIS_MATRICES[basis]
-    step = VSTEP[basis]
-    points, radii = [], []
-    for span in range(spans):
-        window = slice(span * step, span * step + 4)
-        points.append(weights @ control[window])
-        if widths is not None:
-            radii.append(weights @ widths[window])
-    last = slice((spans - 1) * step, (spans - 1) * step + 4)
-    points.append(end @ control[last])
-    if widths is not None:
-        radii.append(end @ widths[last])
-    return np.concatenate(points), None if widths is None else np.concatenate(radii)[:, 0]
+    return span_count(basis, wrap, n)
 
 
 def write_usd(assembly, path, *, prim=WRITE_PRIM):
