@@ -14,7 +14,7 @@ packages. What the translation sets, and why (each one measured to matter, or Cy
   first hit (0 is direct lighting only), ours the scattering vertices (1 is direct lighting): ours − 1.
 - Film: a box pixel filter of width 1, the Standard view transform (the EXR holds scene-linear radiance).
 - Lights: a sun's strength is the irradiance on a surface facing it; the world colour × strength is the sky's
-  radiance. Orthographic and perspective cameras.
+  radiance. Orthographic and perspective cameras. The backing card as a large diffuse square.
 """
 
 from __future__ import annotations
@@ -105,6 +105,32 @@ def _lights(bpy, scene, lights):
             raise ValueError("the Cycles comparison does not translate environment maps")
 
 
+def _card(bpy, scene, fibers):
+    """The backing card (warp_hair.geometry.card: a plane facing the camera behind the fibers, Lambertian on both
+    sides) as a square mesh 10⁴ units across with a Diffuse BSDF of the card's albedo."""
+    from warp_hair.geometry.card import card_data
+
+    points = np.asarray(fibers.points, dtype=np.float64)
+    card = card_data(scene.card, scene.camera, (points.min(axis=0), points.max(axis=0)))
+    point, normal = np.array(card.point, dtype=np.float64), np.array(card.normal, dtype=np.float64)
+    u = np.asarray(_any_perpendicular(normal), dtype=np.float64)
+    u /= np.linalg.norm(u)
+    v = np.cross(normal, u)
+    half = 5e3
+    corners = [tuple(point + half * (a * u + b * v)) for a, b in ((-1, -1), (1, -1), (1, 1), (-1, 1))]
+    mesh = bpy.data.meshes.new("card")
+    mesh.from_pydata(corners, [], [(0, 1, 2, 3)])
+    material = bpy.data.materials.new("card")
+    material.use_nodes = True
+    bsdf = material.node_tree.nodes.new("ShaderNodeBsdfDiffuse")
+    bsdf.inputs["Color"].default_value = (*[float(c) for c in scene.card.albedo], 1.0)
+    output = material.node_tree.nodes.get("Material Output") or material.node_tree.nodes.new("ShaderNodeOutputMaterial")
+    material.node_tree.links.new(bsdf.outputs["BSDF"], output.inputs["Surface"])
+    mesh.materials.append(material)
+    obj = bpy.data.objects.new("card", mesh)
+    bpy.context.scene.collection.objects.link(obj)
+
+
 def _any_perpendicular(d):
     helper = np.array([0.0, 1.0, 0.0]) if abs(d[1]) < 0.9 * np.linalg.norm(d) else np.array([1.0, 0.0, 0.0])
     return tuple(np.cross(np.cross(d, helper), d))
@@ -167,8 +193,6 @@ def _settings(scene, spp, max_depth, seed, threads):
 
 def render_cycles(bpy, scene, spp, threads=None, seed=0, fibers=None):
     """The warp-hair `scene` (its fibers, or `fibers`) rendered by Cycles: float32 (H, W, 3), row 0 on top."""
-    if scene.card is not None:
-        raise ValueError("the Cycles comparison does not translate the backing card")
     fibers = scene.fibers if fibers is None else fibers
     blender = _reset(bpy)
     _settings(blender, spp, scene.render.max_depth, seed, threads)
@@ -176,6 +200,8 @@ def render_cycles(bpy, scene, spp, threads=None, seed=0, fibers=None):
     _lights(bpy, blender, scene.lights)
     with tempfile.TemporaryDirectory() as tmp:
         _fibers(bpy, fibers, _material(bpy, scene.hair, tmp))
+        if scene.card is not None:
+            _card(bpy, scene, fibers)
         path = Path(tmp) / "cycles.exr"
         blender.render.filepath = str(path)
         bpy.ops.render.render(write_still=True)

@@ -55,8 +55,8 @@ SAMPLERS = ("stock", "corrected")
 
 def mitsuba_scene(mi, scene, spp, shape="linearcurve", fibers_file=None, sampler="stock"):
     """The warp-hair `scene` as a Mitsuba 3 scene. Only what the comparison needs is translated: an
-    orthographic or perspective camera, directional lights, a constant environment, fibers from a file
-    (`fibers_file`, default the scene's) as `shape`, the hair as warp_hair.export.mitsuba writes it, sampled
+    orthographic or perspective camera, directional lights, a constant environment, the backing card, fibers
+    from a file (`fibers_file`, default the scene's) as `shape`, the hair as warp_hair.export.mitsuba writes it, sampled
     by Mitsuba's own `hair` (`sampler="stock"`) or with its residual lobe corrected (`"corrected"`)."""
     from warp_hair.export.mitsuba import bsdf_dict
 
@@ -77,8 +77,8 @@ def mitsuba_scene(mi, scene, spp, shape="linearcurve", fibers_file=None, sampler
     sensor["sampler"] = {"type": "independent", "sample_count": spp}
 
     fibers_file = fibers_file or scene.source["fibers"].get("file")  # absolute: the loader resolved it
-    if fibers_file is None or scene.card is not None:
-        raise ValueError("the Mitsuba comparison needs fibers from a file (linearcurve) and no backing card")
+    if fibers_file is None:
+        raise ValueError("the Mitsuba comparison needs fibers from a file (`fibers_file`, or the scene's)")
     hair = scene.hair
     if hair.r_roughness_scale != 1.0:
         raise ValueError("Mitsuba's hair BSDF has no R-roughness scale; set r_roughness_scale = 1")
@@ -94,6 +94,8 @@ def mitsuba_scene(mi, scene, spp, shape="linearcurve", fibers_file=None, sampler
         "integrator": {"type": "path", "max_depth": scene.render.max_depth + 1, "rr_depth": scene.render.rr_depth},
         "fibers": {"type": shape, "filename": str(fibers_file), "bsdf": bsdf},
     }
+    if scene.card is not None:
+        result["card"] = _card(mi, scene)
     for k, light in enumerate(scene.lights):
         if isinstance(light, DirectionalLight):
             # Both take the direction the light travels, and the irradiance on a surface facing the light.
@@ -104,6 +106,21 @@ def mitsuba_scene(mi, scene, spp, shape="linearcurve", fibers_file=None, sampler
         else:
             raise ValueError("the Mitsuba comparison does not translate environment maps")
     return mi.load_dict(result)
+
+
+def _card(mi, scene):
+    """The backing card (warp_hair.geometry.card: a plane facing the camera behind the fibers, two-sided
+    Lambertian) as a two-sided diffuse `rectangle` 10⁴ scene units across, at the same plane."""
+    from warp_hair.geometry.card import card_data
+
+    points = np.asarray(scene.fibers.points, dtype=np.float64)
+    card = card_data(scene.card, scene.camera, (points.min(axis=0), points.max(axis=0)))
+    point, normal = np.array(card.point, dtype=np.float64), np.array(card.normal, dtype=np.float64)
+    up = np.array([0.0, 1.0, 0.0]) if abs(normal[1]) < 0.9 else np.array([1.0, 0.0, 0.0])
+    T = mi.ScalarTransform4f
+    to_world = T().look_at(origin=point, target=point + normal, up=up) @ T().scale([5e3, 5e3, 1.0])
+    diffuse = {"type": "diffuse", "reflectance": {"type": "rgb", "value": list(scene.card.albedo)}}
+    return {"type": "rectangle", "to_world": to_world, "bsdf": {"type": "twosided", "bsdf": diffuse}}
 
 
 def time_mitsuba(mi, mi_scene, spp, seed, threads, repeat):

@@ -54,6 +54,7 @@ def grid(along):
 
 
 def mean_and_error(x):
+    x = np.asarray(x, dtype=np.float64)  # float32 sums of millions of samples drift by tenths of a percent
     return x.mean(axis=0), x.std(axis=0) / np.sqrt(len(x))
 
 

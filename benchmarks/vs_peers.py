@@ -1,7 +1,7 @@
 """Benchmark: warp-hair against Mitsuba 3 on draped, non-overlapping swatches, front- and back-lit.
 
     python benchmarks/vs_peers.py [--spp 256] [--resolution 64] [--segments 24] [--max-depth 100]
-                                  [--lightings front,back] [--threads N] [--out DIR]
+                                  [--lightings front,back] [--albedo R G B] [--threads N] [--out DIR]
     python benchmarks/vs_peers.py --alpha 5      # the cuticle tilt's sign against Cycles instead
 
 The swatch is made here (`warp_hair.geometry.swatch` with `drape`): 4 layers of 38 straight fibers of radius
@@ -78,7 +78,7 @@ def draped_swatch(segments):
     return swatch(count=152, layers=4, length=0.5, radius=0.004, width=0.4, segments=segments, drape=0.25, seed=0)
 
 
-def scene_data(resolution, light_direction, spp, tangents="smooth", max_depth=100):
+def scene_data(resolution, light_direction, spp, tangents="smooth", max_depth=100, albedo=None):
     return {
         "camera": {"type": "orthographic", "origin": [0.0, 0.0, 3.0], "target": [0.0, 0.0, -0.05],
                    "up": [0.0, 1.0, 0.0], "width": 0.36, "resolution": [resolution, resolution]},
@@ -88,7 +88,7 @@ def scene_data(resolution, light_direction, spp, tangents="smooth", max_depth=10
         ],
         # Replaced by the draped swatch below; the table only has to be valid.
         "fibers": {"generator": "swatch", "count": 1, "layers": 1},
-        "hair": HAIR,
+        "hair": HAIR if albedo is None else {**HAIR, "albedo": list(albedo)},
         "render": {"spp": spp, "max_depth": max_depth, "seed": 0, "tangents": tangents},
     }
 
@@ -137,6 +137,8 @@ def main(argv=None):
     parser.add_argument("--segments", type=int, default=24, help="segments per strand (default 24)")
     parser.add_argument("--max-depth", type=int, default=100, help="scattering vertices a path may have")
     parser.add_argument("--lightings", default="front,back", help="comma-separated: front, back")
+    parser.add_argument("--albedo", type=float, nargs=3, metavar=("R", "G", "B"),
+                        help=f"the hair's albedo (default {HAIR['albedo']}, light brown)")
     parser.add_argument("--threads", type=int, default=None)
     parser.add_argument("--alpha", type=float, help="check the tilt's sign at this alpha (degrees) against Cycles")
     parser.add_argument("--out", type=Path, default=HERE / "out" / "vs_peers")
@@ -158,7 +160,8 @@ def main(argv=None):
             images = {}
             for shape in ("smooth", "segment", "catmull-rom"):  # the polyline's two tangents, or the curve
                 scene = scene_from_dict(scene_data(args.resolution, direction, args.spp,
-                                                   "segment" if shape == "segment" else "smooth", args.max_depth))
+                                                   "segment" if shape == "segment" else "smooth", args.max_depth,
+                                                   args.albedo))
                 scene.fibers = catmull_rom(fibers) if shape == "catmull-rom" else fibers
                 start = time.perf_counter()
                 images[shape] = render(scene, threads=threads)

@@ -87,6 +87,10 @@ def test_cubic_curves_are_traced_within_the_tolerance(tmp_path, basis):
         assert distance_to_polyline(dense_curve(cv, basis), points.astype(np.float64)).max() <= allowed * 1.01
     with pytest.raises(UsdCurveError, match="give tolerance or segments, not both"):
         read_usd(path, tolerance=0.01, segments=4)
+    with pytest.raises(UsdCurveError, match=r"/Groom/hair: curve 0: a curve span would need \d+ straight pieces"):
+        read_usd(path, tolerance=1e-12)
+    with pytest.raises(UsdCurveError, match="tolerance must be a positive number"):
+        read_usd(path, tolerance=-0.01)
 
 
 def test_pinned_curves_end_on_their_end_points(tmp_path):

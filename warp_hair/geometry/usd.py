@@ -193,7 +193,11 @@ def _curves(path, curves, Usd, UsdGeom, radius, tolerance, segments):
             ends = widths[varying_start:varying_start + count]
             smallest = cv_width.min() if cv_width is not None else ends.min()
             deviation = None if segments is not None else tolerance * 0.5 * scale * smallest
-            p, params, w = tessellate(cv, basis, wrap, max_deviation=deviation, segments=segments, values=cv_width)
+            try:
+                p, params, w = tessellate(cv, basis, wrap, max_deviation=deviation, segments=segments,
+                                          values=cv_width)
+            except ValueError as error:  # a span that would need more pieces than a span may have
+                raise fail(f"curve {k}: {error}") from None
             if w is None:
                 ends = np.concatenate([ends, ends[:1]]) if wrap == "periodic" else ends
                 w = np.interp(params, np.arange(len(ends)), ends)
