@@ -33,7 +33,9 @@ Catmull-Rom curves through the vertices (benchmarks/cycles_peer.py lists its set
 For each pair of images it prints the channel means and their ratio, and the RMS relative difference of
 8×8-pixel block means against the noise level: the same statistic between two warp-hair renders with
 independent seeds (what two renderers that agree exactly would show at this spp, if their noise were alike).
-Writes EXRs and `side_by_side_{peer}_{lighting}.png` (ours | peer | 5× block difference about grey) to --out.
+Writes EXRs and `side_by_side_{peer}_{lighting}.png` (ours as the polyline | ours as the Catmull-Rom curve | peer,
+all at one exposure | each of ours minus the peer in 8×8 blocks, over the peer's mean: mid grey is no
+difference, lighter is ours brighter, ±10% is ±0.2 in linear value) to --out.
 Mitsuba needs the `bench` extra (`pip install -e ".[bench]"`) and libLLVM (`apt-get install libllvm19`). A peer
 that is not installed is skipped, with the reason.
 
@@ -193,11 +195,15 @@ def main(argv=None):
                     print(f"[{lighting}] warp-hair ({shape}) / {peer}: means {fmt(ours.mean(axis=(0, 1)))} / "
                           f"{fmt(mean_theirs)} = {fmt(ratio)}; block RMSE {block_rmse(ours, theirs):.2%} "
                           f"(noise level {noise:.2%})")
-                ours = images["smooth"]
-                diff = np.kron(blocks(ours) - blocks(theirs), np.ones((BLOCK, BLOCK, 1)))
-                diff = np.pad(diff, ((0, ours.shape[0] - diff.shape[0]), (0, ours.shape[1] - diff.shape[1]), (0, 0)))
-                write_png(args.out / f"side_by_side_{tag}_{lighting}.png",
-                          np.concatenate([ours, theirs, 0.2 + 5.0 * diff], axis=1))
+                exposure = 0.8 / float(np.percentile(theirs, 99.5))  # the peer's brightest pixels near white
+                panels = [exposure * images["smooth"], exposure * images["catmull-rom"], exposure * theirs]
+                for ours in (images["smooth"], images["catmull-rom"]):
+                    # the blocks' difference relative to the peer's mean: mid grey is none, ±10% is ±0.2
+                    diff = np.kron((blocks(ours) - blocks(theirs)) / theirs.mean(), np.ones((BLOCK, BLOCK, 1)))
+                    pad = ((0, ours.shape[0] - diff.shape[0]), (0, ours.shape[1] - diff.shape[1]), (0, 0))
+                    panels.append(0.21 + 2.0 * np.pad(diff, pad, constant_values=0.0))
+                image = np.concatenate(panels, axis=1)
+                write_png(args.out / f"side_by_side_{tag}_{lighting}.png", np.kron(image, np.ones((2, 2, 1))))
     print(f"images in {args.out}")
 
 
