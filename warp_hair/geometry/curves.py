@@ -62,15 +62,37 @@ def control_points(cv, basis, wrap):
     return cv
 
 
-def span_pieces(window, basis, max_deviation):
-    """The fewest equal parameter steps whose chords stay within `max_deviation` of this span (module doc)."""
-    second = _SECOND_DERIVATIVE_ENDS @ BASIS_MATRICES[basis] @ window
-    largest = float(np.max(np.linalg.norm(second, axis=1)))
-    pieces = math.ceil(math.sqrt(largest / (8.0 * max_deviation))) if largest > 0.0 else 1
-    if pieces > MAX_PIECES_PER_SPAN:
-        raise ValueError(f"a curve span would need {pieces} straight pieces to stay within {max_deviation:g} of "
-                         f"the curve (at most {MAX_PIECES_PER_SPAN}): raise the tolerance")
-    return max(1, pieces)
+def span_pieces(windows, basis, max_deviation):
+    """(S,) the fewest equal parameter steps whose chords keep each span within `max_deviation` (a distance, one
+    or (S,)) of the curve; `windows` (S, 4, 3) are the spans' control points (module docstring for the bound)."""
+    second = np.einsum("ij,jk,skd->sid", _SECOND_DERIVATIVE_ENDS, BASIS_MATRICES[basis], windows)
+    largest = np.linalg.norm(second, axis=2).max(axis=1)
+    pieces = np.maximum(1.0, np.ceil(np.sqrt(largest / (8.0 * np.asarray(max_deviation, dtype=np.float64)))))
+    worst = int(np.argmax(pieces))
+    if pieces[worst] > MAX_PIECES_PER_SPAN:
+        deviation = np.broadcast_to(max_deviation, pieces.shape)[worst]
+        raise ValueError(f"a curve span would need {pieces[worst]:.0f} straight pieces to stay within {deviation:g} "
+                         f"of the curve (at most {MAX_PIECES_PER_SPAN}): raise the tolerance")
+    return pieces.astype(np.int64)
+
+
+def _evaluate(windows, basis, pieces, closes, values=None):
+    """The spans' points at t = 0, 1/n, …, (n − 1)/n, and t = 1 too where `closes` (a curve's last span):
+    (points (N, 3), span of each point (N,), t (N,), values (N, k) or None), spans in order."""
+    counts = pieces + closes
+    span = np.repeat(np.arange(len(windows)), counts)
+    first = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    t = (np.arange(len(span)) - first[span]) / pieces[span]
+    weights = np.stack([t**3, t**2, t, np.ones_like(t)], axis=1) @ BASIS_MATRICES[basis]  # (N, 4)
+    points = np.einsum("nj,njd->nd", weights, windows[span])
+    evaluated = None if values is None else np.einsum("nj,njd->nd", weights, values[span])
+    return points, span, t, evaluated
+
+
+def _windows(control, spans, step):
+    """(spans, 4, ...) the control points of each span."""
+    index = np.arange(spans)[:, None] * step + np.arange(4)[None, :]
+    return control[index]
 
 
 def tessellate(cv, basis, wrap, *, max_deviation=None, segments=None, values=None):
@@ -84,42 +106,44 @@ def tessellate(cv, basis, wrap, *, max_deviation=None, segments=None, values=Non
     if basis not in BASIS_MATRICES or wrap not in WRAPS:
         raise ValueError(f"unsupported basis {basis!r} / wrap {wrap!r}")
     cv = np.asarray(cv, dtype=np.float64)
-    control = control_points(cv, basis, wrap)
-    extra = None if values is None else control_points(np.asarray(values, dtype=np.float64).reshape(len(cv), -1),
-                                                       basis, wrap)
     spans = span_count(basis, wrap, len(cv))
     if spans < 1:
         raise ValueError(f"{len(cv)} control points are too few for a {wrap} {basis} curve")
-    step = VSTEP[basis]
-    points, params, evaluated = [], [], []
-    for span in range(spans):
-        window = slice(span * step, span * step + 4)
-        pieces = segments if segments is not None else span_pieces(control[window], basis, max_deviation)
-        last = span == spans - 1
-        t = np.arange(pieces + last) / pieces  # the last span keeps its end point
-        weights = np.stack([t**3, t**2, t, np.ones_like(t)], axis=1) @ BASIS_MATRICES[basis]
-        points.append(weights @ control[window])
-        params.append(span + t)
-        if extra is not None:
-            evaluated.append(weights @ extra[window])
-    return (np.concatenate(points), np.concatenate(params),
-            None if extra is None else np.concatenate(evaluated))
+    windows = _windows(control_points(cv, basis, wrap), spans, VSTEP[basis])
+    extra = None
+    if values is not None:
+        extra = _windows(control_points(np.asarray(values, dtype=np.float64).reshape(len(cv), -1), basis, wrap),
+                         spans, VSTEP[basis])
+    pieces = (np.full(spans, segments, dtype=np.int64) if segments is not None
+              else span_pieces(windows, basis, max_deviation))
+    closes = (np.arange(spans) == spans - 1).astype(np.int64)  # the last span keeps its end point
+    points, span, t, evaluated = _evaluate(windows, basis, pieces, closes, extra)
+    return points, span + t, evaluated
 
 
 def catmull_rom(fibers, tolerance=DEFAULT_TOLERANCE):
     """`fibers` with each strand replaced by the Catmull-Rom curve through its vertices (end vertices repeated,
     as Cycles draws them), tessellated to within `tolerance` × the strand's smallest radius; radii follow the
-    same curve. A strand of two vertices stays the straight segment it is."""
+    same curve. A strand of two vertices stays the straight segment it is. All strands at once: a groom of a
+    million vertices takes seconds."""
     from .assembly import FiberAssembly
 
-    if not (isinstance(tolerance, (int, float)) and math.isfinite(tolerance) and tolerance > 0):
+    if not (isinstance(tolerance, (int, float)) and not isinstance(tolerance, bool) and math.isfinite(tolerance)
+            and tolerance > 0):
         raise ValueError(f"tolerance must be a positive number (a fraction of the fiber radius), got {tolerance!r}")
-    strands = []
-    for k in range(fibers.num_strands):
-        points, radii = fibers.strand(k)
-        cv = np.concatenate([points[:1], points, points[-1:]])
-        cr = np.concatenate([radii[:1], radii, radii[-1:]])
-        p, _, r = tessellate(cv, "catmullRom", "nonperiodic", max_deviation=tolerance * float(radii.min()),
-                             values=cr)
-        strands.append((p, r[:, 0]))
-    return FiberAssembly.from_strands(strands)
+    offsets = np.asarray(fibers.strand_offsets, dtype=np.int64)
+    counts = np.diff(offsets)
+    points = np.asarray(fibers.points, dtype=np.float64)
+    radii = np.asarray(fibers.radii, dtype=np.float64)
+    # Span j of a strand runs from its vertex j to j + 1, with vertices j − 1 and j + 2 as the outer control
+    # points, clamped to the strand: the end vertices repeated.
+    strand = np.repeat(np.arange(len(counts)), counts - 1)
+    j = np.arange(len(strand)) - np.concatenate([[0], np.cumsum(counts - 1)[:-1]])[strand]
+    last = (counts[strand] - 1)[:, None]
+    index = offsets[strand][:, None] + np.clip(j[:, None] + np.arange(-1, 3)[None, :], 0, last)
+    smallest = np.minimum.reduceat(radii, offsets[:-1])
+    pieces = span_pieces(points[index], "catmullRom", tolerance * smallest[strand])
+    closes = (j == counts[strand] - 2).astype(np.int64)
+    new_points, _, _, new_radii = _evaluate(points[index], "catmullRom", pieces, closes, radii[index][..., None])
+    per_strand = np.bincount(strand, weights=pieces + closes, minlength=len(counts)).astype(np.int64)
+    return FiberAssembly(new_points, new_radii[:, 0], np.concatenate([[0], np.cumsum(per_strand)]))
