@@ -105,12 +105,18 @@ def cycles_block_renderer(args, seeds=4):
 
     def render_block(scene, mask, seed):
         threads = args.threads or default_threads()
-        means = [render_cycles(bpy, scene, args.spp, threads=threads, seed=s).astype(np.float64).sum(axis=-1)[mask].mean()
-                 for s in range(seed * seeds, (seed + 1) * seeds)]
-        means = np.array(means) / np.sum(white_radiance(scene))
-        return float(means.mean()), float(means.std(ddof=1) / np.sqrt(len(means)))
+        return seed_average(lambda s: render_cycles(bpy, scene, args.spp, threads=threads, seed=s), scene, mask,
+                            range(seed * seeds, (seed + 1) * seeds))
 
     return render_block
+
+
+def seed_average(render_seed, scene, mask, seeds):
+    """(albedo, standard error) over renders `render_seed(s)` for s in `seeds`: each render's mean over `mask`
+    (channels summed) over the white card's, and the spread of those means."""
+    white = np.sum(white_radiance(scene))
+    means = np.array([render_seed(s).astype(np.float64).sum(axis=-1)[mask].mean() for s in seeds]) / white
+    return float(means.mean()), float(means.std(ddof=1) / np.sqrt(len(means)))
 
 
 def mitsuba_block_renderer(args):
@@ -130,12 +136,9 @@ def mitsuba_block_renderer(args):
             save_fibers(scene.fibers, files[scene.fibers.num_strands])
         mi_scene = mitsuba_scene(mi, scene, args.spp, shape="linearcurve",
                                  fibers_file=files[scene.fibers.num_strands], sampler=sampler)
-        seeds = range(seed * args.mitsuba_seeds, (seed + 1) * args.mitsuba_seeds)
         threads = args.threads or default_threads()
-        means = [time_mitsuba(mi, mi_scene, args.spp, s, threads, 1)[2].astype(np.float64).sum(axis=-1)[mask].mean()
-                 for s in seeds]
-        means = np.array(means) / np.sum(white_radiance(scene))
-        return float(means.mean()), float(means.std(ddof=1) / np.sqrt(len(means)))
+        return seed_average(lambda s: time_mitsuba(mi, mi_scene, args.spp, s, threads, 1)[2], scene, mask,
+                            range(seed * args.mitsuba_seeds, (seed + 1) * args.mitsuba_seeds))
 
     return render_block
 

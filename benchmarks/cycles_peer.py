@@ -108,11 +108,10 @@ def _lights(bpy, scene, lights):
 def _card(bpy, scene, fibers):
     """The backing card (warp_hair.geometry.card: a plane facing the camera behind the fibers, Lambertian on both
     sides) as a square mesh 10⁴ units across with a Diffuse BSDF of the card's albedo."""
-    from warp_hair.geometry.card import card_data
+    from warp_hair.geometry.card import card_plane
 
     points = np.asarray(fibers.points, dtype=np.float64)
-    card = card_data(scene.card, scene.camera, (points.min(axis=0), points.max(axis=0)))
-    point, normal = np.array(card.point, dtype=np.float64), np.array(card.normal, dtype=np.float64)
+    point, normal = card_plane(scene.card, scene.camera, (points.min(axis=0), points.max(axis=0)))
     u = np.asarray(_any_perpendicular(normal), dtype=np.float64)
     u /= np.linalg.norm(u)
     v = np.cross(normal, u)

@@ -111,11 +111,10 @@ def mitsuba_scene(mi, scene, spp, shape="linearcurve", fibers_file=None, sampler
 def _card(mi, scene):
     """The backing card (warp_hair.geometry.card: a plane facing the camera behind the fibers, two-sided
     Lambertian) as a two-sided diffuse `rectangle` 10⁴ scene units across, at the same plane."""
-    from warp_hair.geometry.card import card_data
+    from warp_hair.geometry.card import card_plane
 
     points = np.asarray(scene.fibers.points, dtype=np.float64)
-    card = card_data(scene.card, scene.camera, (points.min(axis=0), points.max(axis=0)))
-    point, normal = np.array(card.point, dtype=np.float64), np.array(card.normal, dtype=np.float64)
+    point, normal = card_plane(scene.card, scene.camera, (points.min(axis=0), points.max(axis=0)))
     up = np.array([0.0, 1.0, 0.0]) if abs(normal[1]) < 0.9 else np.array([1.0, 0.0, 0.0])
     T = mi.ScalarTransform4f
     to_world = T().look_at(origin=point, target=point + normal, up=up) @ T().scale([5e3, 5e3, 1.0])
@@ -153,16 +152,16 @@ def bspline_control_points(fibers):
     return FiberAssembly.from_strands(strands)
 
 
+_CORRECTED_HAIR = "warp_hair_corrected_hair"
+_REGISTERED = set()
+
+
 def corrected_hair(mi, hair_dict):
     """A `load_dict` entry for `CorrectedHair` around Mitsuba's `hair` BSDF given by `hair_dict`."""
-    name = "warp_hair_corrected_hair"
-    if name not in _REGISTERED:
-        mi.register_bsdf(name, lambda props: _corrected_hair_class(mi)(props))
-        _REGISTERED.add(name)
-    return {"type": name, "hair": hair_dict}
-
-
-_REGISTERED = set()
+    if _CORRECTED_HAIR not in _REGISTERED:
+        mi.register_bsdf(_CORRECTED_HAIR, _corrected_hair_class(mi))
+        _REGISTERED.add(_CORRECTED_HAIR)
+    return {"type": _CORRECTED_HAIR, "hair": hair_dict}
 
 
 def _corrected_hair_class(mi):

@@ -433,8 +433,7 @@ def _as_curve(fibers, options, prefix):
     if kind == "polyline":
         return fibers
     try:
-        tolerance = validate.real("tolerance", options.get("tolerance", DEFAULT_TOLERANCE))
-        return catmull_rom(fibers, tolerance)
+        return catmull_rom(fibers, options.get("tolerance", DEFAULT_TOLERANCE))
     except ValueError as error:
         raise ValueError(f"{prefix} {error}") from None
 

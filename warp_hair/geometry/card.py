@@ -18,6 +18,17 @@ class CardData:
     albedo: wp.vec3
 
 
+def card_plane(card, camera, fiber_bounds):
+    """(point, unit normal facing the camera), float64: the plane of `card` behind fibers with bounds (lo, hi)."""
+    origin = np.asarray(camera.origin, dtype=np.float64)
+    forward = np.asarray(camera.target, dtype=np.float64) - origin
+    forward /= np.linalg.norm(forward)
+    lo, hi = (np.asarray(b, dtype=np.float64) for b in fiber_bounds)
+    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+    depth = np.max((corners - origin) @ forward) + card.distance
+    return origin + depth * forward, -forward
+
+
 def card_data(card, camera, fiber_bounds) -> CardData:
     """The card of a scene (None: disabled) behind fibers with bounds (lo, hi), as the kernels need it."""
     data = CardData()
@@ -27,15 +38,10 @@ def card_data(card, camera, fiber_bounds) -> CardData:
     data.albedo = wp.vec3(0.0, 0.0, 0.0)
     if card is None:
         return data
-    origin = np.asarray(camera.origin, dtype=np.float64)
-    forward = np.asarray(camera.target, dtype=np.float64) - origin
-    forward /= np.linalg.norm(forward)
-    lo, hi = (np.asarray(b, dtype=np.float64) for b in fiber_bounds)
-    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
-    depth = np.max((corners - origin) @ forward) + card.distance
+    point, normal = card_plane(card, camera, fiber_bounds)
     data.enabled = 1
-    data.point = wp.vec3(*(origin + depth * forward))
-    data.normal = wp.vec3(*(-forward))
+    data.point = wp.vec3(*point)
+    data.normal = wp.vec3(*normal)
     data.albedo = wp.vec3(*card.albedo)
     return data
 

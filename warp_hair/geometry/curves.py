@@ -23,9 +23,9 @@ warp-hair and Cycles render the same curve through a groom's vertices.
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
+
+from .. import validate
 
 # P(t) = [t³ t² t 1] · M · [P0 P1 P2 P3]ᵀ for one span (UsdGeom.BasisCurves schema, "Cubic Basis").
 BASIS_MATRICES = {
@@ -62,6 +62,14 @@ def control_points(cv, basis, wrap):
     return cv
 
 
+def check_tolerance(tolerance):
+    """`tolerance` as a float (a fraction of the fiber radius), or a ValueError naming it."""
+    value = validate.real("tolerance", tolerance)
+    if not value > 0:
+        raise ValueError(f"tolerance must be a positive number (a fraction of the fiber radius), got {tolerance!r}")
+    return value
+
+
 def span_pieces(windows, basis, max_deviation):
     """(S,) the fewest equal parameter steps whose chords keep each span within `max_deviation` (a distance, one
     or (S,)) of the curve; `windows` (S, 4, 3) are the spans' control points (module docstring for the bound)."""
@@ -78,7 +86,7 @@ def span_pieces(windows, basis, max_deviation):
 
 def _evaluate(windows, basis, pieces, closes, values=None):
     """The spans' points at t = 0, 1/n, …, (n − 1)/n, and t = 1 too where `closes` (a curve's last span):
-    (points (N, 3), span of each point (N,), t (N,), values (N, k) or None), spans in order."""
+    (points (N, 3), params (N,) = span index + t, values (N, k) or None), spans in order."""
     counts = pieces + closes
     span = np.repeat(np.arange(len(windows)), counts)
     first = np.concatenate([[0], np.cumsum(counts)[:-1]])
@@ -86,7 +94,7 @@ def _evaluate(windows, basis, pieces, closes, values=None):
     weights = np.stack([t**3, t**2, t, np.ones_like(t)], axis=1) @ BASIS_MATRICES[basis]  # (N, 4)
     points = np.einsum("nj,njd->nd", weights, windows[span])
     evaluated = None if values is None else np.einsum("nj,njd->nd", weights, values[span])
-    return points, span, t, evaluated
+    return points, span + t, evaluated
 
 
 def _windows(control, spans, step):
@@ -117,8 +125,7 @@ def tessellate(cv, basis, wrap, *, max_deviation=None, segments=None, values=Non
     pieces = (np.full(spans, segments, dtype=np.int64) if segments is not None
               else span_pieces(windows, basis, max_deviation))
     closes = (np.arange(spans) == spans - 1).astype(np.int64)  # the last span keeps its end point
-    points, span, t, evaluated = _evaluate(windows, basis, pieces, closes, extra)
-    return points, span + t, evaluated
+    return _evaluate(windows, basis, pieces, closes, extra)
 
 
 def catmull_rom(fibers, tolerance=DEFAULT_TOLERANCE):
@@ -128,9 +135,7 @@ def catmull_rom(fibers, tolerance=DEFAULT_TOLERANCE):
     million vertices takes seconds."""
     from .assembly import FiberAssembly
 
-    if not (isinstance(tolerance, (int, float)) and not isinstance(tolerance, bool) and math.isfinite(tolerance)
-            and tolerance > 0):
-        raise ValueError(f"tolerance must be a positive number (a fraction of the fiber radius), got {tolerance!r}")
+    tolerance = check_tolerance(tolerance)
     offsets = np.asarray(fibers.strand_offsets, dtype=np.int64)
     counts = np.diff(offsets)
     points = np.asarray(fibers.points, dtype=np.float64)
@@ -144,6 +149,6 @@ def catmull_rom(fibers, tolerance=DEFAULT_TOLERANCE):
     smallest = np.minimum.reduceat(radii, offsets[:-1])
     pieces = span_pieces(points[index], "catmullRom", tolerance * smallest[strand])
     closes = (j == counts[strand] - 2).astype(np.int64)
-    new_points, _, _, new_radii = _evaluate(points[index], "catmullRom", pieces, closes, radii[index][..., None])
+    new_points, _, new_radii = _evaluate(points[index], "catmullRom", pieces, closes, radii[index][..., None])
     per_strand = np.bincount(strand, weights=pieces + closes, minlength=len(counts)).astype(np.int64)
     return FiberAssembly(new_points, new_radii[:, 0], np.concatenate([[0], np.cumsum(per_strand)]))

@@ -39,7 +39,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .curves import BASIS_MATRICES, DEFAULT_TOLERANCE, WRAPS, span_count, tessellate
+from .curves import BASIS_MATRICES, DEFAULT_TOLERANCE, WRAPS, check_tolerance, span_count, tessellate
 
 SUFFIXES = (".usd", ".usda", ".usdc")
 WRITE_PRIM = "/Groom/hair"
@@ -72,11 +72,11 @@ def read_usd(path, *, prim=None, radius=None, tolerance=None, segments=None):
         raise UsdCurveError(path, f"segments must be an integer >= 1, got {segments!r}")
     if tolerance is not None and segments is not None:
         raise UsdCurveError(path, "give tolerance or segments, not both")
-    if tolerance is not None and not (isinstance(tolerance, numbers.Real) and not isinstance(tolerance, bool)
-                                      and math.isfinite(tolerance) and tolerance > 0):
-        raise UsdCurveError(path, f"tolerance must be a positive number (a fraction of the radius), got {tolerance!r}")
-    if segments is None and tolerance is None:
-        tolerance = DEFAULT_TOLERANCE
+    if segments is None:
+        try:
+            tolerance = check_tolerance(DEFAULT_TOLERANCE if tolerance is None else tolerance)
+        except ValueError as error:
+            raise UsdCurveError(path, str(error)) from None
     real = isinstance(radius, numbers.Real) and not isinstance(radius, bool)
     if radius is not None and not (real and math.isfinite(radius) and radius > 0):
         raise UsdCurveError(path, f"radius must be a positive number, got {radius!r}")
