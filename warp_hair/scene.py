@@ -26,6 +26,7 @@ from . import validate
 from .geometry.assembly import FiberAssembly
 from .geometry.curves import DEFAULT_TOLERANCE, catmull_rom
 from .geometry.formats import load_fibers
+from .geometry.interpenetration import warn_interpenetration
 from .geometry.usd import SUFFIXES as USD_SUFFIXES
 from .controls import CONTROL_NAMES
 from .io import read_exr, read_text
@@ -239,6 +240,10 @@ class Card:
 
 
 TANGENT_MODES = ("smooth", "segment")
+# What a ray sees of a tube it starts inside (warp_hair.geometry.intersect; docs/scenes.md, "Interpenetrating
+# strands"): "enter" only the hits where a ray enters a tube (as Mitsuba 3 renders), "exit" also where it leaves
+# another strand's tube, skipping the whole strand it leaves (as Cycles 4.x renders on the CPU).
+INTERPENETRATION_RULES = ("enter", "exit")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -246,13 +251,16 @@ class RenderSettings:
     """Samples per pixel, the longest path (bounces), the seed, the bounce after which Russian roulette
     may end paths, and the fibers' shading tangents: "smooth" (turning continuously along each strand, as the
     curve through its vertices does) or "segment" (each segment's own axis, the polyline's frame with its steps
-    at the joints; `warp_hair.geometry.intersect` explains both)."""
+    at the joints; `warp_hair.geometry.intersect` explains both), and what a ray sees of a tube it starts inside,
+    which matters only where strands interpenetrate: "enter" (only entering hits) or "exit" (also exits, as
+    Cycles 4.x on the CPU; see INTERPENETRATION_RULES)."""
 
     spp: int = 64
     max_depth: int = 64
     seed: int = 0
     rr_depth: int = 8
     tangents: str = "smooth"
+    interpenetration: str = "enter"
 
     def __post_init__(self):
         _set(self, "spp", _integer("spp", self.spp, minimum=1))
@@ -261,6 +269,10 @@ class RenderSettings:
         _set(self, "seed", validate.seed("seed", self.seed))
         if self.tangents not in TANGENT_MODES:
             raise ValueError(f"tangents must be one of {list(TANGENT_MODES)}, got {self.tangents!r}")
+        if self.interpenetration not in INTERPENETRATION_RULES:
+            raise ValueError(
+                f"interpenetration must be one of {list(INTERPENETRATION_RULES)}, got {self.interpenetration!r}"
+            )
 
 
 @dataclass
@@ -321,9 +333,11 @@ def scene_from_dict(data: dict, base_dir=None, where: str = "scene") -> Scene:
 
 def check_scene(scene: Scene) -> None:
     """What the parts cannot check alone: float32 must resolve the fibers at the scene's extent, and the
-    renderer's buffers must fit in memory (see warp_hair.validate)."""
+    renderer's buffers must fit in memory (see warp_hair.validate). Strands that pass through each other, where
+    renderers disagree, are a warning (once per assembly; warp_hair.geometry.interpenetration)."""
     validate.scene_scale(scene.fibers, scene.camera)
     validate.render_memory(scene.fibers.num_segments, scene.camera.resolution)
+    warn_interpenetration(scene.fibers, scene.render.interpenetration)
 
 
 def _table(data, name, where, required=True):

@@ -149,6 +149,7 @@ class FiberHit:
     tangent: wp.vec3  # unit segment axis, root → tip: the BSDF's x
     normal: wp.vec3  # unit outward normal at the hit, ⊥ tangent: the BSDF's z
     h: float  # −(wo·y) / sqrt((wo·y)² + (wo·z)²) in [−1, 1], wo = −direction, y = normal × tangent
+    exit: int  # 1 where the ray leaves the tube (the "exits" rule only): normal and tangent are then reversed
 
 
 @wp.func
@@ -175,6 +176,39 @@ def _entry_distance(tube: Tube, origin: wp.vec3, direction: wp.vec3, t_hi: float
     if wp.dot(p, tube.mitre0) < clip[0] or wp.dot(p, tube.mitre1) < clip[1]:
         return NO_HIT
     return t
+
+
+@wp.func
+def _inside_clip(tube: Tube, p: wp.vec3):
+    """Whether p (relative to the tube's centre) lies between the tube's two clip planes."""
+    clip = tube.clip
+    return wp.dot(p, tube.mitre0) >= clip[0] and wp.dot(p, tube.mitre1) >= clip[1]
+
+
+@wp.func
+def _crossing_distance(tube: Tube, origin: wp.vec3, direction: wp.vec3, t_hi: float):
+    """(t, exit) of the ray's first crossing of the tube's side in (t_min, t_hi), entering (exit = 0) or leaving
+    it (exit = 1); (NO_HIT, 0) if none. The "exits" rule: no origin is skipped, so a ray that starts inside the
+    tube sees where it leaves."""
+    a = tube.axis
+    b = wp.cross(a, direction)
+    aa = wp.dot(b, b)
+    r = tube.radius
+    w = origin - tube.center
+    hr = wp.abs(wp.dot(w, b))
+    gr = r * wp.sqrt(aa)
+    if hr >= gr or aa <= MIN_SIN2:
+        return NO_HIT, 0
+    w_perp = w - wp.dot(w, a) * a
+    half = wp.sqrt((gr - hr) * (gr + hr))
+    t_min = T_MIN_RADII * r
+    t = -(wp.dot(w_perp, direction) + half) / aa
+    if t > t_min and t < t_hi and _inside_clip(tube, w + t * direction):
+        return t, 0
+    t = -(wp.dot(w_perp, direction) - half) / aa
+    if t > t_min and t < t_hi and _inside_clip(tube, w + t * direction):
+        return t, 1
+    return NO_HIT, 0
 
 
 @wp.func
@@ -248,7 +282,7 @@ def _children_by_entry(node: BvhNode, origin: wp.vec3, inv: wp.vec3, t_hi: float
 
 
 @wp.func
-def _make_hit(g: FiberGeometry, i: int, t: float, origin: wp.vec3, direction: wp.vec3):
+def _make_hit(g: FiberGeometry, i: int, t: float, origin: wp.vec3, direction: wp.vec3, exit: int):
     tube = g.tubes[i]
     a = tube.axis
     r = tube.radius
@@ -261,6 +295,14 @@ def _make_hit(g: FiberGeometry, i: int, t: float, origin: wp.vec3, direction: wp
     offset = wp.clamp(wp.dot(w, b) * inv_len / r, -1.0, 1.0)
     across = (direction - wp.dot(direction, a) * a) * inv_len
     z = wp.normalize(offset * b * inv_len - wp.sqrt((1.0 - offset) * (1.0 + offset)) * across)
+    position = tube.center + along * a + r * z
+    if exit != 0:
+        # Leaving the tube: the outward normal there faces along the ray. As Cycles shades a back-facing curve
+        # hit, normal and tangent are reversed, which makes it an entering hit of the mirrored fiber (same h).
+        out = wp.normalize(offset * b * inv_len + wp.sqrt((1.0 - offset) * (1.0 + offset)) * across)
+        position = tube.center + along * a + r * out
+        z = -out
+        a = -a
     y = wp.cross(z, a)
     wo_y = -wp.dot(direction, y)
     wo_z = -wp.dot(direction, z)
@@ -269,10 +311,11 @@ def _make_hit(g: FiberGeometry, i: int, t: float, origin: wp.vec3, direction: wp
     hit.t = t
     hit.segment = int(g.segment[i])
     hit.strand = int(g.strand[i])
-    hit.position = tube.center + along * a + r * z
+    hit.position = position
     hit.tangent = a
     hit.normal = z
     hit.h = wp.clamp(-wo_y / wp.sqrt(wo_y * wo_y + wo_z * wo_z), -1.0, 1.0)
+    hit.exit = exit
     return hit
 
 
@@ -283,6 +326,8 @@ def shading_frame(g: FiberGeometry, hit: FiberHit, direction: wp.vec3):
     i = hit.segment
     s = wp.clamp(wp.dot(hit.position - g.start[i], g.step[i]), 0.0, 1.0)
     x = wp.normalize((1.0 - s) * g.tangent0[i] + s * g.tangent1[i])
+    if hit.exit != 0:
+        x = -x
     z = wp.normalize(hit.normal - wp.dot(hit.normal, x) * x)
     y = wp.cross(z, x)
     wo_y = -wp.dot(direction, y)
@@ -300,17 +345,31 @@ def _no_hit():
     hit.t = NO_HIT
     hit.segment = -1
     hit.strand = -1
+    hit.exit = 0
     return hit
 
 
 @wp.func
 def intersect_fibers(g: FiberGeometry, origin: wp.vec3, direction: wp.vec3, t_max: float):
     """The closest entering hit with t_min < t < t_max along the unit `direction`; t = NO_HIT on a miss."""
+    return _closest_hit(g, origin, direction, t_max, 0, -1)
+
+
+@wp.func
+def intersect_fibers_exits(g: FiberGeometry, origin: wp.vec3, direction: wp.vec3, t_max: float, skip_strand: int):
+    """The closest hit under the "exits" rule (Cycles 4.x on the CPU): entering or leaving any tube, except the
+    tubes of strand `skip_strand` (the strand the ray leaves; −1 for none)."""
+    return _closest_hit(g, origin, direction, t_max, 1, skip_strand)
+
+
+@wp.func
+def _closest_hit(g: FiberGeometry, origin: wp.vec3, direction: wp.vec3, t_max: float, exits: int, skip_strand: int):
     if g.num_segments == 0:
         return _no_hit()
     inv = _inverse_direction(direction)
     t_best = wp.min(t_max, NO_HIT)
     best = int(-1)
+    best_exit = int(0)
     stack = NodeStack()
     stack_t = EntryStack()
     sp = int(0)
@@ -336,10 +395,17 @@ def intersect_fibers(g: FiberGeometry, origin: wp.vec3, direction: wp.vec3, t_ma
             code = -1 - ref
             first = code >> LEAF_SHIFT
             for i in range(first, first + (code & LEAF_MASK)):
-                t = _entry_distance(g.tubes[i], origin, direction, t_best)
-                if t < t_best:
-                    t_best = t
-                    best = i
+                if exits == 0:
+                    t = _entry_distance(g.tubes[i], origin, direction, t_best)
+                    if t < t_best:
+                        t_best = t
+                        best = i
+                elif g.strand[i] != skip_strand:
+                    t, leaving = _crossing_distance(g.tubes[i], origin, direction, t_best)
+                    if t < t_best:
+                        t_best = t
+                        best = i
+                        best_exit = leaving
         # Pop the nearest pending subtree that the ray enters before the best hit so far.
         ref = DONE
         while sp > 0:
@@ -349,12 +415,23 @@ def intersect_fibers(g: FiberGeometry, origin: wp.vec3, direction: wp.vec3, t_ma
                 break
     if best < 0:
         return _no_hit()
-    return _make_hit(g, best, t_best, origin, direction)
+    return _make_hit(g, best, t_best, origin, direction, best_exit)
 
 
 @wp.func
 def fibers_occluded(g: FiberGeometry, origin: wp.vec3, direction: wp.vec3, t_max: float):
     """Whether any entering hit lies in (t_min, t_max) along the unit `direction`: for shadow rays."""
+    return _any_hit(g, origin, direction, t_max, 0, -1)
+
+
+@wp.func
+def fibers_occluded_exits(g: FiberGeometry, origin: wp.vec3, direction: wp.vec3, t_max: float, skip_strand: int):
+    """Whether any hit of the "exits" rule (see `intersect_fibers_exits`) lies in (t_min, t_max)."""
+    return _any_hit(g, origin, direction, t_max, 1, skip_strand)
+
+
+@wp.func
+def _any_hit(g: FiberGeometry, origin: wp.vec3, direction: wp.vec3, t_max: float, exits: int, skip_strand: int):
     if g.num_segments == 0:
         return False
     inv = _inverse_direction(direction)
@@ -378,8 +455,13 @@ def fibers_occluded(g: FiberGeometry, origin: wp.vec3, direction: wp.vec3, t_max
             code = -1 - ref
             first = code >> LEAF_SHIFT
             for i in range(first, first + (code & LEAF_MASK)):
-                if _entry_distance(g.tubes[i], origin, direction, t_hi) < t_hi:
-                    return True
+                if exits == 0:
+                    if _entry_distance(g.tubes[i], origin, direction, t_hi) < t_hi:
+                        return True
+                elif g.strand[i] != skip_strand:
+                    t, leaving = _crossing_distance(g.tubes[i], origin, direction, t_hi)
+                    if t < t_hi:
+                        return True
         ref = DONE
         if sp > 0:
             sp -= 1

@@ -1,13 +1,21 @@
-"""NumPy front of the device ray queries: `intersect` (the closest entering hit and its shading frame) and
-`occluded` over batches of rays against a `FiberBVH`, for tests, the calibration's visibility and users' own
-probes."""
+"""NumPy front of the device ray queries: `intersect` (the closest hit and its shading frame) and `occluded` over
+batches of rays against a `FiberBVH`, for tests, the calibration's visibility and users' own probes. `rule` is
+the scene's `[render] interpenetration`: "enter" (only entering hits) or "exit" (exits too, except on the strand
+`skip_strand` the rays leave; intersect.py's `intersect_fibers_exits`)."""
 
 from __future__ import annotations
 
 import numpy as np
 import warp as wp
 
-from .intersect import FiberGeometry, fibers_occluded, intersect_fibers, shading_frame
+from .intersect import (
+    FiberGeometry,
+    fibers_occluded,
+    fibers_occluded_exits,
+    intersect_fibers,
+    intersect_fibers_exits,
+    shading_frame,
+)
 from .tubes import FiberBVH
 
 wp.set_module_options({"enable_backward": False})
@@ -19,6 +27,8 @@ def _intersect_kernel(
     origins: wp.array(dtype=wp.vec3),
     directions: wp.array(dtype=wp.vec3),
     t_max: wp.array(dtype=float),
+    exits: int,
+    skip_strand: int,
     t: wp.array(dtype=float),
     segment: wp.array(dtype=wp.int32),
     strand: wp.array(dtype=wp.int32),
@@ -29,9 +39,12 @@ def _intersect_kernel(
     shading_tangent: wp.array(dtype=wp.vec3),
     shading_normal: wp.array(dtype=wp.vec3),
     shading_h: wp.array(dtype=float),
+    exit: wp.array(dtype=wp.int32),
 ):
     k = wp.tid()
     hit = intersect_fibers(g, origins[k], directions[k], t_max[k])
+    if exits != 0:
+        hit = intersect_fibers_exits(g, origins[k], directions[k], t_max[k], skip_strand)
     t[k] = hit.t
     segment[k] = wp.int32(hit.segment)
     strand[k] = wp.int32(hit.strand)
@@ -39,6 +52,7 @@ def _intersect_kernel(
     tangent[k] = hit.tangent
     normal[k] = hit.normal
     h[k] = hit.h
+    exit[k] = wp.int32(hit.exit)
     if hit.segment >= 0:
         x, z, hs = shading_frame(g, hit, directions[k])
         shading_tangent[k] = x
@@ -52,10 +66,15 @@ def _occluded_kernel(
     origins: wp.array(dtype=wp.vec3),
     directions: wp.array(dtype=wp.vec3),
     t_max: wp.array(dtype=float),
+    exits: int,
+    skip_strand: int,
     blocked: wp.array(dtype=wp.int32),
 ):
     k = wp.tid()
-    blocked[k] = wp.where(fibers_occluded(g, origins[k], directions[k], t_max[k]), 1, 0)
+    if exits != 0:
+        blocked[k] = wp.where(fibers_occluded_exits(g, origins[k], directions[k], t_max[k], skip_strand), 1, 0)
+    else:
+        blocked[k] = wp.where(fibers_occluded(g, origins[k], directions[k], t_max[k]), 1, 0)
 
 
 def _rays(bvh, origins, directions, t_max):
@@ -73,14 +92,22 @@ def _rays(bvh, origins, directions, t_max):
     )
 
 
-def intersect(bvh: FiberBVH, origins, directions, t_max=np.inf) -> dict:
-    """Closest entering hits of N rays (origins, directions (N, 3); directions are normalized here; t_max a
-    scalar or (N,)).
+def _rule(rule, skip_strand):
+    """(exits flag, strand to skip) for the kernels."""
+    if rule not in ("enter", "exit"):
+        raise ValueError(f"rule must be 'enter' or 'exit', got {rule!r}")
+    return int(rule == "exit"), int(skip_strand)
+
+
+def intersect(bvh: FiberBVH, origins, directions, t_max=np.inf, rule="enter", skip_strand=-1) -> dict:
+    """Closest hits of N rays (origins, directions (N, 3); directions are normalized here; t_max a scalar or
+    (N,)) under `rule` (see the module docstring).
 
     Returns numpy arrays: t (N,) (np.inf on a miss), segment and strand (N,) (−1 on a miss), position,
     tangent, normal (N, 3) and h (N,), and the BSDF's frame from `shading_frame`: shading_tangent,
-    shading_normal (N, 3) and shading_h (N,) (zeros on a miss).
+    shading_normal (N, 3) and shading_h (N,) (zeros on a miss); exit (N,) bool, where the ray leaves a tube.
     """
+    exits, skip = _rule(rule, skip_strand)
     o, d, limit = _rays(bvh, origins, directions, t_max)
     n = len(o)
     device = bvh.device
@@ -95,18 +122,23 @@ def intersect(bvh: FiberBVH, origins, directions, t_max=np.inf) -> dict:
         "shading_tangent": wp.zeros(n, dtype=wp.vec3, device=device),
         "shading_normal": wp.zeros(n, dtype=wp.vec3, device=device),
         "shading_h": wp.zeros(n, dtype=float, device=device),
+        "exit": wp.zeros(n, dtype=wp.int32, device=device),
     }
     if n:
-        wp.launch(_intersect_kernel, dim=n, inputs=[bvh.geometry, o, d, limit, *out.values()], device=device)
+        wp.launch(_intersect_kernel, dim=n, inputs=[bvh.geometry, o, d, limit, exits, skip, *out.values()],
+                  device=device)
     result = {key: value.numpy() for key, value in out.items()}
     result["t"] = np.where(result["segment"] >= 0, result["t"].astype(np.float64), np.inf)
+    result["exit"] = result["exit"].astype(bool)
     return result
 
 
-def occluded(bvh: FiberBVH, origins, directions, t_max=np.inf) -> np.ndarray:
-    """(N,) bool: whether each ray has an entering hit before t_max (`fibers_occluded`, batched)."""
+def occluded(bvh: FiberBVH, origins, directions, t_max=np.inf, rule="enter", skip_strand=-1) -> np.ndarray:
+    """(N,) bool: whether each ray has a hit under `rule` before t_max (`fibers_occluded`, batched)."""
+    exits, skip = _rule(rule, skip_strand)
     o, d, limit = _rays(bvh, origins, directions, t_max)
     blocked = wp.zeros(len(o), dtype=wp.int32, device=bvh.device)
     if len(o):
-        wp.launch(_occluded_kernel, dim=len(o), inputs=[bvh.geometry, o, d, limit, blocked], device=bvh.device)
+        wp.launch(_occluded_kernel, dim=len(o), inputs=[bvh.geometry, o, d, limit, exits, skip, blocked],
+                  device=bvh.device)
     return blocked.numpy().astype(bool)

@@ -14,7 +14,15 @@ of the same walk in under `wp.static` branches (docs/gradients.md).
 import warp as wp
 
 from ..geometry.card import CardData, card_distance
-from ..geometry.intersect import FiberGeometry, FiberHit, fibers_occluded, intersect_fibers, shading_frame
+from ..geometry.intersect import (
+    FiberGeometry,
+    FiberHit,
+    fibers_occluded,
+    fibers_occluded_exits,
+    intersect_fibers,
+    intersect_fibers_exits,
+    shading_frame,
+)
 from ..model.hair_bsdf import HairCoefficients, LobeSetup, hair_sample, hair_value_pdf, lobe_setup
 from ..model.jacobian import (
     CoefficientDerivatives,
@@ -52,6 +60,7 @@ class SceneData:
     card: CardData
     max_depth: int
     rr_depth: int
+    exits: int  # 1: [render] interpenetration = "exit" (geometry.intersect, the "exits" rule)
 
 
 @wp.func
@@ -61,20 +70,32 @@ def power_heuristic(pdf_a: float, pdf_b: float):
 
 
 @wp.func
-def occluded(scene: SceneData, origin: wp.vec3, direction: wp.vec3):
+def intersect(scene: SceneData, origin: wp.vec3, direction: wp.vec3, strand: int):
+    """The ray's closest fiber hit under the scene's interpenetration rule; `strand` is the one the ray leaves."""
+    if scene.exits != 0:
+        return intersect_fibers_exits(scene.fibers, origin, direction, NO_HIT, strand)
+    return intersect_fibers(scene.fibers, origin, direction, NO_HIT)
+
+
+@wp.func
+def occluded(scene: SceneData, origin: wp.vec3, direction: wp.vec3, strand: int):
     """Whether a shadow ray toward a light at infinity is blocked (by a fiber or by the card)."""
     if card_distance(scene.card, origin, direction) < NO_HIT:
         return True
+    if scene.exits != 0:
+        return fibers_occluded_exits(scene.fibers, origin, direction, NO_HIT, strand)
     return fibers_occluded(scene.fibers, origin, direction, NO_HIT)
 
 
 @wp.func
-def light_visible(scene: SceneData, on_card: bool, position: wp.vec3, to_light: wp.vec3, w_light: wp.vec3):
+def light_visible(
+    scene: SceneData, on_card: bool, position: wp.vec3, to_light: wp.vec3, w_light: wp.vec3, strand: int
+):
     """Whether a light sample (world direction to_light, local w_light) is unoccluded. Below the card's surface
     its S is 0: no shadow ray is traced for those."""
     if on_card and w_light[2] <= 0.0:
         return False
-    return not occluded(scene, position, to_light)
+    return not occluded(scene, position, to_light, strand)
 
 
 @wp.func
@@ -279,6 +300,7 @@ def make_sample_ld(differentiable: bool, scatter):
         throughput: wp.vec3,
         num_emitters: int,
         select_pdf: float,
+        strand: int,
         rng: wp.uint32,
     ):
         k = wp.min(int(wp.randf(rng) * float(num_emitters)), num_emitters - 1)
@@ -290,7 +312,7 @@ def make_sample_ld(differentiable: bool, scatter):
         lobes = LobeEvaluation()
         if light_pdf > 0.0:
             w_light = to_local(to_light, x, y, z)
-            if light_visible(scene, on_card, position, to_light, w_light):
+            if light_visible(scene, on_card, position, to_light, w_light, strand):
                 value, pdf_bsdf, lobes = scatter(scene, on_card, setup, w_light)
                 if pdf_bsdf > 0.0:
                     lit = True
@@ -345,8 +367,9 @@ def make_trace_path(differentiable: bool):
         select_pdf = 1.0 / float(wp.max(num_emitters, 1))
         prev_pdf = float(0.0)  # solid-angle pdf of the BSDF sample that produced d; 0 for the camera ray
         depth = int(0)  # scattering vertices so far
+        strand = int(-1)  # the strand the ray leaves (the "exits" rule skips it); −1 for none
         while True:
-            hit = intersect_fibers(scene.fibers, o, d, NO_HIT)
+            hit = intersect(scene, o, d, strand)
             t_card = card_distance(scene.card, o, d)
             if hit.t >= NO_HIT and t_card >= NO_HIT:
                 if scene.has_env != 0:
@@ -361,6 +384,7 @@ def make_trace_path(differentiable: bool):
                 break
 
             on_card, position, x, y, z, h = shading_point(scene, hit, t_card, o, d)
+            strand_here = wp.where(on_card, -1, hit.strand)
             wo = to_local(-d, x, y, z)
             setup = LobeSetup()
             if wp.static(differentiable):
@@ -372,7 +396,7 @@ def make_trace_path(differentiable: bool):
 
             if num_emitters > 0:
                 lit, nee, nee_value, lobes_light, rng = sample_ld(
-                    scene, on_card, position, x, y, z, setup, throughput, num_emitters, select_pdf, rng
+                    scene, on_card, position, x, y, z, setup, throughput, num_emitters, select_pdf, strand_here, rng
                 )
                 if lit:
                     radiance += nee
@@ -391,6 +415,7 @@ def make_trace_path(differentiable: bool):
             prev_pdf = pdf
             o = position
             d = wp.normalize(to_world(wi, x, y, z))
+            strand = strand_here
             depth += 1
 
             if depth >= scene.rr_depth:

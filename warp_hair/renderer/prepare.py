@@ -71,6 +71,7 @@ class PreparedScene:
         data.card = self._card
         data.max_depth = self.scene.render.max_depth
         data.rr_depth = self.scene.render.rr_depth
+        data.exits = int(self.scene.render.interpenetration == "exit")
         return data
 
     def with_hair(self, hair: HairParams) -> "PreparedScene":
