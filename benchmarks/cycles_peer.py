@@ -7,6 +7,8 @@
 packages. What the translation sets, and why (each one measured to matter, or Cycles' documented behaviour):
 - Strands become a hair `Curves` object (Catmull-Rom through the vertices, radius per vertex) drawn as THICK
   curves: round tubes, as ours.
+  Where strands pass through each other, Cycles on the CPU (Embree 4) scatters where a ray leaves another
+  strand's tube: warp-hair's `[render] interpenetration = "exit"` (docs/scenes.md, "Interpenetrating strands").
 - The material is the look as `warp-hair export --to cycles` writes it (`warp_hair.export.cycles` documents
   the conversion), so this also checks the export.
 - An unbiased estimator: filter glossy 0, no clamping, light threshold 0, no denoising, no adaptive sampling,

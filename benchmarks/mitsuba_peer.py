@@ -8,7 +8,9 @@
 The `bench` extra (`pip install -e ".[bench]"`); its LLVM back end needs libLLVM (`apt-get install libllvm19`):
 DRJIT_LIBLLVM_PATH is set to the system's libLLVM-19 when unset (it must be set before the import). The hair is
 the look as `warp_hair.export.mitsuba` writes it. Use `bsplinecurve` over `bspline_control_points(fibers)` for
-anything but fibers along y (docs/MODEL.md, "The peers as references").
+anything but fibers along y (docs/MODEL.md, "The peers as references"). Its curves report only the hits where a
+ray enters them, so strands that pass through each other render as warp-hair's default `[render]
+interpenetration = "enter"` (docs/scenes.md, "Interpenetrating strands").
 
 Mitsuba's hair sampler has a bug, measured by `benchmarks/mitsuba_residual_lobe.py`: `Hair::sample`
 (src/bsdfs/hair.cpp, 3.9.1 and its main branch) tilts sin/cos θ per lobe only for p < P_MAX and leaves both at 0

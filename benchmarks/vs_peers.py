@@ -3,10 +3,12 @@
     python benchmarks/vs_peers.py [--spp 256] [--resolution 64] [--segments 24] [--max-depth 100]
                                   [--lightings front,back] [--albedo R G B] [--threads N] [--out DIR]
     python benchmarks/vs_peers.py --alpha 5      # the cuticle tilt's sign against Cycles instead
+    python benchmarks/vs_peers.py --interpenetrating [--spp 512]   # strands that pass through each other
 
 The swatch is made here (`warp_hair.geometry.swatch` with `drape`): 4 layers of 38 straight fibers of radius
-0.004, 0.5 long, draped over a cylinder of radius 0.25 (2 radians of drape), spaced so that no two fibers
-touch: renderers legitimately disagree inside interpenetrating tubes, and real hair does not interpenetrate.
+0.004, 0.5 long, draped over a cylinder of radius 0.25 (2 radians of drape), spaced so that fibers hardly touch
+(the interpenetration check finds 2 pairs overlapping by 1.4% of their radii): renderers disagree inside
+interpenetrating tubes (docs/scenes.md, "Interpenetrating strands"; `--interpenetrating` below).
 The camera looks head-on at the middle of the drape, so the highlight band crosses the image. Lit by a
 directional light from the front (or from behind, through the swatch) and a dim constant sky; light-brown hair
 (albedo 0.55, 0.40, 0.25, β_m 0.3, β_n 0.35) at α = 0, all bounces (max depth 100).
@@ -39,6 +41,16 @@ difference, lighter is ours brighter, ±10% is ±0.2 in linear value) to --out.
 Mitsuba needs the `bench` extra (`pip install -e ".[bench]"`) and libLLVM (`apt-get install libllvm19`). A peer
 that is not installed is skipped, with the reason.
 
+`--interpenetrating` renders, instead, issue 23's swatch whose strands pass through each other: wavy strands
+(amplitude 0.006, wavelength 0.08) with independent phases, 4 layers of 38 at a spacing of 0.0105 (width 0.4),
+radius 0.004, 96 segments, draped over a rod of radius 0.25; albedo (0.5, 0.35, 0.25), β_m 0.3, β_n 0.4, α = 0;
+lit as the shipped targets are (one directional light, front or back). It prints the interpenetration check,
+the fraction of the fibers' surface that lies inside another strand's tube (where every path vertex starts its
+continuation and shadow rays inside that tube), and warp-hair as the Catmull-Rom curve under both
+`[render] interpenetration` rules, "enter" (the default) and "exit" (as Cycles 4.x on the CPU), against Mitsuba
+(bsplinecurve, corrected sampler) and Cycles, with the same statistics; then the table docs/scenes.md
+("Interpenetrating strands") shows.
+
 `--alpha DEG` checks the tilt's sign instead (Cycles only: Mitsuba's curves flip the tangent with the side of the
 fiber hit). The strands run root first from the bottom of the image to the top, so a positive, physical tilt
 moves the highlight band down, toward the roots: it prints the band's centroid row (row 0 at the top) in
@@ -57,7 +69,8 @@ import numpy as np
 
 from warp_hair.geometry.curves import catmull_rom
 from warp_hair.geometry.formats import save_fibers
-from warp_hair.geometry.generators import swatch
+from warp_hair.geometry.generators import swatch, wavy
+from warp_hair.geometry.interpenetration import interpenetration, points_inside_other_strands
 from warp_hair.io import write_exr, write_png
 from warp_hair.parallel import default_threads
 from warp_hair.renderer.forward import render
@@ -74,6 +87,16 @@ LIGHTINGS = {
     "front": [0.2, -0.3, -1.0],
     "back": [0.15, -0.25, 1.0],
 }
+
+
+# Issue 23's interpenetrating swatch and its look; lit as the shipped targets are (targets/cycles_*/scene_*.toml).
+TANGLED_HAIR = {"albedo": [0.5, 0.35, 0.25], "beta_m": 0.3, "beta_n": 0.4, "alpha": 0.0, "eta": 1.55}
+TARGET_LIGHTINGS = {"front": [0.2, -0.3, -1.0], "back": [0.0, -0.15, 1.0]}
+
+
+def interpenetrating_swatch():
+    return wavy(count=152, layers=4, length=0.5, radius=0.004, width=0.4, amplitude=0.006, wavelength=0.08,
+                phase_jitter=1.0, segments=96, drape=0.25, jitter=0.15, seed=23)
 
 
 def draped_swatch(segments):
@@ -119,6 +142,86 @@ def highlight_row(image):
     return float(np.sum(rows[bright] * profile[bright]) / np.sum(profile[bright]))
 
 
+def surface_inside_others(fibers, samples=200_000, seed=0):
+    """The fraction of the fibers' surface (area-weighted samples on the tubes) inside another strand's tube."""
+    rng = np.random.default_rng(seed)
+    p0, p1, r0, r1, strand, _ = fibers.segments()
+    p0, p1 = p0.astype(np.float64), p1.astype(np.float64)
+    radius = (r0 + r1) / 2.0
+    axis = p1 - p0
+    length = np.linalg.norm(axis, axis=1)
+    pick = rng.choice(len(length), samples, p=radius * length / np.sum(radius * length))
+    a = axis[pick] / length[pick, None]
+    helper = np.where(np.abs(a[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
+    u = np.cross(a, helper)
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    v = np.cross(a, u)
+    angle = rng.uniform(0, 2 * np.pi, samples)[:, None]
+    along = rng.uniform(0, 1, samples)[:, None]
+    points = p0[pick] + along * axis[pick] + radius[pick, None] * (np.cos(angle) * u + np.sin(angle) * v)
+    return float(np.mean(points_inside_other_strands(fibers, points, strand[pick])))
+
+
+def interpenetrating_check(args, threads):
+    """Issue 23's swatch: warp-hair under both interpenetration rules against Mitsuba and Cycles."""
+    fibers = interpenetrating_swatch()
+    curve = catmull_rom(fibers)
+    report = interpenetration(fibers)
+    print(f"interpenetrating swatch: {fibers.num_strands} strands x 96 segments, {args.resolution}^2 px, {args.spp} spp")
+    print(f"check: {report.message()}")
+    print(f"fibers' surface inside another strand's tube: {surface_inside_others(fibers):.1%} "
+          f"(the Catmull-Rom curve: {surface_inside_others(curve):.1%})")
+    mi = import_mitsuba()
+    bpy = import_bpy()
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        fibers_file = Path(tmp) / "tangled.txt"
+        save_fibers(bspline_control_points(fibers), fibers_file)
+        for lighting in args.lightings.split(","):
+            data = scene_data(args.resolution, TARGET_LIGHTINGS[lighting], args.spp, max_depth=args.max_depth)
+            data["lights"] = data["lights"][:1]
+            data["hair"] = TANGLED_HAIR
+            images = {}
+            for rule in ("enter", "exit"):
+                data["render"]["interpenetration"] = rule
+                scene = scene_from_dict(data)
+                scene.fibers = curve
+                start = time.perf_counter()
+                images[f"warp-hair {rule}"] = render(scene, threads=threads)
+                print(f"[{lighting}] warp-hair, interpenetration = {rule}: {time.perf_counter() - start:.1f} s")
+            data["render"]["interpenetration"] = "enter"
+            noise_scene = scene_from_dict({**data, "render": {**data["render"], "seed": 1}})
+            noise_scene.fibers = curve
+            noise = block_rmse(render(noise_scene, threads=threads), images["warp-hair enter"])
+            scene.fibers = fibers  # the peers draw their own curves through the vertices
+            peers = {}
+            if mi is not None:
+                mi_scene = mitsuba_scene(mi, scene, args.spp, shape="bsplinecurve", fibers_file=fibers_file,
+                                         sampler="corrected")
+                start = time.perf_counter()
+                peers[f"Mitsuba {mi.__version__}"] = time_mitsuba(mi, mi_scene, args.spp, 0, threads, 1)[2]
+                print(f"[{lighting}] Mitsuba bsplinecurve, corrected sampler: {time.perf_counter() - start:.1f} s")
+            if bpy is not None:
+                start = time.perf_counter()
+                peers[f"Cycles {bpy.app.version_string}"] = render_cycles(bpy, scene, args.spp, threads=threads)
+                print(f"[{lighting}] Cycles: {time.perf_counter() - start:.1f} s")
+            for name, image in {**images, **peers}.items():
+                write_exr(args.out / f"tangled_{name.replace(' ', '_').lower()}_{lighting}.exr", image)
+            print(f"[{lighting}] noise level (two warp-hair seeds): block RMSE {noise:.2%}")
+            for peer, theirs in peers.items():
+                mean_theirs = theirs.mean(axis=(0, 1))
+                for ours_name, ours in images.items():
+                    ratio = ours.mean(axis=(0, 1)) / mean_theirs
+                    rmse = block_rmse(ours, theirs)
+                    print(f"[{lighting}] {ours_name} / {peer}: means {fmt(ours.mean(axis=(0, 1)))} / {fmt(mean_theirs)} "
+                          f"= {fmt(ratio)}; block RMSE {rmse:.2%} (noise level {noise:.2%})")
+                    rows.append(f"| {lighting} | {ours_name.split()[1]} | {peer} | {fmt(ratio, '.3f')} | {rmse:.1%} | "
+                                f"{noise:.1%} |")
+    print("\n| light | warp-hair rule | peer | mean ratio (R, G, B) | block RMSE | noise |\n| --- | --- | --- | --- | --- | --- |")
+    print("\n".join(rows))
+    print(f"images in {args.out}")
+
+
 def tilt_check(args, fibers, threads):
     bpy = import_bpy()
     for alpha in (args.alpha, -args.alpha):
@@ -143,9 +246,13 @@ def main(argv=None):
                         help=f"the hair's albedo (default {HAIR['albedo']}, light brown)")
     parser.add_argument("--threads", type=int, default=None)
     parser.add_argument("--alpha", type=float, help="check the tilt's sign at this alpha (degrees) against Cycles")
+    parser.add_argument("--interpenetrating", action="store_true",
+                        help="issue 23's swatch whose strands pass through each other, under both rules")
     parser.add_argument("--out", type=Path, default=HERE / "out" / "vs_peers")
     args = parser.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
+    if args.interpenetrating:
+        return interpenetrating_check(args, args.threads or default_threads())
     fibers = draped_swatch(args.segments)
     print(f"draped swatch: {fibers.num_strands} fibers x {args.segments} segments, {args.resolution}^2 px, "
           f"{args.spp} spp, max depth {args.max_depth}, alpha 0")

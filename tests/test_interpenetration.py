@@ -11,6 +11,7 @@ from warp_hair.geometry.generators import wavy
 from warp_hair.geometry.interpenetration import (
     InterpenetrationWarning,
     interpenetration,
+    points_inside_other_strands,
     warn_interpenetration,
 )
 from warp_hair.geometry.rays import intersect, occluded
@@ -146,6 +147,13 @@ def test_from_inside_the_other_tube_enter_sees_nothing_exit_sees_where_it_leaves
     assert occluded(crossing, ON_0_INSIDE_1, d, rule="exit", skip_strand=0)[0]
     # Skipping strand 1 instead: the ray leaves strand 0's surface at t = 0, which t_min excludes.
     assert intersect(crossing, ON_0_INSIDE_1, d, rule="exit", skip_strand=1)["segment"][0] == -1
+
+
+def test_points_inside_another_strand():
+    strands = two_strands([[-1, 0, 0], [0, 0, 0], [1, 0, 0]], [[0, -1, 0], [0, 0, 0], [0, 1, 0]])
+    points = [ON_0_INSIDE_1, ON_0_INSIDE_1, [0.5, 0.0, R], [0.0, 0.5, 0.5 * R], [0.0, 0.0, 1.01 * R]]
+    inside = points_inside_other_strands(strands, points, [0, 1, 0, 0, -1])
+    assert inside.tolist() == [True, False, False, True, False]
 
 
 def test_both_rules_agree_on_rays_from_outside(crossing):

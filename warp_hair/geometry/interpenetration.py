@@ -17,7 +17,9 @@ difference, and `[render] interpenetration` the choice. Loading or preparing a s
 interpenetrate warns once (`warn_interpenetration`), so that whoever compares with another renderer knows.
 
 The candidates come from Warp's BVH over the segments' boxes (`wp.Bvh`, `wp.bvh_query_aabb`), the distances
-from one kernel thread per segment: a groom of 10⁴ strands of 30 segments takes well under a second on a core.
+from one kernel thread per segment, launched over all cores (`warp_hair.parallel`); each segment keeps the
+distinct strands it overlaps in a few slots, and the few segments that overlap more strands go round again with
+more. docs/scenes.md gives timings.
 """
 
 from __future__ import annotations
@@ -28,6 +30,8 @@ import weakref
 
 import numpy as np
 import warp as wp
+
+from ..parallel import launch_ranges
 
 wp.set_module_options({"enable_backward": False})
 
@@ -113,70 +117,127 @@ def _overlaps(
     strand: wp.array(dtype=wp.int32),
     lowers: wp.array(dtype=wp.vec3),
     uppers: wp.array(dtype=wp.vec3),
-    offsets: wp.array(dtype=wp.int32),
-    write: int,
-    counts: wp.array(dtype=wp.int32),
-    other: wp.array(dtype=wp.int32),
+    segments: wp.array(dtype=wp.int32),
+    slots: int,
+    partners: wp.array2d(dtype=wp.int32),
+    overflow: wp.array(dtype=wp.int32),
+    pairs: wp.array(dtype=wp.int32),
     depth: wp.array(dtype=float),
+    first: int,
 ):
-    """Segment i's overlapping segments j > i of other strands: counted (write = 0), or their strands and overlap
-    depths written from offsets[i] on (write = 1)."""
-    i = wp.tid()
+    """For segment segments[k]: the overlapping segments j > i of other strands, counted (pairs), the deepest
+    overlap, and up to `slots` distinct strands among them (partners[k], −1 where unused; overflow[k] = 1 if
+    there are more)."""
+    k = wp.tid() + first
+    i = segments[k]
     query = wp.bvh_query_aabb(bvh, lowers[i], uppers[i])
     j = int(0)
     n = int(0)
+    used = int(0)
+    deepest = float(0.0)
     while wp.bvh_query_next(query, j):
         if j > i and strand[j] != strand[i]:
             reach = radius[i] + radius[j]
             d2 = segment_distance_sq(p0[i], p1[i], p0[j], p1[j])
             limit = reach * (1.0 - TOUCH)
             if d2 < limit * limit:
-                if write != 0:
-                    other[offsets[i] + n] = strand[j]
-                    depth[offsets[i] + n] = 1.0 - wp.sqrt(d2) / reach
                 n += 1
-    if write == 0:
-        counts[i] = n
+                deepest = wp.max(deepest, 1.0 - wp.sqrt(d2) / reach)
+                seen = int(0)
+                for q in range(used):
+                    if partners[k, q] == strand[j]:
+                        seen = 1
+                if seen == 0:
+                    if used < slots:
+                        partners[k, used] = strand[j]
+                        used += 1
+                    else:
+                        overflow[k] = 1
+    pairs[k] = n
+    depth[k] = deepest
+
+
+@wp.kernel
+def _inside_other(
+    bvh: wp.uint64,
+    p0: wp.array(dtype=wp.vec3),
+    p1: wp.array(dtype=wp.vec3),
+    radius: wp.array(dtype=float),
+    strand: wp.array(dtype=wp.int32),
+    points: wp.array(dtype=wp.vec3),
+    own: wp.array(dtype=wp.int32),
+    inside: wp.array(dtype=wp.int32),
+):
+    k = wp.tid()
+    p = points[k]
+    query = wp.bvh_query_aabb(bvh, p, p)
+    j = int(0)
+    while wp.bvh_query_next(query, j):
+        if strand[j] != own[k]:
+            r = radius[j] * (1.0 - TOUCH)
+            if segment_distance_sq(p, p, p0[j], p1[j]) < r * r:
+                inside[k] = 1
+
+
+def _segment_arrays(assembly):
+    """Device arrays of the segments (p0, p1, lower and upper box corners), their tube radii and strands."""
+    p0, p1, r0, r1, strand, _ = assembly.segments()
+    radius = (0.5 * (r0.astype(np.float64) + r1)).astype(np.float32)
+    lo = (np.minimum(p0, p1) - radius[:, None]).astype(np.float32)
+    hi = (np.maximum(p0, p1) + radius[:, None]).astype(np.float32)
+    vectors = [wp.array(a, dtype=wp.vec3) for a in (p0, p1, lo, hi)]
+    return vectors, wp.array(radius, dtype=float), wp.array(strand, dtype=wp.int32), strand
+
+
+def points_inside_other_strands(assembly, points, strands, device: str = "cpu") -> np.ndarray:
+    """(N,) bool: whether each of `points` (N, 3) lies inside a tube of a strand other than `strands` (N,) (its
+    own, −1 for none): where a path vertex on that strand starts its rays inside another strand's tube."""
+    points = np.asarray(points, dtype=np.float32).reshape(-1, 3)
+    own = np.broadcast_to(np.asarray(strands, dtype=np.int32), len(points))
+    with wp.ScopedDevice(device):
+        (p0, p1, lo, hi), radius, strand, _ = _segment_arrays(assembly)
+        bvh = wp.Bvh(lo, hi)
+        inside = wp.zeros(len(points), dtype=wp.int32)
+        wp.launch(_inside_other, dim=len(points), inputs=[bvh.id, p0, p1, radius, strand,
+                                                          wp.array(points, dtype=wp.vec3),
+                                                          wp.array(own, dtype=wp.int32), inside])
+        return inside.numpy().astype(bool)
 
 
 def interpenetration(assembly, device: str = "cpu") -> InterpenetrationReport:
     """Count the pairs of strands of `assembly` (a `FiberAssembly`) that pass through each other."""
-    p0, p1, r0, r1, strand, _ = assembly.segments()
-    m = len(strand)
+    m = assembly.num_segments
     if m == 0 or assembly.num_strands < 2:
         return InterpenetrationReport(0, 0, 0, 0.0, assembly.num_strands)
-    radius = (0.5 * (r0.astype(np.float64) + r1)).astype(np.float32)
-    lo = (np.minimum(p0, p1) - radius[:, None]).astype(np.float32)
-    hi = (np.maximum(p0, p1) + radius[:, None]).astype(np.float32)
     with wp.ScopedDevice(device):
-        arrays = [wp.array(a, dtype=wp.vec3) for a in (p0, p1, lo, hi)]
-        wp_radius = wp.array(radius, dtype=float)
-        wp_strand = wp.array(strand, dtype=wp.int32)
+        arrays, wp_radius, wp_strand, strand = _segment_arrays(assembly)
         bvh = wp.Bvh(arrays[2], arrays[3])
-        counts = wp.zeros(m, dtype=wp.int32)
-        empty_i, empty_f = wp.zeros(1, dtype=wp.int32), wp.zeros(1, dtype=float)
-
-        def launch(write, offsets, other, depth):
-            wp.launch(_overlaps, dim=m, inputs=[bvh.id, arrays[0], arrays[1], wp_radius, wp_strand, arrays[2],
-                                                arrays[3], offsets, write, counts, other, depth])
-
-        launch(0, empty_i, empty_i, empty_f)
-        per_segment = counts.numpy().astype(np.int64)
-        total = int(per_segment.sum())
-        if total == 0:
-            return InterpenetrationReport(0, 0, 0, 0.0, assembly.num_strands)
-        if total > np.iinfo(np.int32).max:
-            raise ValueError(f"{total} overlapping segment pairs: too many to list (the strands lie on top of each other)")
-        offsets = np.concatenate([[0], np.cumsum(per_segment)[:-1]]).astype(np.int32)
-        other = wp.zeros(total, dtype=wp.int32)
-        depth = wp.zeros(total, dtype=float)
-        launch(1, wp.array(offsets, dtype=wp.int32), other, depth)
-        other, depth = other.numpy(), depth.numpy()
-    mine = np.repeat(strand, per_segment)
-    a, b = np.minimum(mine, other).astype(np.int64), np.maximum(mine, other).astype(np.int64)
-    keys = np.unique(a * assembly.num_strands + b)
+        todo = np.arange(m, dtype=np.int32)
+        keys, segment_pairs, deepest, slots = [], 0, 0.0, 8
+        while len(todo):
+            # Distinct partner strands per segment, in `slots` slots; the segments with more go round again.
+            n = len(todo)
+            partners = wp.full((n, slots), -1, dtype=wp.int32)
+            overflow, pairs = wp.zeros(n, dtype=wp.int32), wp.zeros(n, dtype=wp.int32)
+            depth = wp.zeros(n, dtype=float)
+            launch_ranges(_overlaps, n, [bvh.id, *arrays[:2], wp_radius, wp_strand, *arrays[2:],
+                                         wp.array(todo, dtype=wp.int32), slots, partners, overflow, pairs, depth],
+                          device=device, chunk=4096)
+            partners, again = partners.numpy(), overflow.numpy().astype(bool)
+            done = ~again
+            segment_pairs += int(pairs.numpy()[done].sum(dtype=np.int64))
+            deepest = max(deepest, float(depth.numpy()[done].max(initial=0.0)))
+            mine = np.repeat(strand[todo[done]], slots)
+            other = partners[done].ravel()
+            valid = other >= 0
+            a, b = np.minimum(mine[valid], other[valid]), np.maximum(mine[valid], other[valid])
+            keys.append(np.unique(a.astype(np.int64) * assembly.num_strands + b))
+            todo, slots = todo[again], slots * 4
+    keys = np.unique(np.concatenate(keys))
+    if len(keys) == 0:
+        return InterpenetrationReport(0, 0, 0, 0.0, assembly.num_strands)
     involved = np.unique(np.concatenate([keys // assembly.num_strands, keys % assembly.num_strands]))
-    return InterpenetrationReport(len(keys), len(involved), total, float(depth.max()), assembly.num_strands)
+    return InterpenetrationReport(len(keys), len(involved), segment_pairs, deepest, assembly.num_strands)
 
 
 # Reports of assemblies already checked, and whether they were warned of: an assembly never changes, and a fit

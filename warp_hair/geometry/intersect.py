@@ -25,6 +25,19 @@ and a grazing ray from there would otherwise re-enter the same tube at a t large
 At mitre joints each tube reaches 1e-3·r past the plane, so that float32 rounding can never open a gap in
 the seam; a ray entering in that sliver hits both tubes at the same point and the closer wins.
 
+Interpenetrating strands: the "exit" rule
+-----------------------------------------
+Where strands pass through each other, a ray that starts on a fiber can start inside another strand's tube;
+the rule above (`intersect_fibers`, `fibers_occluded`; `[render] interpenetration = "enter"`) skips that tube,
+as Mitsuba 3 does. `intersect_fibers_exits` and `fibers_occluded_exits` (`interpenetration = "exit"`) follow
+Cycles 4.x on the CPU instead, whose Embree 4 round curves report exit hits too: the first root in (t_min,
+t_max) of either kind counts, on every tube except those of the strand the ray leaves (Cycles skips the whole
+curve a ray leaves), and a hit where the ray leaves a tube (`FiberHit.exit`) has its normal and tangent reversed,
+as Cycles shades a back-facing curve hit, which makes it an entering hit of the mirrored fiber with the same h.
+Both rules give the same hits wherever strands do not overlap, except that a ray never meets the strand it
+leaves under "exit" (a curl's next turn, say). docs/scenes.md, "Interpenetrating strands", cites the peers'
+sources and says why "enter" is the default.
+
 The quadratic is solved relative to the segment centre in a cancellation-free form: with w = origin −
 centre, b = a × d and A = |b|², the signed distance between the ray and the axis is (w·b)/√A = h·r, and the
 entering root is t = −(w⊥·d + sqrt(A·r² − (w·b)²)) / A, w⊥ the part of w perpendicular to the axis.
