@@ -191,3 +191,37 @@ def test_bad_rule():
     with pytest.raises(ValueError, match="rule must be 'enter' or 'exit'"):
         intersect(FiberBVH(two_strands([[0, 0, 0], [1, 0, 0]], [[0, 1, 0], [1, 1, 0]])), [0, 0, 1], [0, 0, -1],
                   rule="cycles")
+
+
+# --- the rule in the renderer -----------------------------------------------------------------------------------
+
+
+def small_scene(fibers, rule, light):
+    scene = scene_from_dict({
+        "camera": {"type": "orthographic", "origin": [0, 0, 3], "target": [0, 0, -0.05], "up": [0, 1, 0],
+                   "width": 0.1, "resolution": [12, 12]},
+        "lights": [{"type": "directional", "direction": light, "irradiance": [3, 3, 3]}],
+        "fibers": {"generator": "swatch", "count": 1, "layers": 1},
+        "hair": {"albedo": [0.5, 0.35, 0.25], "beta_m": 0.3, "beta_n": 0.4, "alpha": 0.0},
+        "render": {"spp": 4, "max_depth": 16, "interpenetration": rule},
+    })
+    scene.fibers = fibers
+    return scene
+
+
+def test_the_rules_render_alike_where_strands_do_not_overlap_and_apart_where_they_do():
+    from warp_hair.geometry.generators import swatch
+    from warp_hair.renderer.forward import render
+
+    apart = swatch(count=16, layers=2, length=0.12, segments=6, seed=1)
+    assert interpenetration(apart).pairs == 0
+    tangled = wavy(count=16, layers=2, length=0.12, width=0.05, amplitude=0.006, wavelength=0.06, phase_jitter=1.0,
+                   segments=12, seed=1)
+    assert interpenetration(tangled).pairs > 5
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", InterpenetrationWarning)
+        for light in ([0.2, -0.3, -1.0], [0.0, -0.15, 1.0]):
+            same = [render(small_scene(apart, rule, light)) for rule in ("enter", "exit")]
+            assert np.array_equal(same[0], same[1])
+            differ = [render(small_scene(tangled, rule, light)) for rule in ("enter", "exit")]
+            assert not np.array_equal(differ[0], differ[1]) and np.all(np.isfinite(differ[1]))
