@@ -162,6 +162,19 @@ def surface_inside_others(fibers, samples=200_000, seed=0):
     return float(np.mean(points_inside_other_strands(fibers, points, strand[pick])))
 
 
+def tangled_picture(images, peers):
+    """warp-hair "enter" | "exit" | each peer, at the last peer's exposure; then each rule minus that peer in 8×8
+    blocks over its mean (mid grey is none, lighter is ours brighter, ±10% is ±0.2), 2× enlarged."""
+    reference = list(peers.values())[-1]
+    exposure = 0.8 / float(np.percentile(reference, 99.5))
+    panels = [exposure * image for image in [*images.values(), *peers.values()]]
+    for ours in images.values():
+        diff = np.kron((blocks(ours) - blocks(reference)) / reference.mean(), np.ones((BLOCK, BLOCK, 1)))
+        pad = ((0, ours.shape[0] - diff.shape[0]), (0, ours.shape[1] - diff.shape[1]), (0, 0))
+        panels.append(0.21 + 2.0 * np.pad(diff, pad, constant_values=0.0))
+    return np.kron(np.concatenate(panels, axis=1), np.ones((2, 2, 1)))
+
+
 def interpenetrating_check(args, threads):
     """Issue 23's swatch: warp-hair under both interpenetration rules against Mitsuba and Cycles."""
     fibers = interpenetrating_swatch()
@@ -207,6 +220,8 @@ def interpenetrating_check(args, threads):
                 print(f"[{lighting}] Cycles: {time.perf_counter() - start:.1f} s")
             for name, image in {**images, **peers}.items():
                 write_exr(args.out / f"tangled_{name.replace(' ', '_').lower()}_{lighting}.exr", image)
+            if peers:
+                write_png(args.out / f"side_by_side_tangled_{lighting}.png", tangled_picture(images, peers))
             print(f"[{lighting}] noise level (two warp-hair seeds): block RMSE {noise:.2%}")
             for peer, theirs in peers.items():
                 mean_theirs = theirs.mean(axis=(0, 1))
