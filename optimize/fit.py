@@ -43,7 +43,7 @@ from .latents import DEFAULT_FIT, SPECS, as_values, hair_and_gain, parse_control
 from .linearize import linearize
 from .losses import LOSSES, image_loss, loss_scale
 from .refine import REFINABLE_LOSSES, refine
-from .target import Target
+from .target import Target, interpenetration_note
 from .uncertainty import check_model_error, estimate_uncertainty, target_model_error
 
 SPP_STAGES = ((0.25, 4), (0.5, 2), (1.0, 1))  # (fraction of the iterations, divisor of spp) in order
@@ -373,6 +373,9 @@ def _finish(target, scenes, settings, names, start, estimate, history, done, sto
         images=images,
     )
     result.warnings.extend(notes)
+    note = interpenetration_note(target)
+    if note is not None:
+        result.warnings.append(note)
     if settings.uncertainty and stop_reason != "interrupted":
         estimate_uncertainty(result, lin, mc_covariance, target_model_error(target, settings.model_error))
     result.seconds = time.perf_counter() - begun

@@ -45,6 +45,7 @@ import numpy as np
 import targets as shipped
 from warp_hair.io import read_exr, write_exr
 from warp_hair.model.params import HairParams
+from warp_hair.geometry.interpenetration import checked_interpenetration
 from warp_hair.renderer.forward import render, render_metadata
 from warp_hair.scene import Scene, load_scene
 
@@ -91,6 +92,24 @@ class Target:
             if not (isinstance(record, dict) and "version" in record and "renderer" not in record):
                 return "unknown"
         return "warp-hair"
+
+
+def interpenetration_note(target: "Target") -> str | None:
+    """A warning for the fit's report when the target's strands pass through each other and another renderer (or
+    an unknown one) made its images: renderers disagree there (docs/scenes.md, "Interpenetrating strands")."""
+    if target.origin == "warp-hair":
+        return None  # rendered under the very rule the fit renders with
+    for image in target.images:
+        report = checked_interpenetration(image.scene.fibers)
+        if report.pairs:
+            rule = image.scene.render.interpenetration
+            return (
+                f"the target's strands interpenetrate ({report.pairs} pairs of {report.num_strands} strands) and its "
+                f"images were rendered by {target.origin}: renderers disagree there (issue 23's swatch: 2-18% in "
+                f"image means). This fit renders with [render] interpenetration = \"{rule}\"; a Cycles 4.x CPU "
+                "render needs \"exit\", Mitsuba 3 \"enter\" (docs/scenes.md, \"Interpenetrating strands\")"
+            )
+    return None
 
 
 def read_target_spec(directory) -> list[dict]:

@@ -225,3 +225,24 @@ def test_the_rules_render_alike_where_strands_do_not_overlap_and_apart_where_the
             assert np.array_equal(same[0], same[1])
             differ = [render(small_scene(tangled, rule, light)) for rule in ("enter", "exit")]
             assert not np.array_equal(differ[0], differ[1]) and np.all(np.isfinite(differ[1]))
+
+
+def test_a_fit_notes_interpenetrating_strands_only_when_another_renderer_made_the_target(tmp_path):
+    import shutil
+
+    import targets
+    from optimize import load_target
+    from optimize.target import interpenetration_note
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", InterpenetrationWarning)
+        assert interpenetration_note(load_target(targets.path("black_straight"))) is None  # warp-hair's own
+        assert interpenetration_note(load_target(targets.path("cycles_brown_straight"))) is None  # apart
+        copy = tmp_path / "black_straight"
+        shutil.copytree(targets.path("black_straight"), copy)
+        spec = copy / "target.toml"
+        spec.write_text('renderer = "cycles"\n' + spec.read_text())
+        note = interpenetration_note(load_target(copy))
+    assert note.startswith("the target's strands interpenetrate (237 pairs of 240 strands) and its images were "
+                           "rendered by cycles")
+    assert 'interpenetration = "enter"' in note
