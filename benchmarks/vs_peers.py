@@ -180,7 +180,8 @@ def interpenetrating_check(args, threads):
     fibers = interpenetrating_swatch()
     curve = catmull_rom(fibers)
     report = interpenetration(fibers)
-    print(f"interpenetrating swatch: {fibers.num_strands} strands x 96 segments, {args.resolution}^2 px, {args.spp} spp")
+    print(f"interpenetrating swatch: {fibers.num_strands} strands x 96 segments, {args.resolution}^2 px, "
+          f"{args.spp} spp")
     print(f"check: {report.message()}")
     print(f"fibers' surface inside another strand's tube: {surface_inside_others(fibers):.1%} "
           f"(the Catmull-Rom curve: {surface_inside_others(curve):.1%})")
@@ -228,11 +229,13 @@ def interpenetrating_check(args, threads):
                 for ours_name, ours in images.items():
                     ratio = ours.mean(axis=(0, 1)) / mean_theirs
                     rmse = block_rmse(ours, theirs)
-                    print(f"[{lighting}] {ours_name} / {peer}: means {fmt(ours.mean(axis=(0, 1)))} / {fmt(mean_theirs)} "
+                    print(f"[{lighting}] {ours_name} / {peer}: means {fmt(ours.mean(axis=(0, 1)))} / "
+                          f"{fmt(mean_theirs)} "
                           f"= {fmt(ratio)}; block RMSE {rmse:.2%} (noise level {noise:.2%})")
                     rows.append(f"| {lighting} | {ours_name.split()[1]} | {peer} | {fmt(ratio, '.3f')} | {rmse:.1%} | "
                                 f"{noise:.1%} |")
-    print("\n| light | warp-hair rule | peer | mean ratio (R, G, B) | block RMSE | noise |\n| --- | --- | --- | --- | --- | --- |")
+    print("\n| light | warp-hair rule | peer | mean ratio (R, G, B) | block RMSE | noise |")
+    print("| --- | --- | --- | --- | --- | --- |")
     print("\n".join(rows))
     print(f"images in {args.out}")
 

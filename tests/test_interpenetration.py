@@ -58,11 +58,13 @@ def segment_distances(p0, p1, q0, q1):
         for value in s:
             if fixed_s:
                 a = p0 + value * d1
-                t = np.clip(np.einsum("jk,ijk->ij", d2, a[:, None, :] - q0[None]) / np.einsum("jk,jk->j", d2, d2), 0, 1)
+                t = np.einsum("jk,ijk->ij", d2, a[:, None, :] - q0[None]) / np.einsum("jk,jk->j", d2, d2)
+                t = np.clip(t, 0, 1)
                 gap = a[:, None, :] - (q0[None] + t[..., None] * d2[None])
             else:
                 b = q0 + value * d2
-                u = np.clip(np.einsum("ik,ijk->ij", d1, b[None, :, :] - p0[:, None]) / np.einsum("ik,ik->i", d1, d1)[:, None], 0, 1)
+                u = np.einsum("ik,ijk->ij", d1, b[None, :, :] - p0[:, None]) / np.einsum("ik,ik->i", d1, d1)[:, None]
+                u = np.clip(u, 0, 1)
                 gap = (p0[:, None] + u[..., None] * d1[:, None]) - b[None]
             best = np.minimum(best, np.linalg.norm(gap, axis=-1))
     return best
