@@ -248,3 +248,29 @@ def test_a_fit_notes_interpenetrating_strands_only_when_another_renderer_made_th
     assert note.startswith("the target's strands interpenetrate (237 pairs of 240 strands) and its images were "
                            "rendered by cycles")
     assert 'interpenetration = "enter"' in note
+
+
+def test_the_gradient_pass_traces_the_exit_rule_paths():
+    """The gradient tracer follows the "exit" rule as the forward one does: on one layer of wavy strands that cross
+    their neighbours, render_grad's own image is render's, bit for bit (test_render_grad checks the derivative
+    along those paths; central differences are swamped here by the discrete choices crossing strands multiply).
+    """
+    from helpers.scenes import SPARSE_HAIR, sparse_scene_dict
+
+    from warp_hair.renderer.gradients import render_grad
+    from warp_hair.renderer.forward import render
+
+    data = sparse_scene_dict(SPARSE_HAIR)
+    data["fibers"] = {"generator": "wavy", "count": 24, "layers": 1, "length": 0.6, "radius": 0.004, "width": 0.2,
+                      "amplitude": 0.01, "wavelength": 0.15, "phase_jitter": 1.0, "seed": 3}
+    images = {}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", InterpenetrationWarning)
+        for rule in ("enter", "exit"):
+            data["render"]["interpenetration"] = rule
+            scene = scene_from_dict(data)
+            images[rule] = render(scene, spp=16, seed=5)
+            g, traced = render_grad(scene, np.ones_like(images[rule]), spp=16, seed=5, return_image=True)
+            np.testing.assert_array_equal(traced, images[rule])
+            assert all(np.all(np.isfinite(v)) for v in g.values())
+    assert interpenetration(scene.fibers).pairs >= 5 and not np.array_equal(images["enter"], images["exit"])
