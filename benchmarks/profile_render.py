@@ -36,7 +36,8 @@ from warp_hair.geometry.bvh import build_bvh
 from warp_hair.renderer.camera import generate_ray
 from warp_hair.renderer.envmap import env_sample
 from warp_hair.model.hair_bsdf import hair_sample, hair_value_pdf, lobe_setup
-from warp_hair.renderer.integrator import SceneData, pixel_start, rand2, to_local, to_world
+from warp_hair.numerics import rand2, to_local, to_world
+from warp_hair.renderer.integrator import SceneData, pixel_start
 from warp_hair.geometry.bvh import TRAVERSAL_COST
 from warp_hair.geometry.intersect import intersect_fibers
 from warp_hair.geometry.tubes import MAX_LEAF, _segment_boxes, _segment_frames

@@ -44,7 +44,8 @@ from warp_hair.model.jacobian import (
     value_jacobian_mat,
 )
 from warp_hair.model.hair_bsdf import HairCoefficients, hair_coefficients, lobe_setup
-from warp_hair.model.lobes import bessel_i0e_with_log_slope, logistic_norm, longitudinal_norm
+from warp_hair.model.lobes import logistic_norm, longitudinal_norm
+from warp_hair.numerics import bessel_i0e_with_log_slope
 from warp_hair.model.params import BETA_FLOOR
 
 wp.set_module_options({"enable_backward": False})

@@ -39,8 +39,8 @@ import numpy as np
 import warp as wp
 
 from ..controls import THETA_SIZE, column
-from .hair_bsdf import LobeSetup, cos_from_sin
-from ..numerics import INV_TWO_PI
+from .hair_bsdf import LobeSetup
+from ..numerics import INV_TWO_PI, cos_from_sin
 from .lobes import (
     attenuation_partials,
     fresnel_dielectric_d_eta,

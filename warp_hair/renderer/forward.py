@@ -17,7 +17,8 @@ from ..model.jacobian import CoefficientDerivatives, coefficient_derivatives, va
 from ..parallel import launch_ranges
 from ..scene import Scene
 from .camera import generate_ray
-from .integrator import SceneData, pixel_start, rand2, standard_error, trace_path, trace_path_grad
+from ..numerics import rand2
+from .integrator import SceneData, pixel_start, standard_error, trace_path, trace_path_grad
 from .prepare import PreparedScene, prepare, sampling
 
 # Pixels per range handed to a thread: fiber pixels cost far more than background ones, and small ranges

@@ -25,7 +25,17 @@ from ..model.jacobian import (
     lobe_setup_grad,
     value_jacobian_mat,
 )
-from ..numerics import FLOAT32_MIN_NORMAL, INV_PI, NO_HIT, TWO_PI
+from ..numerics import (
+    FLOAT32_MIN_NORMAL,
+    INV_PI,
+    NO_HIT,
+    TWO_PI,
+    perpendicular,
+    power_heuristic,
+    rand2,
+    to_local,
+    to_world,
+)
 from .camera import CameraData
 from .envmap import EnvironmentData, env_pdf, env_radiance, env_sample
 
@@ -55,12 +65,6 @@ class SceneData:
 
 
 @wp.func
-def power_heuristic(pdf_a: float, pdf_b: float):
-    a = pdf_a * pdf_a
-    return a / (a + pdf_b * pdf_b)
-
-
-@wp.func
 def occluded(scene: SceneData, origin: wp.vec3, direction: wp.vec3):
     """Whether a shadow ray toward a light at infinity is blocked (by a fiber or by the card)."""
     if card_distance(scene.card, origin, direction) < NO_HIT:
@@ -78,37 +82,11 @@ def light_visible(scene: SceneData, on_card: bool, position: wp.vec3, to_light: 
 
 
 @wp.func
-def to_local(w: wp.vec3, x: wp.vec3, y: wp.vec3, z: wp.vec3):
-    return wp.vec3(wp.dot(w, x), wp.dot(w, y), wp.dot(w, z))
-
-
-@wp.func
-def to_world(w: wp.vec3, x: wp.vec3, y: wp.vec3, z: wp.vec3):
-    return w[0] * x + w[1] * y + w[2] * z
-
-
-@wp.func
 def cosine_hemisphere(u: wp.vec2):
     """A cosine-distributed direction about +z (Malley: project a uniform disk sample up)."""
     r = wp.sqrt(u[0])
     phi = TWO_PI * u[1]
     return wp.vec3(r * wp.cos(phi), r * wp.sin(phi), wp.sqrt(wp.max(0.0, 1.0 - u[0])))
-
-
-@wp.func
-def card_frame_x(n: wp.vec3):
-    """Any unit vector ⊥ n (Duff et al. 2017)."""
-    sign = wp.where(n[2] >= 0.0, 1.0, -1.0)
-    a = -1.0 / (sign + n[2])
-    b = n[0] * n[1] * a
-    return wp.vec3(1.0 + sign * n[0] * n[0] * a, sign * b, -sign * n[0])
-
-
-@wp.func
-def rand2(rng: wp.uint32):
-    a = wp.randf(rng)
-    b = wp.randf(rng)
-    return wp.vec2(a, b), rng
 
 
 @wp.func
@@ -176,7 +154,7 @@ def shading_point(scene: SceneData, hit: FiberHit, t_card: float, o: wp.vec3, d:
         z = scene.card.normal
         if wp.dot(z, d) > 0.0:
             z = -z
-        x = card_frame_x(z)
+        x = perpendicular(z)
         position = o + t_card * d + 1.0e-5 * z
     y = wp.cross(z, x)
     return on_card, position, x, y, z, h
