@@ -14,7 +14,6 @@ import warnings
 
 import numpy as np
 import pytest
-import warp as wp
 
 from warp_hair.calibrate import (
     _environment_white,
@@ -29,8 +28,6 @@ from warp_hair.calibrate import (
 from warp_hair.cli import main
 from warp_hair.model.params import TALK_ALBEDO_INVERSION, HairParams, check_albedo_inversion
 from warp_hair.scene import DirectionalLight, load_scene, scene_from_dict
-
-wp.config.quiet = True
 
 CUSTOM = (4.0, 3.0, -6.0, 2.0, 1.0, -0.5)  # positive over [0.01, 1], and far from the talk's polynomial
 BETA_N = (0.05, 0.25, 0.45, 0.65, 0.85, 1.0)

@@ -24,6 +24,8 @@ import traceback
 import warnings
 from pathlib import Path
 
+import warp as wp
+
 from . import validate
 from .controls import CONTROLS, SCALAR_CONTROLS
 from .model.params import HairParams
@@ -310,7 +312,8 @@ def build_parser(extra=()) -> argparse.ArgumentParser:
 def exit_on_interrupt(run) -> None:
     """Run `run()` (a script's main) and exit: on Ctrl-C with one line and status 130, as the command does."""
     try:
-        run()
+        with wp.ScopedLogLevel(wp.LOG_WARNING):  # Warp logs every module load at INFO
+            run()
     except KeyboardInterrupt:
         print(f"{sys.argv[0]}: interrupted", file=sys.stderr)
         sys.exit(130)
@@ -324,7 +327,9 @@ def main(argv: list[str] | None = None, extra=()) -> int:
     """Run a subcommand. The installed `warp-hair` is optimize.cli.main, which adds the fitting subcommands
     (fit, targets) through `extra`: the renderer does not depend on the optimiser."""
     args = build_parser(extra).parse_args(argv)
-    with warnings.catch_warnings():
+    # Warp logs every module load at INFO: the command shows its warnings and errors only, and leaves the level
+    # as it was when it returns (main may run inside a host program).
+    with warnings.catch_warnings(), wp.ScopedLogLevel(wp.LOG_WARNING):
         # Users of the command see the library's warnings as messages, not as source locations.
         warnings.showwarning = _show_warning
         try:
