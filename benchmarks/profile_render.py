@@ -44,8 +44,9 @@ from warp_hair.geometry.tubes import MAX_LEAF, _segment_boxes, _segment_frames
 from warp_hair.numerics import NO_HIT
 from warp_hair.geometry.rays import intersect, occluded
 from warp_hair.parallel import default_threads
-from warp_hair.renderer.forward import prepare, render
-from warp_hair.renderer.jacobian import render_jacobian
+from warp_hair.renderer.gradients import render_jacobian
+from warp_hair.renderer.prepare import prepare
+from warp_hair.renderer.render import render
 from warp_hair.scene import load_scene
 
 HERE = Path(__file__).resolve().parent

@@ -36,7 +36,8 @@ import torch
 from tqdm import tqdm
 
 from warp_hair.model.params import effective_beta
-from warp_hair.renderer.forward import prepare, render
+from warp_hair.renderer.prepare import prepare
+from warp_hair.renderer.render import render
 from warp_hair.torch import render_torch_pair, scene_with_controls
 
 from .latents import DEFAULT_FIT, SPECS, as_values, hair_and_gain, parse_control_names

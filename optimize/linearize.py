@@ -26,8 +26,8 @@ import numpy as np
 import torch
 
 from warp_hair.controls import CONTROL_NAMES, columns
-from warp_hair.renderer.forward import prepare
-from warp_hair.renderer.jacobian import render_jacobian
+from warp_hair.renderer.gradients import render_jacobian
+from warp_hair.renderer.prepare import prepare
 from warp_hair.torch import default_grad_seed, scene_with_controls
 
 from .latents import EXPOSURE, hair_and_gain
@@ -168,7 +168,7 @@ def crossed_curvature(jacobians: np.ndarray, weights: np.ndarray) -> np.ndarray:
 def linearize(target, values: dict, settings, spp: int, seed: int, threads=None, scenes=None) -> Linearization:
     """Render every image of `target` twice at `values` (spp each) and linearise the loss there.
 
-    `scenes`: the target's scenes prepared once (`warp_hair.render.prepare`, one per image, in order), so that
+    `scenes`: the target's scenes prepared once (`warp_hair.prepare`, one per image, in order), so that
     repeated linearisations do not rebuild the BVH; by default each image's scene, prepared here once for both
     passes."""
     hair, gain = hair_and_gain(values)

@@ -45,7 +45,7 @@ import numpy as np
 import targets as shipped
 from warp_hair.io import read_exr, write_exr
 from warp_hair.model.params import HairParams
-from warp_hair.renderer.forward import render, render_metadata
+from warp_hair.renderer.render import render, render_metadata
 from warp_hair.scene import Scene, load_scene
 
 TARGET_FILE = shipped.TARGET_FILE

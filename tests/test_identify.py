@@ -11,7 +11,8 @@ from optimize.fit import FitSettings
 from optimize.identify import ALBEDO_BOUND, BETA_BOUND, BOUNDS, check_target
 from optimize.linearize import _reduce, _weight, linearize
 from optimize.target import SHIPPED_TARGETS, load_target, make_target
-from warp_hair.renderer.forward import prepare, render
+from warp_hair.renderer.prepare import prepare
+from warp_hair.renderer.render import render
 
 HAIR = {"albedo": [0.7, 0.5, 0.3], "beta_m": 0.3, "beta_n": 0.4}
 

@@ -21,7 +21,7 @@ from optimize.uncertainty import (
     target_model_error,
 )
 from warp_hair.io import write_exr
-from warp_hair.renderer.forward import prepare
+from warp_hair.renderer.prepare import prepare
 
 TRUTH = {"albedo": [0.6, 0.42, 0.25], "beta_m": 0.3, "beta_n": 0.4}
 

@@ -22,7 +22,7 @@ from optimize.uncertainty import estimate_uncertainty
 from optimize.target import SHIPPED_TARGETS, load_target, make_target, shipped_targets
 from warp_hair.io import read_exr, write_exr
 from warp_hair.model.params import TALK_ALBEDO_INVERSION
-from warp_hair.renderer.forward import render
+from warp_hair.renderer.render import render
 from warp_hair.torch import default_grad_seed, scene_with_controls
 
 def scene_text(w, h, dz, red):

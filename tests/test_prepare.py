@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 import torch
 
-from warp_hair.renderer.forward import PreparedScene, prepare, render
-from warp_hair.renderer.gradients import render_grad
-from warp_hair.renderer.jacobian import render_jacobian
+from warp_hair.renderer.gradients import render_grad, render_jacobian
+from warp_hair.renderer.prepare import PreparedScene, prepare
+from warp_hair.renderer.render import render
 from warp_hair.scene import scene_from_dict
 from warp_hair.torch import render_torch_pair, scene_with_controls
 

@@ -13,7 +13,8 @@ command shows Warp's warnings and errors only.
 from . import geometry, io
 from .model import bsdf
 from .model.params import HairParams
-from .renderer.forward import prepare, render
+from .renderer.prepare import prepare
+from .renderer.render import render
 from .scene import load_scene, scene_from_dict
 
 __all__ = ["HairParams", "bsdf", "geometry", "io", "load_scene", "prepare", "render", "scene_from_dict"]

@@ -43,7 +43,7 @@ from .model.params import (
     check_albedo_inversion,
     effective_beta,
 )
-from .renderer.forward import render
+from .renderer.render import render
 from .scene import DirectionalLight, EnvironmentLight, Scene, scene_from_dict
 
 DEFAULT_SIGMA_A = (0.002, 0.01, 0.04, 0.12, 0.35)

@@ -129,7 +129,7 @@ def render_scene(args: argparse.Namespace) -> None:
     import time
 
     from .io import write_exr, write_png
-    from .renderer.forward import render, render_metadata
+    from .renderer.render import render, render_metadata
     from .scene import load_scene
 
     check_sampling_args(args)
@@ -261,7 +261,7 @@ def calibrate_scene(args: argparse.Namespace) -> None:
         inversion_toml,
         write_calibrated_scene,
     )
-    from .renderer.forward import sampling
+    from .renderer.prepare import sampling
     from .scene import load_scene
 
     sigma_a, beta_n = check_grid(args.sigma_a or DEFAULT_SIGMA_A, args.beta_n or DEFAULT_BETA_N)

@@ -39,8 +39,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .renderer.forward import prepare, render
 from .renderer.gradients import render_grad
+from .renderer.prepare import prepare
+from .renderer.render import render
 from .scene import Scene
 from .validate import SEED_LIMIT
 

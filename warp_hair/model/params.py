@@ -71,7 +71,7 @@ def albedo_denominator(beta_n, coefficients):
 
 def albedo_polynomial(b, coefficients):
     """albedo_denominator without the floor: plain arithmetic (Horner), so it also takes torch tensors (the fit's
-    latents) and complex steps (bsdf_jacobian's derivatives)."""
+    latents) and complex steps (model.jacobian's derivatives)."""
     value = 0.0
     for p in reversed(coefficients):
         value = value * b + float(p)

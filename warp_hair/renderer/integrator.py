@@ -387,21 +387,3 @@ def make_trace_path(differentiable: bool):
 trace_path = make_trace_path(False)
 trace_path_grad = make_trace_path(True)
 
-
-@wp.func
-def standard_error(total: wp.vec3, total_sq: wp.vec3, spp: int):
-    """Standard error of a pixel mean from the sum and the sum of squares of its own samples."""
-    n = float(spp)
-    mean = total / n
-    variance = (total_sq / n - wp.cw_mul(mean, mean)) * (n / wp.max(n - 1.0, 1.0))
-    return wp.vec3(
-        wp.sqrt(wp.max(variance[0], 0.0) / n), wp.sqrt(wp.max(variance[1], 0.0) / n), wp.sqrt(wp.max(variance[2], 0.0) / n)
-    )
-
-
-@wp.func
-def pixel_start(scene: SceneData, pixel: int, seed: int):
-    """(column, row, random stream) of a pixel. One stream per pixel: the image does not depend on how pixels are
-    split among threads, and the gradient pass with the same seed traces the same paths."""
-    width = scene.camera.width_px
-    return pixel % width, pixel / width, wp.rand_init(seed, pixel)

@@ -9,7 +9,7 @@ Usage inside a kernel (`controls = hair_controls(params)` on the host):
     g = hair_value_pdf_vjp(controls, wo, wi, h, seed)  # Σ_r seed_r · J[r]: one row's cost (a seed of
                                                        # adjoint radiance weights needs no full Jacobian)
 A path tracer accumulates ∂ log S_c/∂θ_k as J[c, k] / S_c, with S_c from `hair_value_pdf` as before. The
-renderer's gradient tracer uses the closed form of `bsdf_jacobian` instead (one evaluation of the lobes for S
+renderer's gradient tracer uses the closed form of `model.jacobian` instead (one evaluation of the lobes for S
 and ∂S, no reverse pass); this module, Warp's reverse mode through the model as written, is its check.
 
 Call these two from a kernel, or from a `wp.func` that itself calls `wp.grad`. Warp 1.19 emits every function
