@@ -30,21 +30,33 @@ NO_HIT = wp.constant(1.0e30)
 
 # Special functions (the model's lobes).
 
+
 @wp.func
 def bessel_i0e(x: float):
     """I0(x)·e^(−x) for x ≥ 0 (Abramowitz & Stegun 9.8.1–9.8.2, relative error < 5e-7).
 
-    The scaled form never overflows, and its e^(−x) cancels the e^(+a) of M analytically (`lobes.longitudinal_scattering`).
+    The scaled form never overflows, and its e^(−x) cancels the e^(+a) of M analytically
+    (`lobes.longitudinal_scattering`).
     """
     if x < 3.75:
         t = x / 3.75
         t = t * t
-        i0 = 1.0 + t * (3.5156229 + t * (3.0899424 + t * (1.2067492 + t * (0.2659732 + t * (0.0360768 + t * 0.0045813)))))
+        i0 = 1.0 + t * (
+            3.5156229 + t * (3.0899424 + t * (1.2067492 + t * (0.2659732 + t * (0.0360768 + t * 0.0045813))))
+        )
         return i0 * wp.exp(-x)
     y = 3.75 / x
     poly = 0.39894228 + y * (
         0.01328592
-        + y * (0.00225319 + y * (-0.00157565 + y * (0.00916281 + y * (-0.02057706 + y * (0.02635537 + y * (-0.01647633 + y * 0.00392377))))))
+        + y
+        * (
+            0.00225319
+            + y
+            * (
+                -0.00157565
+                + y * (0.00916281 + y * (-0.02057706 + y * (0.02635537 + y * (-0.01647633 + y * 0.00392377))))
+            )
+        )
     )
     return poly / wp.sqrt(x)
 
@@ -61,22 +73,37 @@ def bessel_i0e_with_log_slope(x: float):
     if x < 3.75:
         t = x / 3.75
         t = t * t
-        i0 = 1.0 + t * (3.5156229 + t * (3.0899424 + t * (1.2067492 + t * (0.2659732 + t * (0.0360768 + t * 0.0045813)))))
+        i0 = 1.0 + t * (
+            3.5156229 + t * (3.0899424 + t * (1.2067492 + t * (0.2659732 + t * (0.0360768 + t * 0.0045813))))
+        )
         d_i0 = 3.5156229 + t * (
-            2.0 * 3.0899424 + t * (3.0 * 1.2067492 + t * (4.0 * 0.2659732 + t * (5.0 * 0.0360768 + t * (6.0 * 0.0045813))))
+            2.0 * 3.0899424
+            + t * (3.0 * 1.2067492 + t * (4.0 * 0.2659732 + t * (5.0 * 0.0360768 + t * (6.0 * 0.0045813))))
         )
         return i0 * wp.exp(-x), d_i0 * (x * (2.0 / (3.75 * 3.75))) / i0 - 1.0
     y = 3.75 / x
     poly = 0.39894228 + y * (
         0.01328592
-        + y * (0.00225319 + y * (-0.00157565 + y * (0.00916281 + y * (-0.02057706 + y * (0.02635537 + y * (-0.01647633 + y * 0.00392377))))))
+        + y
+        * (
+            0.00225319
+            + y
+            * (
+                -0.00157565
+                + y * (0.00916281 + y * (-0.02057706 + y * (0.02635537 + y * (-0.01647633 + y * 0.00392377))))
+            )
+        )
     )
     d_poly = 0.01328592 + y * (
         2.0 * 0.00225319
         + y
         * (
             3.0 * -0.00157565
-            + y * (4.0 * 0.00916281 + y * (5.0 * -0.02057706 + y * (6.0 * 0.02635537 + y * (7.0 * -0.01647633 + y * (8.0 * 0.00392377)))))
+            + y
+            * (
+                4.0 * 0.00916281
+                + y * (5.0 * -0.02057706 + y * (6.0 * 0.02635537 + y * (7.0 * -0.01647633 + y * (8.0 * 0.00392377))))
+            )
         )
     )
     return poly / wp.sqrt(x), -(0.5 + y * d_poly / poly) * (y * (1.0 / 3.75))  # 1/x = y/3.75: one division fewer
@@ -101,6 +128,7 @@ def log1p(x: float):
 
 # Trigonometry.
 
+
 @wp.func
 def cos_from_sin(sin_x: float):
     """cos x ≥ 0 from sin x as sqrt((1 − sin)(1 + sin)): no cancellation near grazing, unlike 1 − sin²."""
@@ -108,6 +136,7 @@ def cos_from_sin(sin_x: float):
 
 
 # Monte Carlo.
+
 
 @wp.func
 def power_heuristic(pdf_a: float, pdf_b: float):
@@ -125,6 +154,7 @@ def rand2(rng: wp.uint32):
 
 
 # Frames.
+
 
 @wp.func
 def to_local(w: wp.vec3, x: wp.vec3, y: wp.vec3, z: wp.vec3):

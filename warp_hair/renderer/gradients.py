@@ -33,8 +33,14 @@ from .prepare import PreparedScene, scene_of
 from .render import render_pixels
 
 
-def render_jacobian(scene: Scene | PreparedScene, spp: int | None = None, seed: int | None = None,
-                    threads: int | None = None, device: str | None = None, pixels=None):
+def render_jacobian(
+    scene: Scene | PreparedScene,
+    spp: int | None = None,
+    seed: int | None = None,
+    threads: int | None = None,
+    device: str | None = None,
+    pixels=None,
+):
     """(jacobian (H, W, 3, 8) float32, image (H, W, 3), stderr (H, W, 3)) of `scene` at its own controls.
 
     `scene` is a Scene or a PreparedScene (`prepare`, built once for many renders); spp and seed default to the

@@ -211,13 +211,13 @@ def make_sample_ld(differentiable: bool):
 def make_trace_path(differentiable: bool):
     """The path tracer as a `wp.func` (pbrt's Li); with `differentiable` it also returns the path's ∂L/∂θ.
 
-    trace_path(scene, origin, direction, rng, derivs) -> (radiance, D, rng), `derivs` the material's
+    trace_path(scene, origin, direction, rng, derivs) -> (radiance, D, rng), `derivs` the hair's
     `model.jacobian.coefficient_derivatives` and D[c, k] = ∂L_c/∂θ_k, the (3, 8) Jacobian of the path's
     radiance. The forward variant ignores `derivs` and returns D = 0: the branches under wp.static are compiled
     out of it.
 
     The gradient (detached sampling; docs/gradients.md explains why it is unbiased): every contribution C of a
-    path is a product of BSDF values S_c over its fiber vertices divided by θ-independent factors (pdfs, MIS
+    path is a product of BSDF values S_c over its vertices divided by θ-independent factors (pdfs, MIS
     weights and roulette probabilities held fixed), so ∂C_c/∂θ_k = C_c Σ_vertices ∂ log S_c/∂θ_k. G[c, k]
     carries that sum over the vertices so far (at the directions the path continued in); each contribution
     adds C_c (G[c, k] + ∂ log S_c(w_light)/∂θ_k at an NEE vertex that depends on θ) to D[c, k]. Keeping the
@@ -305,4 +305,3 @@ def make_trace_path(differentiable: bool):
 
 trace_path = make_trace_path(False)
 trace_path_grad = make_trace_path(True)
-

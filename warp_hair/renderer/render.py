@@ -16,10 +16,10 @@ import numpy as np
 import warp as wp
 
 from ..model.jacobian import CoefficientDerivatives, coefficient_derivatives, value_jacobian_mat
+from ..numerics import rand2
 from ..parallel import launch_ranges
 from ..scene import Scene
 from .camera import generate_ray
-from ..numerics import rand2
 from .integrator import SceneData, trace_path, trace_path_grad
 from .prepare import PreparedScene, prepare, sampling
 
@@ -50,7 +50,9 @@ def standard_error(total: wp.vec3, total_sq: wp.vec3, spp: int):
     mean = total / n
     variance = (total_sq / n - wp.cw_mul(mean, mean)) * (n / wp.max(n - 1.0, 1.0))
     return wp.vec3(
-        wp.sqrt(wp.max(variance[0], 0.0) / n), wp.sqrt(wp.max(variance[1], 0.0) / n), wp.sqrt(wp.max(variance[2], 0.0) / n)
+        wp.sqrt(wp.max(variance[0], 0.0) / n),
+        wp.sqrt(wp.max(variance[1], 0.0) / n),
+        wp.sqrt(wp.max(variance[2], 0.0) / n),
     )
 
 
@@ -114,15 +116,18 @@ def pixel_indices(pixels, resolution) -> np.ndarray | None:
         return None
     flat = np.asarray(pixels)
     if flat.ndim != 1 or not (flat.size == 0 or np.issubdtype(flat.dtype, np.integer)):
-        raise ValueError(f"pixels must be a 1-D array of integer pixel indices (row * width + column), got shape "
-                         f"{flat.shape} of {flat.dtype}")
+        raise ValueError(
+            f"pixels must be a 1-D array of integer pixel indices (row * width + column), got shape "
+            f"{flat.shape} of {flat.dtype}"
+        )
     if flat.size and (flat.min() < 0 or flat.max() >= n):
         raise ValueError(f"pixels must lie in [0, {n}) for a {width}x{height} image, got {flat.min()}..{flat.max()}")
     return flat.astype(np.int32)
 
 
-def render_pixels(scene: Scene | PreparedScene, spp, seed, threads, device, differentiable: bool, progress=None,
-                  pixels=None):
+def render_pixels(
+    scene: Scene | PreparedScene, spp, seed, threads, device, differentiable: bool, progress=None, pixels=None
+):
     """(image (H, W, 3), stderr (H, W, 3), jacobian (H, W, 3, 8) or None): the launch of both passes, over
     `pixels` (flat indices; default all). Every pixel draws from its own random stream, so a pixel rendered
     alone has the value it has in the whole image; the pixels not rendered are 0."""
