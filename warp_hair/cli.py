@@ -25,7 +25,7 @@ import warnings
 from pathlib import Path
 
 from . import validate
-from .controls import CONTROLS, SCALAR_CONTROLS
+from .controls import COLOUR_CONTROL_NAMES, COLOUR_CONTROLS, CONTROLS
 from .model.params import HairParams
 
 PROG = "warp-hair"
@@ -53,36 +53,34 @@ def common_flags(*, threads=True, spp=None, seed=None, spp_default=None, seed_de
 
 
 def add_hair_controls(parser: argparse.ArgumentParser) -> None:
+    """One flag per control of the table (`warp_hair.controls`), its help the table's range, unit and doc."""
+    inputs = " or ".join("/".join(f"--{flag(name)}" for name in names) for names in COLOUR_CONTROLS.values())
     group = parser.add_argument_group(
         "hair controls",
-        "Colour: one of --albedo, --sigma-a, or --eumelanin/--pheomelanin (default --albedo 0.6 0.4 0.2).",
+        f"Colour: one of {inputs} (default --albedo {' '.join(f'{c:g}' for c in DEFAULT_ALBEDO)}).",
     )
-    add = group.add_argument
-    add("--albedo", nargs="+", type=float, metavar="C",
-        help="multiple-scattering albedo in (0, 1]: one value (grey) or three (R G B)")
-    add("--sigma-a", nargs="+", type=float, metavar="S",
-        help="absorption per unit fiber radius, >= 0: one value (grey) or three (R G B)")
-    add("--eumelanin", type=float, metavar="X", help="eumelanin concentration >= 0 (blonde 0.3, brown 1.3, black 8)")
-    add("--pheomelanin", type=float, metavar="Y", help="pheomelanin (red-yellow pigment) concentration >= 0")
-    metavars = {"alpha": "DEG", "eta": "E", "r_roughness_scale": "K"}
-    for name in SCALAR_CONTROLS:
-        c = CONTROLS[name]
-        add(f"--{name.replace('_', '-')}", type=float, default=c.default, metavar=metavars.get(name, "B"),
-            help=f"{c.doc}, in {c.interval} (default {c.default:g})")
+    for name, c in CONTROLS.items():
+        unit = f" ({c.unit})" if c.unit else ""
+        if c.size == 3:
+            group.add_argument(f"--{flag(name)}", nargs="+", type=float,
+                               help=f"{c.doc}{unit}, in {c.interval}: one value (grey) or three (R G B)")
+        elif c.colour_input is not None:  # unset unless given: the colour input is the one given
+            group.add_argument(f"--{flag(name)}", type=float, help=f"{c.doc}{unit}, in {c.interval}")
+        else:
+            group.add_argument(f"--{flag(name)}", type=float, default=c.default,
+                               help=f"{c.doc}{unit}, in {c.interval} (default {c.default:g})")
+
+
+def flag(name: str) -> str:
+    """A control's command-line flag, without the dashes: beta_m → beta-m."""
+    return name.replace("_", "-")
 
 
 def hair_params(args: argparse.Namespace) -> HairParams:
-    colour = dict(albedo=args.albedo, sigma_a=args.sigma_a, eumelanin=args.eumelanin, pheomelanin=args.pheomelanin)
-    if all(value is None for value in colour.values()):
-        colour["albedo"] = DEFAULT_ALBEDO
-    return HairParams(
-        **colour,
-        beta_m=args.beta_m,
-        beta_n=args.beta_n,
-        alpha=args.alpha,
-        eta=args.eta,
-        r_roughness_scale=args.r_roughness_scale,
-    )
+    controls = {name: getattr(args, name) for name in CONTROLS}
+    if all(controls[name] is None for name in COLOUR_CONTROL_NAMES):
+        controls["albedo"] = DEFAULT_ALBEDO
+    return HairParams(**controls)
 
 
 def add_plot_bsdf(subparsers) -> None:
