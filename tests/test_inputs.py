@@ -53,7 +53,8 @@ def test_eta_is_checked_in_float32_where_the_bsdf_is_finite():
     def values(eta):
         params = HairParams(eumelanin=1e6, pheomelanin=8.0, eta=smallest)
         object.__setattr__(params, "eta", eta)  # past the check, to show what it guards
-        return [wh.bsdf.eval(params, wo, wi, 0.0), wh.bsdf.pdf(params, wo, wi, 0.0), *wh.bsdf.sample(params, wo, 0.0, u)]
+        h = 0.0
+        return [wh.bsdf.eval(params, wo, wi, h), wh.bsdf.pdf(params, wo, wi, h), *wh.bsdf.sample(params, wo, h, u)]
 
     assert all(np.isfinite(a).all() for a in values(smallest))
     assert not all(np.isfinite(a).all() for a in values(1.0 + 1e-9))

@@ -67,7 +67,9 @@ def test_melanin_coefficients():
         wh.HairParams(eumelanin=0.3, pheomelanin=0.1).absorption, 0.3 * EUMELANIN_SIGMA_A + 0.1 * PHEOMELANIN_SIGMA_A
     )
     # The benchmark scene's σ_a is eumelanin 0.3 + pheomelanin 0.1, rounded to 4 digits.
-    np.testing.assert_allclose(wh.HairParams(eumelanin=0.3, pheomelanin=0.1).absorption, [0.1444, 0.2491, 0.516], atol=1e-4)
+    np.testing.assert_allclose(
+        wh.HairParams(eumelanin=0.3, pheomelanin=0.1).absorption, [0.1444, 0.2491, 0.516], atol=1e-4
+    )
 
 
 def lobe_peak_theta(params, lobe, theta_o_deg, dphi):

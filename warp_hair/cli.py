@@ -60,15 +60,15 @@ def add_hair_controls(parser: argparse.ArgumentParser) -> None:
         f"Colour: one of {inputs} (default --albedo {' '.join(f'{c:g}' for c in DEFAULT_ALBEDO)}).",
     )
     for name, c in CONTROLS.items():
-        unit = f" ({c.unit})" if c.unit else ""
+        where = f"in {c.interval}" + (f" ({c.unit})" if c.unit else "")
         if c.size == 3:
-            group.add_argument(f"--{flag(name)}", nargs="+", type=float,
-                               help=f"{c.doc}{unit}, in {c.interval}: one value (grey) or three (R G B)")
+            group.add_argument(f"--{flag(name)}", nargs="+", type=float, metavar="X",
+                               help=f"{c.doc}; {where}: one value (grey) or three (R G B)")
         elif c.colour_input is not None:  # unset unless given: the colour input is the one given
-            group.add_argument(f"--{flag(name)}", type=float, help=f"{c.doc}{unit}, in {c.interval}")
+            group.add_argument(f"--{flag(name)}", type=float, metavar="X", help=f"{c.doc}; {where}")
         else:
-            group.add_argument(f"--{flag(name)}", type=float, default=c.default,
-                               help=f"{c.doc}{unit}, in {c.interval} (default {c.default:g})")
+            group.add_argument(f"--{flag(name)}", type=float, default=c.default, metavar="X",
+                               help=f"{c.doc}; {where} (default {c.default:g})")
 
 
 def flag(name: str) -> str:
@@ -156,9 +156,8 @@ def add_gradcheck(subparsers) -> None:
         description="Compare the render-level gradients (render_grad) of L = mean 0.5 (image - target)^2 with "
         "central finite differences of render (common random numbers, Richardson-extrapolated from eps and "
         "eps/2), over K seed pairs, one row per control component. The target is the scene rendered at 16x "
-        "the spp with the checked controls moved (albedo x0.9, sigma_a and melanins x1.1, beta_m, beta_n +0.05, "
-        "alpha +3 deg, eta +0.05, r_roughness_scale +0.1). Cost: about (2 + 8 x components) x K renders at "
-        "--spp plus the target, at the scene's own resolution; lower the resolution in the scene for quick checks.",
+        f"the spp with the checked controls moved ({_gradcheck_moves()}). Cost: about (2 + 8 x components) x K "
+        "renders at --spp plus the target, at the scene's own resolution; lower the resolution in the scene for quick checks.",
     )
     parser.add_argument("scene", type=Path, metavar="SCENE.toml", help="the scene file")
     parser.add_argument("--seeds", type=int, default=4, metavar="K",
@@ -166,9 +165,15 @@ def add_gradcheck(subparsers) -> None:
     parser.add_argument("--params", metavar="NAMES",
                         help="comma-separated controls to check, e.g. albedo,beta_m (default: all of the scene's)")
     parser.add_argument("--eps", type=float, metavar="E",
-                        help="one finite-difference step for every control (default per control: colour 0.04, "
-                        "melanins 0.05, beta_m 0.04, beta_n 0.08, alpha 1 deg, eta 0.04, r_roughness_scale 0.4)")
+                        help="one finite-difference step for every control (default per control: "
+                        + ", ".join(f"{name} {c.gradcheck_step:g}" for name, c in CONTROLS.items()) + ")")
     parser.set_defaults(run=gradcheck_scene)
+
+
+def _gradcheck_moves() -> str:
+    """How gradcheck's target moves each control, from the table: "albedo x0.9, ..., eta +0.05, ..."."""
+    return ", ".join(f"{name} {'x' if kind == 'scale' else '+'}{amount:g}"
+                     for name, c in CONTROLS.items() for kind, amount in [c.gradcheck_move])
 
 
 def check_sampling_args(args: argparse.Namespace) -> None:

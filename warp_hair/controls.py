@@ -2,8 +2,10 @@
 
 Each control is defined here once: its name, size (1, or 3 for RGB), the columns it fills in θ (the vector the
 gradient tracer differentiates, THETA_SIZE = 8 wide), its allowed range, its default, the colour input it
-belongs to, its unit and what it does. `HairParams` checks values against it, the gradient tracer lays out its
-Jacobian columns by it, and `render_grad`, the torch front and the fit name θ through it.
+belongs to, its unit and what it does, and how the fit and gradcheck move it. Built from it: `HairParams` (one
+field per control, its constructor and checks), the command line's hair flags, the fit's latents
+(`optimize.latents.SPECS`), gradcheck's steps and the Jacobian's columns; `render_grad`, the torch front and the
+fit name θ through it. Adding a control: one entry in CONTROLS, plus its physics (see the comment above it).
 
     from warp_hair.controls import CONTROLS, controls_of, named_theta, theta_vector
     CONTROLS["eta"].interval                      # '(1.0, 10.0]'
@@ -118,10 +120,10 @@ CONTROLS = {
                  unit="concentration", doc="red pigment",
                  fit_hi=math.inf, fit_start=0.3, gradcheck_move=("scale", 1.1), gradcheck_step=0.05),
         _control("beta_m", 1, 3, 0.0, 1.0, default=0.3, unit="", floor=BETA_FLOOR,
-                 doc="longitudinal roughness (below params.BETA_FLOOR it renders as the floor)",
+                 doc="longitudinal roughness (below BETA_FLOOR = 0.01 it renders as the floor)",
                  fit_start=0.5, gradcheck_move=("add", 0.05), gradcheck_step=0.04),
         _control("beta_n", 1, 4, 0.0, 1.0, default=0.3, unit="", floor=BETA_FLOOR,
-                 doc="azimuthal roughness (below params.BETA_FLOOR it renders as the floor)",
+                 doc="azimuthal roughness (below BETA_FLOOR = 0.01 it renders as the floor)",
                  fit_start=0.5, gradcheck_move=("add", 0.05), gradcheck_step=0.08),
         _control("alpha", 1, 5, -30.0, 30.0, default=2.0, unit="degrees",
                  doc="cuticle scale tilt; > 0 (human hair) moves the primary highlight toward the root",
