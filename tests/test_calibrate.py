@@ -113,6 +113,7 @@ def test_hair_params_use_their_own_coefficients():
         ((-1.0, 0.0, 0.0, 0.0, 0.0, 0.0), r"at β_n = 0.01"),  # negative everywhere
         ((5.0, 0.0, 0.0, 0.0, 0.0, -6.0), r"positive over all of \[0.01, 1.0\]"),  # root near the top end
         ((5.0, 1.0, 2.0), r"must be 6 numbers"),
+        ([[5.969, -0.215, 2.532, -10.73, 5.574, 0.245]], r"must be 6 numbers"),  # nested: not flattened
         ((5.0, 1.0, 2.0, 0.0, math.nan, 0.0), r"albedo_inversion\[4\] must be finite"),
     ],
 )

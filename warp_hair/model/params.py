@@ -9,6 +9,7 @@ the derived coefficients (σ_a, per-lobe longitudinal variance, logistic scale, 
 
 from __future__ import annotations
 
+import inspect
 import math
 import warnings
 from dataclasses import dataclass
@@ -95,9 +96,9 @@ def sigma_a_from_albedo(albedo, beta_n, coefficients):
 def check_albedo_inversion(coefficients, name="albedo_inversion"):
     """The coefficients p_0 ... p_5 as a tuple of floats, or a ValueError naming `name` if there are not six
     finite numbers or if P(β_n) is not positive over all of [0.01, 1]."""
-    values = np.atleast_1d(np.asarray(coefficients, dtype=object)).ravel()
+    values = np.atleast_1d(np.asarray(coefficients, dtype=object))
     count = ALBEDO_INVERSION_DEGREE + 1
-    if values.size != count:
+    if values.shape != (count,):  # a nested list is not flattened
         raise ValueError(
             f"{name} must be {count} numbers (p_0 ... p_{ALBEDO_INVERSION_DEGREE} of P(β_n) = Σ p_k β_n^k), "
             f"got {coefficients!r}"
@@ -302,3 +303,9 @@ def _inversion_table(table, where) -> tuple:
 
 
 HairParams.__doc__ = HairParams.__doc__.replace("{table}", describe().replace("\n", "\n    "))
+# help() and editors show the keywords the table gives (the constructor takes them as **controls).
+HairParams.__signature__ = inspect.Signature(
+    [inspect.Parameter(name, inspect.Parameter.KEYWORD_ONLY, default=None if c.colour_input else c.default)
+     for name, c in CONTROLS.items()]
+    + [inspect.Parameter(ALBEDO_INVERSION_KEY, inspect.Parameter.KEYWORD_ONLY, default=TALK_ALBEDO_INVERSION)]
+)
