@@ -357,7 +357,7 @@ def _run_scene(case, workdir):
 
         white = dataclasses.replace(scene, hair=scene.hair.replace(sigma_a=0.0))
         if _rendered(white, may_be_black=False)[0] == "image":
-            return (BLACK_ABSORBING, f"σ_a = {scene.hair.sigma_a.tolist()}")
+            return (BLACK_ABSORBING, f"σ_a = {scene.hair.absorption.tolist()}")
     return outcome
 
 

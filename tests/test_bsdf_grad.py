@@ -119,7 +119,7 @@ def _material_pairs(rng, n):
     for _ in range(n):
         controls = random_controls(rng, "albedo")
         with_albedo = wh.HairParams(**controls)
-        yield controls, with_albedo, with_albedo.replace(sigma_a=list(with_albedo.sigma_a))
+        yield controls, with_albedo, with_albedo.replace(sigma_a=list(with_albedo.absorption))
 
 
 def _sigma_a_slopes(controls, step=1e-6):

@@ -120,7 +120,7 @@ def test_render_writes_exr_with_metadata_and_png(tiny_scene, tmp_path, capsys):
     assert image.shape == (8, 12, 3) and np.isfinite(image).all() and image.max() > 0.0
     made = metadata["warp_hair"]
     assert made["spp"] == 3 and made["seed"] == 4 and made["hair"]["eumelanin"] == 1.3
-    np.testing.assert_allclose(made["sigma_a"], wh.HairParams(eumelanin=1.3).sigma_a)
+    np.testing.assert_allclose(made["sigma_a"], wh.HairParams(eumelanin=1.3).absorption)
     assert png_size(png) == (12, 8)
     # The same scene and seed give the same image as the Python API.
     np.testing.assert_array_equal(image, wh.render(wh.load_scene(scene), spp=3))

@@ -52,7 +52,7 @@ class HairCoefficients:
 
 def hair_coefficients(params: HairParams) -> HairCoefficients:
     c = HairCoefficients()
-    c.sigma_a = wp.vec3(*params.sigma_a)
+    c.sigma_a = wp.vec3(*params.absorption)
     c.eta = float(params.eta)
     # The per-lobe normalisations are per material: formed here once, in float64.
     v = params.lobe_variances

@@ -172,7 +172,7 @@ def render_metadata(scene: Scene, spp: int, seed: int) -> dict:
             "version": __version__,
             "scene": scene.source,
             "hair": scene.hair.to_table(),
-            "sigma_a": [float(c) for c in scene.hair.sigma_a],
+            "sigma_a": [float(c) for c in scene.hair.absorption],
             "spp": spp,
             "seed": seed,
         }
