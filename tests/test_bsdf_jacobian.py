@@ -34,7 +34,7 @@ from scipy.special import i0e, i1e
 from helpers import bsdf_derivatives as fd
 
 import warp_hair as wh
-from warp_hair.testing import bsdf_grad
+from helpers import bsdf_grad
 from warp_hair.model.jacobian import (
     CoefficientDerivatives,
     coefficient_derivatives,

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from warp_hair.calibrate import (
-    _environment_white,
+    environment_white,
     block_scene,
     fit_inversion,
     measure_points,
@@ -178,7 +178,7 @@ def test_white_reference_and_measured_pixels():
     lit = dataclasses.replace(scene, lights=[sun, behind])
     np.testing.assert_allclose(white_radiance(lit), np.array([3.0, 2.0, 1.0]) * math.cos(0.5) / math.pi, rtol=1e-6)
     normal = -scene.camera.frame()[0]
-    np.testing.assert_allclose(_environment_white(np.full((64, 128, 3), 2.0), normal), [2.0, 2.0, 2.0], rtol=2e-3)
+    np.testing.assert_allclose(environment_white(np.full((64, 128, 3), 2.0), normal), [2.0, 2.0, 2.0], rtol=2e-3)
     assert measured_pixels(scene).all()
     data = tomllib.loads(BLOCK_TOML)
     wide = scene_from_dict({**data, "camera": {**data["camera"], "width": 3.0}})

@@ -113,5 +113,5 @@ def test_fit_builds_each_images_scene_once(monkeypatch):
 
     monkeypatch.setattr(PreparedScene, "__init__", counting)
     result = fit(target, iters=3, spp=2, refine=2, uncertainty=False, progress=False)
-    assert result.iterations == 3 and len(result.history["refine"]) == 2
+    assert result.iterations == 3 and len(result.history.refine) == 2
     assert len(built) == len(images)

@@ -10,8 +10,8 @@
     J = hair_value_jacobian(setup, d_setup, derivs, lobes)      # ... J[c, k] = ∂S_c/∂θ_k there
 
 S and pdf are those of `hair_value_pdf` (the same operations on the same values), so the gradient tracer follows
-the renderer's paths, and J differentiates that same evaluation of the lobes. `bsdf_grad` (Warp's reverse mode
-through the model as written) is the independent check of J: tests/test_bsdf_jacobian.py.
+the renderer's paths, and J differentiates that same evaluation of the lobes. tests/helpers/bsdf_grad.py (Warp's
+reverse mode through the model as written) is the independent check of J: tests/test_bsdf_jacobian.py.
 
 Structure. S_c = Σ_p D_p A_pc with D_p = M_p N_p the same for every channel, so
 
