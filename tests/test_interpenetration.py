@@ -213,7 +213,7 @@ def small_scene(fibers, rule, light):
 
 def test_the_rules_render_alike_where_strands_do_not_overlap_and_apart_where_they_do():
     from warp_hair.geometry.generators import swatch
-    from warp_hair.renderer.forward import render
+    from warp_hair.renderer.render import render
 
     apart = swatch(count=16, layers=2, length=0.12, segments=6, seed=1)
     assert interpenetration(apart).pairs == 0
@@ -258,7 +258,7 @@ def test_the_gradient_pass_traces_the_exit_rule_paths():
     from helpers.scenes import SPARSE_HAIR, sparse_scene_dict
 
     from warp_hair.renderer.gradients import render_grad
-    from warp_hair.renderer.forward import render
+    from warp_hair.renderer.render import render
 
     data = sparse_scene_dict(SPARSE_HAIR)
     data["fibers"] = {"generator": "wavy", "count": 24, "layers": 1, "length": 0.6, "radius": 0.004, "width": 0.2,
