@@ -11,7 +11,7 @@ listed tip first would show it on the wrong side.
 assembly.py holds `FiberAssembly`, formats.py and usd.py the files, generators.py the procedural swatches and
 fur, curves.py cubic curves (Catmull-Rom through a strand's vertices, USD's bases) as polylines within a stated
 distance; bvh.py builds the BVH, tubes.py the tubes it bounds, intersect.py the device ray queries, rays.py their
-NumPy front, card.py the backing card.
+NumPy front, card.py the backing card; interpenetration.py counts the strands that pass through each other.
 """
 
 from .assembly import FiberAssembly, FiberDataError
