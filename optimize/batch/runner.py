@@ -54,7 +54,10 @@ def run_batch(manifest, address: str | None = None, cpus: int | None = None, pro
     outcome = Outcome()
     todo = []
     for job in manifest.jobs:
-        (outcome.skipped if store.finished(out, job.name, job.key) else todo).append(job)
+        if store.finished(out, job.name, job.key):
+            outcome.skipped.append(job.name)
+        else:
+            todo.append(job)
     bar = tqdm(total=len(manifest.jobs), initial=len(outcome.skipped), unit="job", desc=f"batch {manifest.path.name}",
                disable=not progress)
     started = False
@@ -69,7 +72,10 @@ def run_batch(manifest, address: str | None = None, cpus: int | None = None, pro
                 job, submitted = pending.pop(ref)
                 _collect(manifest, job, ref, submitted, outcome)
                 bar.update()
-        _assemble_renders(manifest, outcome)
+                if job.kind == "render":
+                    _assemble_render(manifest, outcome, job.group)
+        for group in manifest.groups():  # a rerun may find every part of a render finished
+            _assemble_render(manifest, outcome, group)
     except KeyboardInterrupt:
         outcome.interrupted = True
         _cancel(pending)
@@ -177,22 +183,22 @@ def _failed(manifest, job, error: str, outcome, **record) -> None:
     outcome.failed.append(job.name)
 
 
-def _assemble_renders(manifest, outcome) -> None:
-    """Put each render whose parts are all finished together (once: a rerun finds it done)."""
-    for group, jobs in manifest.groups().items():
-        job = jobs[0]
-        if job.kind != "render" or store.finished(manifest.output, group, job.key):
-            continue
-        if not all(store.finished(manifest.output, part.name, part.key) for part in jobs):
-            continue
-        try:
-            files = _assembled(manifest, jobs)
-        except PROJECT_ERRORS as error:
-            _failed(manifest, job, str(error), outcome)
-            continue
-        seconds = sum(store.read_status(manifest.output, part.name).get("seconds", 0.0) for part in jobs)
-        store.write_done(manifest.output, group, job.key, files, kind="render", group=group, seconds=seconds,
-                         parts=[part.name for part in jobs])
+def _assemble_render(manifest, outcome, group: str) -> None:
+    """Put the render `group` together once all its parts are finished (once: a rerun finds it done)."""
+    jobs = manifest.groups()[group]
+    job = jobs[0]
+    if job.kind != "render" or store.finished(manifest.output, group, job.key):
+        return
+    if not all(store.finished(manifest.output, part.name, part.key) for part in jobs):
+        return
+    try:
+        files = _assembled(manifest, jobs)
+    except PROJECT_ERRORS as error:
+        _failed(manifest, job, str(error), outcome)
+        return
+    seconds = sum(store.read_status(manifest.output, part.name).get("seconds", 0.0) for part in jobs)
+    store.write_done(manifest.output, group, job.key, files, kind="render", group=group, seconds=seconds,
+                     parts=[part.name for part in jobs])
 
 
 def _assembled(manifest, jobs) -> dict:
