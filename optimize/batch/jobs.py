@@ -82,8 +82,10 @@ def execute(job, payload, threads: int, version: str) -> dict:
         if job.kind == "render":
             return {"files": _render_part(job, payload, threads)}
         return {"files": _calibrate(job, payload, threads)}
+    except MemoryError:
+        return {"error": "out of memory; lower the resolution, spp or fiber count, or give the job a larger node"}
     except PROJECT_ERRORS as error:
-        return {"error": f"{type(error).__name__}: {error}" if isinstance(error, MemoryError) else str(error)}
+        return {"error": str(error)}
 
 
 def _fit(job, target, settings, threads: int) -> dict:
