@@ -6,7 +6,7 @@
     warp-hair targets make [NAME ...] [--threads T]
     warp-hair targets list [NAME ...]
     warp-hair targets check TARGET [--fit NAMES] [--at NAME=V ...] [--spp N] [--model-error E] [--threads T]
-    warp-hair batch MANIFEST.toml [-o OUT_DIR] [--address HOST:PORT] [--cpus N]
+    warp-hair batch MANIFEST.toml [-o OUT_DIR] [--address HOST:PORT] [--cpus N] [--cpus-per-job N]
 
 TARGET is a target directory (optimize/target.py describes the layout) or the name of a shipped one in
 targets/ (e.g. blonde_straight).
@@ -273,15 +273,22 @@ def add_batch(subparsers) -> None:
                         help="the results' folder (default: the manifest's [batch] output, else <stem>_out beside it)")
     parser.add_argument("--address", metavar="HOST:PORT", help="join this Ray cluster (default: start one here)")
     parser.add_argument("--cpus", type=int, metavar="N", help="CPUs of the Ray started here (default: all cores)")
+    parser.add_argument("--cpus-per-job", type=int, metavar="N",
+                        help="CPUs (and Warp threads) each job declares (default: the manifest's [batch] cpus_per_job, "
+                        "else 1)")
     parser.set_defaults(run=run_batch_command)
 
 
 def run_batch_command(args: argparse.Namespace) -> int:
     from .batch import load_manifest, run_batch
 
-    if args.cpus is not None and args.cpus < 1:
-        raise ValueError(f"--cpus must be a whole number >= 1, got {args.cpus}")
+    for option in ("cpus", "cpus_per_job"):
+        value = getattr(args, option)
+        if value is not None and value < 1:
+            raise ValueError(f"--{option.replace('_', '-')} must be a whole number >= 1, got {value}")
     manifest = load_manifest(args.manifest, args.output)
+    if args.cpus_per_job is not None:
+        manifest.cpus_per_job = args.cpus_per_job
     outcome = run_batch(manifest, address=args.address, cpus=args.cpus)
     print(f"{len(outcome.done)} done, {len(outcome.skipped)} finished earlier, {len(outcome.failed)} failed; "
           f"wrote {manifest.output / 'summary.csv'}, {manifest.output / 'report.html'}")

@@ -132,6 +132,16 @@ def test_manifest_errors_name_the_entry_and_key(tmp_path, text, message):
         load_manifest(path)
 
 
+def test_command_line_errors(tmp_path, capsys):
+    from optimize.cli import main
+
+    assert main(["batch", str(tmp_path / "none.toml")]) == 2
+    assert "none.toml: manifest not found" in capsys.readouterr().err
+    (tmp_path / "m.toml").write_text("[[fit]]\ntarget = 'black_straight'\n")
+    assert main(["batch", str(tmp_path / "m.toml"), "--cpus-per-job", "0"]) == 2
+    assert "--cpus-per-job must be a whole number >= 1, got 0" in capsys.readouterr().err
+
+
 def test_batch_fits_equal_the_same_fits_run_one_by_one(batch, one_by_one):
     manifest, outcome = batch
     assert sorted(outcome.failed) == ["bad_loss"] and not outcome.interrupted
