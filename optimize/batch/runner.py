@@ -13,9 +13,9 @@ cores are never oversubscribed. The driver (this process):
 - on Ctrl-C cancels the running tasks (`ray.cancel(force=True)`: their workers are stopped at once) and keeps
   what finished; the summary and the report are written in every case.
 
-Without an address it starts a Ray instance on this machine (all its cores, bound to 127.0.0.1, no dashboard)
-and stops it at the end; with one it joins that cluster (`ray start --head` there first), and a Ray already
-initialised in this process (a test's, a notebook's) is used as it is.
+Without an address (`--address`, else the RAY_ADDRESS that `ray job submit` sets) it starts a Ray instance on
+this machine (all its cores, no dashboard) and stops it at the end; with one it joins that cluster (`ray start
+--head` there first); a Ray already initialised in this process (a test's, a notebook's) is used as it is.
 """
 
 from __future__ import annotations
@@ -103,11 +103,12 @@ def connect(address: str | None, cpus: int | None) -> bool:
         raise ValueError("warp-hair batch needs Ray: pip install -e \".[cluster]\" (or pip install 'ray>=2.60')") from None
     if ray.is_initialized():
         return False
-    if address is not None:
+    # Under `ray job submit`, or wherever a cluster is named in the environment, join it as Ray's own tools do.
+    address = address or os.environ.get("RAY_ADDRESS")
+    if address:
         ray.init(address=address, log_to_driver=True)
     else:
-        ray.init(num_cpus=cpus or len(os.sched_getaffinity(0)), include_dashboard=False,
-                 _node_ip_address="127.0.0.1", log_to_driver=True)
+        ray.init(num_cpus=cpus or len(os.sched_getaffinity(0)), include_dashboard=False, log_to_driver=True)
     return True
 
 
