@@ -5,11 +5,11 @@
 Runs benchmarks/acceptance_batch.toml (every shipped target at `warp-hair fit`'s defaults; --short: 12
 iterations at spp 8 with 2 Gauss-Newton steps, for a shared machine; --only: a subset) with `warp-hair batch`'s
 runner on a local Ray of N CPUs, one CPU (one Warp thread) a job, each N in a fresh results folder under
-benchmarks/out/batch_scaling/. Prints per N: Ray's start, the batch's wall time, the sum of the jobs' own
-seconds (what one core would need), the wall time over that sum divided by N (1.0: no overhead), the mean wait
-between a job's submission and its start on a worker, and the first job's seconds on each fresh worker against
-the later ones' (the worker's warm-up: imports, loading Warp's cached kernels). --warmup also times a fresh
-process's tiny fit with Warp's kernel cache warm and with an empty one (the compile a fresh machine pays).
+benchmarks/out/batch_scaling/. Prints per N: Ray's start, the batch's wall time, the sum and mean of the jobs'
+own seconds (as each task timed itself, imports and Warp's kernel loading included), and the efficiency: that
+sum over N × the wall time (1.0: no time lost to scheduling, transfers, writing results or idle workers).
+--warmup also times a fresh process's tiny fit with Warp's kernel cache warm and with an empty one (the
+compile a fresh machine pays).
 Timings are wall-clock seconds on whatever else the machine is doing at the time.
 """
 
@@ -19,7 +19,6 @@ import argparse
 import json
 import os
 import shutil
-import statistics
 import subprocess
 import sys
 import tempfile
@@ -68,14 +67,8 @@ def run(workers: int, short: bool, only) -> dict:
     wall = time.perf_counter() - started
     statuses = [store.read_status(manifest.output, job.name) for job in manifest.jobs]
     seconds = [s["seconds"] for s in statuses]
-    by_worker = {}
-    for s in sorted(statuses, key=lambda s: s["queued"]):
-        by_worker.setdefault(s["pid"], []).append(s["seconds"])
-    first = [runs[0] for runs in by_worker.values()]
-    later = [t for runs in by_worker.values() for t in runs[1:]]
     return {"workers": workers, "jobs": len(manifest.jobs), "failed": outcome.failed, "ray_start": started - start,
-            "wall": wall, "job_seconds": sum(seconds), "efficiency": sum(seconds) / workers / wall,
-            "mean_wait": statistics.mean(s["queued"] for s in statuses), "first_on_worker": first, "later": later}
+            "wall": wall, "job_seconds": sum(seconds), "efficiency": sum(seconds) / workers / wall}
 
 
 def warmup() -> dict:
@@ -92,6 +85,18 @@ def warmup() -> dict:
     return out
 
 
+def table(results) -> str:
+    lines = ["| workers | jobs | Ray start (s) | wall (s) | jobs' own seconds (sum) | mean job (s) | efficiency |",
+             "| --- | --- | --- | --- | --- | --- | --- |"]
+    for r in results:
+        lines.append(f"| {r['workers']} | {r['jobs']} | {r['ray_start']:.1f} | {r['wall']:.1f} | {r['job_seconds']:.1f} | "
+                     f"{r['job_seconds'] / r['jobs']:.1f} | {r['efficiency']:.2f} |")
+    if len(results) > 1:
+        lines.append(f"\nspeed-up {results[0]['workers']} -> {results[-1]['workers']} workers: "
+                     f"{results[0]['wall'] / results[-1]['wall']:.2f}x")
+    return "\n".join(lines)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--workers", type=int, nargs="+", default=[1, 2])
@@ -101,16 +106,7 @@ def main() -> None:
                         "Warp kernel cache")
     args = parser.parse_args()
     results = [run(n, args.short, args.only) for n in args.workers]
-    print("| workers | jobs | Ray start (s) | wall (s) | jobs' own seconds | efficiency | mean wait (s) | "
-          "first job on a worker (s) | later jobs (s) |")
-    print("| --- | --- | --- | --- | --- | --- | --- | --- | --- |")
-    for r in results:
-        later = f"{statistics.mean(r['later']):.1f}" if r["later"] else "-"
-        print(f"| {r['workers']} | {r['jobs']} | {r['ray_start']:.1f} | {r['wall']:.1f} | {r['job_seconds']:.1f} | "
-              f"{r['efficiency']:.2f} | {r['mean_wait']:.1f} | {statistics.mean(r['first_on_worker']):.1f} | {later} |")
-    if len(results) > 1:
-        print(f"speed-up {results[0]['workers']} -> {results[-1]['workers']} workers: "
-              f"{results[0]['wall'] / results[-1]['wall']:.2f}x")
+    print(table(results))
     if args.warmup:
         w = warmup()
         print(f"fresh process, tiny fit: warm kernel cache {w['warm']:.1f} s, empty cache {w['cold']:.1f} s "
