@@ -89,8 +89,8 @@ def table(results) -> str:
     lines = ["| workers | jobs | Ray start (s) | wall (s) | jobs' own seconds (sum) | mean job (s) | efficiency |",
              "| --- | --- | --- | --- | --- | --- | --- |"]
     for r in results:
-        lines.append(f"| {r['workers']} | {r['jobs']} | {r['ray_start']:.1f} | {r['wall']:.1f} | {r['job_seconds']:.1f} | "
-                     f"{r['job_seconds'] / r['jobs']:.1f} | {r['efficiency']:.2f} |")
+        lines.append(f"| {r['workers']} | {r['jobs']} | {r['ray_start']:.1f} | {r['wall']:.1f} | "
+                     f"{r['job_seconds']:.1f} | {r['job_seconds'] / r['jobs']:.1f} | {r['efficiency']:.2f} |")
     if len(results) > 1:
         lines.append(f"\nspeed-up {results[0]['workers']} -> {results[-1]['workers']} workers: "
                      f"{results[0]['wall'] / results[-1]['wall']:.2f}x")

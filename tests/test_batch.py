@@ -119,7 +119,8 @@ def test_a_split_render_is_the_whole_render_bit_for_bit():
 @pytest.mark.parametrize("text, message", [
     ("[[fit]]\ntarget = 'black_straight'\nitres = 3\n", r"\[\[fit\]\] #1: unknown key\(s\) \['itres'\]"),
     ("[batch]\nretries = -1\n[[fit]]\ntarget = 'black_straight'\n", r"\[batch\] retries must be a whole number >= 0"),
-    ("[[fit]]\ntarget = 'black_straight'\n[[fit]]\ntarget = 'black_straight'\n", "another entry is named 'black_straight'"),
+    ("[[fit]]\ntarget = 'black_straight'\n[[fit]]\ntarget = 'black_straight'\n",
+     "another entry is named 'black_straight'"),
     ("[[render]]\nscene = 'a.toml'\nsplit = 0\n", r"\[\[render\]\] #1 split must be a whole number >= 1, got 0"),
     ("[[fit]]\ntarget = 'black_straight'\nname = '../x'\n", "name '../x' must be letters"),
     ("[batch]\n", "the manifest lists no work"),

@@ -100,7 +100,8 @@ def connect(address: str | None, cpus: int | None) -> bool:
     try:
         import ray
     except ImportError:
-        raise ValueError("warp-hair batch needs Ray: pip install -e \".[cluster]\" (or pip install 'ray>=2.60')") from None
+        raise ValueError("warp-hair batch needs Ray: pip install -e \".[cluster]\" (or pip install 'ray>=2.60')") \
+            from None
     if ray.is_initialized():
         return False
     # Under `ray job submit`, or wherever a cluster is named in the environment, join it as Ray's own tools do.

@@ -53,7 +53,8 @@ def _details(job, folder: Path) -> dict:
     if job.kind == "fit":
         params = json.loads((folder / "params.json").read_text(encoding="utf-8"))
         return {"target": Path(job.spec["target"]).name, "fitted": params["fitted"],
-                "sigma": params.get("uncertainty"), "true": params.get("true", {}), "error_vs_true": params.get("error", {}),
+                "sigma": params.get("uncertainty"), "true": params.get("true", {}),
+                "error_vs_true": params.get("error", {}),
                 "iterations": params["iterations"], "stop_reason": params["stop_reason"], "loss": params["loss"],
                 "warnings": params.get("warnings", [])}
     if job.kind == "render":
