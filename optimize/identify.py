@@ -30,7 +30,7 @@ import itertools
 
 import numpy as np
 
-from warp_hair.renderer.forward import prepare
+from warp_hair.renderer.prepare import prepare
 
 from .latents import DEFAULT_FIT, SPECS, as_values, parse_control_names
 from .linearize import CHANNELS, crossed_curvature, linearize

@@ -26,8 +26,8 @@ import numpy as np
 import torch
 
 from warp_hair.controls import CONTROL_NAMES, columns
-from warp_hair.renderer.forward import prepare
-from warp_hair.renderer.jacobian import render_jacobian
+from warp_hair.renderer.gradients import render_jacobian
+from warp_hair.renderer.prepare import prepare
 from warp_hair.torch import default_grad_seed, scene_with_controls
 
 from .latents import EXPOSURE, hair_and_gain
@@ -168,7 +168,7 @@ def crossed_curvature(jacobians: np.ndarray, weights: np.ndarray) -> np.ndarray:
 def linearize(target, values: dict, settings, spp: int, seed: int, threads=None, scenes=None) -> Linearization:
     """Render every image of `target` twice at `values` (spp each) and linearise the loss there.
 
-    `scenes`: the target's scenes prepared once (`warp_hair.render.prepare`, one per image, in order), so that
+    `scenes`: the target's scenes prepared once (`warp_hair.prepare`, one per image, in order), so that
     repeated linearisations do not rebuild the BVH; by default each image's scene, prepared here once for both
     passes."""
     hair, gain = hair_and_gain(values)
@@ -178,8 +178,8 @@ def linearize(target, values: dict, settings, spp: int, seed: int, threads=None,
     scenes = [prepare(image.scene) for image in target.images] if scenes is None else scenes
     for k, image in enumerate(target.images):
         scene = scene_with_controls(scenes[k], hair)
-        reference, _ = _reduce(image, image.image, None, settings.pool)
-        weight = _weight(reference, settings.loss)
+        reference, _ = pool_like_loss(image, image.image, None, settings.pool)
+        weight = loss_weights(reference, settings.loss)
         ts.append(reference * weight)
         pair = []
         for half, pass_seed in enumerate((seed + k, default_grad_seed(seed + k))):
@@ -187,8 +187,8 @@ def linearize(target, values: dict, settings, spp: int, seed: int, threads=None,
             rendered = gain * raw
             # r = weight · (gain·I − T): ∂r/∂gain = weight · I, ∂r/∂θ = weight · gain · ∂I/∂θ.
             columns = [raw[..., None] if name == EXPOSURE else gain * jac[..., COLUMNS[name]] for name in values]
-            a, _ = _reduce(image, np.concatenate(columns, axis=-1).astype(np.float64), None, settings.pool)
-            r, var = _reduce(image, rendered - image.image, (gain * stderr) ** 2, settings.pool)
+            a, _ = pool_like_loss(image, np.concatenate(columns, axis=-1).astype(np.float64), None, settings.pool)
+            r, var = pool_like_loss(image, rendered - image.image, (gain * stderr) ** 2, settings.pool)
             rs[half].append(r * weight)
             vs[half].append(var * weight**2)
             js[half].append(a * weight[:, None])
@@ -207,7 +207,7 @@ def linearize(target, values: dict, settings, spp: int, seed: int, threads=None,
     )
 
 
-def _weight(reference: np.ndarray, loss: str) -> np.ndarray:
+def loss_weights(reference: np.ndarray, loss: str) -> np.ndarray:
     """Per pooled residual, the loss's weight (losses.py): 1/sqrt(mean T²) for L2 and L1, 1/(T + ε mean T) for
     relative L2, T the pooled target."""
     if loss == "rel_l2":
@@ -223,7 +223,7 @@ def _pooled(x: np.ndarray, weight: np.ndarray, pool: int) -> tuple:
     return means.numpy(), totals.numpy()
 
 
-def _reduce(image, x, var, pool):
+def pool_like_loss(image, x, var, pool):
     """Pool (H, W, ...) like the loss does (masked pixels left out) and flatten; var is pooled as a variance."""
     weight = np.ones(x.shape[:2]) if image.mask is None else image.mask.astype(np.float64)
     if pool > 1:

@@ -45,7 +45,7 @@ import numpy as np
 import targets as shipped
 from warp_hair.io import read_exr, write_exr
 from warp_hair.model.params import HairParams
-from warp_hair.renderer.forward import render, render_metadata
+from warp_hair.renderer.render import render, render_metadata
 from warp_hair.scene import Scene, load_scene
 
 TARGET_FILE = shipped.TARGET_FILE
@@ -149,7 +149,7 @@ def load_target(directory) -> Target:
         mask = None if "mask" not in entry else _read_mask(directory / entry["mask"], image.shape[:2])
         images.append(TargetImage(Path(entry["image"]).stem, scene, image, mask, image_path, metadata))
     _check_consistent(images)
-    truth = _read_truth(directory / TRUTH_FILE)
+    truth = read_truth(directory / TRUTH_FILE)
     return Target(directory.resolve().name, directory, images, truth, target_renderer(directory))
 
 
@@ -203,7 +203,8 @@ def _check_consistent(images) -> None:
             raise ValueError(f"{pair} have different fibers; the images of a target show the same fibers")
 
 
-def _read_truth(path: Path) -> HairParams | None:
+def read_truth(path: Path) -> HairParams | None:
+    """A target's truth.json (its true controls), None where there is none; a ValueError naming the file else."""
     if not path.exists():
         return None
     try:

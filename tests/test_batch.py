@@ -32,7 +32,7 @@ from optimize.batch.report import number, sigma
 from optimize.batch.split import assemble, part_pixels
 from test_calibrate import BETA_N, BLOCK_TOML
 from warp_hair.io import read_exr
-from warp_hair.renderer.forward import render
+from warp_hair.renderer.render import render
 from warp_hair.scene import load_scene
 
 wp.config.quiet = True

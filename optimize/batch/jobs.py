@@ -142,7 +142,7 @@ def render_sampling(job, scene) -> tuple:
 
 
 def _render_part(job, scene, threads: int) -> dict:
-    from warp_hair.renderer.forward import render
+    from warp_hair.renderer.render import render
 
     from .split import part_pixels
 

@@ -207,7 +207,7 @@ def _assembled(manifest, jobs) -> dict:
     import numpy as np
 
     from warp_hair.io import write_exr, write_png
-    from warp_hair.renderer.forward import render_metadata
+    from warp_hair.renderer.render import render_metadata
     from warp_hair.scene import load_scene
 
     from .jobs import render_sampling

@@ -1,7 +1,7 @@
 """A render split across workers, bit for bit the render one machine makes.
 
 Every pixel draws its paths from its own random stream, seeded by (seed, pixel index) alone
-(`warp_hair.renderer.integrator.pixel_start`: `wp.rand_init(seed, pixel)`), and `render(..., pixels=idx)` traces
+(`warp_hair.renderer.render.pixel_start`: `wp.rand_init(seed, pixel)`), and `render(..., pixels=idx)` traces
 each listed pixel exactly as it is traced in the whole image. So a part of the image is a set of pixel indices:
 the parts are rendered anywhere, in any order, with any number of threads, and put back by index; no pixel
 depends on which part it is in. The parts deal out ranges of RANGE pixels in turn (part k takes ranges k, k + n,
