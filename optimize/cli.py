@@ -6,6 +6,7 @@
     warp-hair targets make [NAME ...] [--threads T]
     warp-hair targets list [NAME ...]
     warp-hair targets check TARGET [--fit NAMES] [--at NAME=V ...] [--spp N] [--model-error E] [--threads T]
+    warp-hair batch MANIFEST.toml [-o OUT_DIR] [--address HOST:PORT] [--cpus N] [--cpus-per-job N]
 
 TARGET is a target directory (optimize/target.py describes the layout) or the name of a shipped one in
 targets/ (e.g. blonde_straight).
@@ -256,8 +257,51 @@ def _check_target(args: argparse.Namespace) -> int:
     return 0
 
 
+def add_batch(subparsers) -> None:
+    parser = subparsers.add_parser(
+        "batch",
+        parents=[render_cli.common_flags(threads=False)],
+        help="run a manifest of fits, renders and calibrations on a Ray cluster",
+        description="Run the fits, renders and calibrations a manifest lists (optimize/batch/manifest.py describes "
+        "it) as Ray tasks: on a Ray started on this machine, or on the cluster at --address. Each job's results are "
+        "written beside the manifest as it finishes; a rerun skips finished jobs; Ctrl-C keeps what finished. "
+        "Writes summary.csv, summary.json and report.html. Exit status 1 when a job failed. Needs the cluster "
+        "extra: pip install -e \".[cluster]\".",
+    )
+    parser.add_argument("manifest", type=Path, metavar="MANIFEST.toml", help="the manifest")
+    parser.add_argument("-o", "--output", type=Path, metavar="OUT_DIR",
+                        help="the results' folder (default: the manifest's [batch] output, else <stem>_out beside it)")
+    parser.add_argument("--address", metavar="HOST:PORT", help="join this Ray cluster (default: start one here)")
+    parser.add_argument("--cpus", type=int, metavar="N", help="CPUs of the Ray started here (default: all cores)")
+    parser.add_argument("--cpus-per-job", type=int, metavar="N",
+                        help="CPUs (and Warp threads) each job declares (default: the manifest's [batch] cpus_per_job, "
+                        "else 1)")
+    parser.set_defaults(run=run_batch_command)
+
+
+def run_batch_command(args: argparse.Namespace) -> int:
+    from .batch import load_manifest, run_batch
+
+    for option in ("cpus", "cpus_per_job"):
+        value = getattr(args, option)
+        if value is not None and value < 1:
+            raise ValueError(f"--{option.replace('_', '-')} must be a whole number >= 1, got {value}")
+    manifest = load_manifest(args.manifest, args.output)
+    if args.cpus_per_job is not None:
+        manifest.cpus_per_job = args.cpus_per_job
+    outcome = run_batch(manifest, address=args.address, cpus=args.cpus)
+    print(f"{len(outcome.done)} done, {len(outcome.skipped)} finished earlier, {len(outcome.failed)} failed; "
+          f"wrote {manifest.output / 'summary.csv'}, {manifest.output / 'report.html'}")
+    for name in outcome.failed:
+        from .batch import store
+
+        status = store.read_status(manifest.output, name) or {}
+        print(f"{render_cli.PROG}: {name} failed: {status.get('error', '?')}", file=sys.stderr)
+    return 1 if outcome.failed else 0
+
+
 def main(argv: list[str] | None = None) -> int:
-    return render_cli.main(argv, extra=(add_fit, add_targets))
+    return render_cli.main(argv, extra=(add_fit, add_targets, add_batch))
 
 
 if __name__ == "__main__":

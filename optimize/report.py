@@ -137,6 +137,12 @@ def plot_convergence(path: Path, result: FitResult, truth: dict) -> None:
     plt.close(fig)
 
 
+def display_exposure(target_image: np.ndarray) -> float:
+    """The exposure target and fit are both shown at, so that brightness differences show: the target's 99th
+    percentile at 0.8."""
+    return 0.8 / max(float(np.percentile(target_image, 99)), 1e-6)
+
+
 def plot_comparison(path: Path, result: FitResult, target: Target) -> None:
     """One row per target image: target | fit | difference (fit − target, red brighter, blue darker)."""
     import matplotlib
@@ -147,8 +153,7 @@ def plot_comparison(path: Path, result: FitResult, target: Target) -> None:
     n = len(target.images)
     fig, axes = plt.subplots(n, 3, figsize=(9.0, 3.0 * n), squeeze=False, constrained_layout=True)
     for row, (image, fitted) in enumerate(zip(target.images, result.images)):
-        # One exposure for target and fit, so that brightness differences show.
-        exposure = 0.8 / max(float(np.percentile(image.image, 99)), 1e-6)
+        exposure = display_exposure(image.image)
         diff = (fitted - image.image).mean(axis=-1)
         limit = max(float(np.percentile(np.abs(diff), 99)), 1e-6)
         panels = ((srgb_encode(image.image * exposure), f"target: {image.name}", None),
