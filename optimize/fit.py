@@ -39,6 +39,7 @@ from warp_hair.model.params import effective_beta
 from warp_hair.renderer.forward import prepare, render
 from warp_hair.torch import render_torch_pair, scene_with_controls
 
+from . import camera
 from .latents import DEFAULT_FIT, SPECS, as_values, hair_and_gain, parse_control_names
 from .linearize import linearize
 from .losses import LOSSES, image_loss, loss_scale
@@ -96,6 +97,7 @@ class FitResult:
     warnings: list = field(default_factory=list)
     correlations: dict = field(default_factory=dict)  # "a/b" → correlation of the two estimates
     uncertainty_parts: dict | None = None  # the noise and model-error parts of `uncertainties` (uncertainty.py)
+    camera: dict | None = None  # a photo target's fitted gains and white balance with their σ (camera.report)
 
 
 def spp_at(iteration: int, iters: int, spp: int) -> int:
@@ -138,6 +140,9 @@ def check_settings(target: Target, settings: FitSettings) -> tuple:
             raise ValueError(f"refine: Gauss–Newton steps need a sum-of-squares loss ({', '.join(REFINABLE_LOSSES)}), "
                              f"not {settings.loss!r}; use refine=0 (--refine 0) with it")
     check_model_error(settings.model_error)
+    if camera.fitted(target) and "exposure" in names:
+        raise ValueError(f"{target.name}: its gains are fitted already (gains = {target.gains!r}, camera.py); "
+                         "exposure would be a second gain on every image: leave it out of the controls")
     unknown = sorted(set(settings.init) - set(names))
     if unknown:
         raise ValueError(f"init gives control(s) {unknown} that are not fitted (fitted: {list(names)}); the scene files set the others")
@@ -232,14 +237,22 @@ def _loss(target: Target, scenes, values: dict, spp: int, seeds, settings: FitSe
     """The mean image loss over the target's images (`scenes`: theirs, prepared), each rendered as a decorrelated
     pair of spp/2 each, on a mini-batch of its blocks where it is larger than settings.batch."""
     hair, gain = hair_and_gain(values)
-    total = 0.0
+    pairs, used = [], []
     for k, image in enumerate(target.images):
         pixels, batch_mask = batches[k].draw(seeds[k])  # of counted pixels only: it implies the target's mask
-        mask = masks[k] if batch_mask is None else batch_mask
-        pair = render_torch_pair(scenes[k], hair, spp=max(1, spp // 2), seed=seeds[k], threads=settings.threads,
-                                 pixels=pixels)
+        used.append(masks[k] if batch_mask is None else batch_mask)
+        pairs.append(render_torch_pair(scenes[k], hair, spp=max(1, spp // 2), seed=seeds[k], threads=settings.threads,
+                                       pixels=pixels))
+    gains = [gain] * len(pairs)
+    if camera.fitted(target):  # a photo's exposures and white balance, solved for these renders (camera.py)
+        solved = camera.gains_for(target, pairs, targets, used, settings.loss,
+                                  settings.pool, scales).per_channel
+        gains = [torch.from_numpy(g) for g in solved]
+    total = 0.0
+    for k, pair in enumerate(pairs):
         for rendered in pair:
-            total = total + image_loss(rendered * gain, targets[k], settings.loss, mask, settings.pool, scales[k])
+            total = total + image_loss(rendered * gains[k], targets[k], settings.loss, used[k], settings.pool,
+                                       scales[k])
     return total / (2 * len(target.images))
 
 
@@ -354,7 +367,8 @@ def _finish(target, scenes, settings, names, start, estimate, history, done, sto
         # The linearisations of a large image rendered few samples a pixel: a picture of the fit that a person
         # compares with the target (comparison.png) wants the full samples.
         try:
-            images = _render_fitted(scenes, estimate, settings.spp * FINAL_SPP_FACTOR, seed, settings.threads)
+            images = _render_fitted(scenes, estimate, settings.spp * FINAL_SPP_FACTOR, seed, settings.threads,
+                                    None if lin.camera is None else lin.camera.gains.per_channel)
         except KeyboardInterrupt:
             stop_reason = "interrupted"
     losses = [image_loss(torch.from_numpy(fitted), torch.from_numpy(image.image), settings.loss,
@@ -375,15 +389,21 @@ def _finish(target, scenes, settings, names, start, estimate, history, done, sto
     result.warnings.extend(notes)
     if settings.uncertainty and stop_reason != "interrupted":
         estimate_uncertainty(result, lin, mc_covariance, target_model_error(target, settings.model_error))
+    if lin.camera is not None:
+        hair_covariance = lin.statistical_covariance + (0 if mc_covariance is None else mc_covariance)
+        result.camera = camera.report(lin.camera, target, hair_covariance, lin.scatter,
+                                      target_model_error(target, settings.model_error))
     result.seconds = time.perf_counter() - begun
     return result
 
 
-def _render_fitted(scenes, values: dict, spp: int, seed: int, threads) -> list:
-    """Forward renders (H, W, 3) of the target's prepared scenes at the fitted controls, exposure applied."""
+def _render_fitted(scenes, values: dict, spp: int, seed: int, threads, gains=None) -> list:
+    """Forward renders (H, W, 3) of the target's prepared scenes at the fitted controls, exposure applied (or a
+    photo's gains, (n, 3))."""
     hair, gain = hair_and_gain(values)
     gain = float(gain)
-    return [gain * render(scene_with_controls(scene, hair), spp=spp, seed=seed + k, threads=threads)
+    return [(gain if gains is None else gains[k].astype(np.float32))
+            * render(scene_with_controls(scene, hair), spp=spp, seed=seed + k, threads=threads)
             for k, scene in enumerate(scenes)]
 
 

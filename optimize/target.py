@@ -43,14 +43,18 @@ from pathlib import Path
 import numpy as np
 
 import targets as shipped
+
+from .camera import GAIN_MODES, WHITE_BALANCE_MODES
 from warp_hair.io import read_exr, write_exr
 from warp_hair.model.params import HairParams
+from warp_hair.photo import TRANSFERS, Photo, read_photo
 from warp_hair.renderer.forward import render, render_metadata
 from warp_hair.scene import Scene, load_scene
 
 TARGET_FILE = shipped.TARGET_FILE
 TRUTH_FILE = "truth.json"
-IMAGE_KEYS = {"scene", "image", "mask"}
+IMAGE_KEYS = {"scene", "image", "mask", "transfer"}
+SPEC_KEYS = {"images", "renderer", "gains", "white_balance"}
 # Who rendered a target's images: warp-hair itself, or a peer renderer (benchmarks/make_peer_targets.py).
 RENDERERS = ("warp-hair", "mitsuba", "cycles")
 # The shipped targets: the `targets` package's data, in a source checkout or an installed package.
@@ -65,6 +69,7 @@ class TargetImage:
     mask: np.ndarray | None  # (H, W) bool, True where the pixel counts
     image_path: Path
     metadata: dict = field(default_factory=dict)  # the EXR header's string attributes (`warp_hair.io.read_exr`)
+    photo: Photo | None = None  # a PNG, JPEG or TIFF's decoding: transfer, clipped and crushed pixels, EXIF
 
 
 @dataclass
@@ -74,6 +79,8 @@ class Target:
     images: list
     truth: HairParams | None
     renderer: str = "warp-hair"
+    gains: str = "none"  # the images' exposures the fit solves for (optimize/camera.py): per-image, exif, shared
+    white_balance: str = "none"  # "fit": a gain per channel, green's pinned
 
     @property
     def hair(self) -> HairParams:
@@ -116,9 +123,13 @@ def _read_spec(directory) -> dict:
         raise ValueError(f"{spec_path}: cannot read: {error}") from None
     except tomllib.TOMLDecodeError as error:
         raise ValueError(f"{spec_path}: TOML syntax error: {error}") from None
-    unknown = sorted(set(spec) - {"images", "renderer"})
+    unknown = sorted(set(spec) - SPEC_KEYS)
     if unknown:
-        raise ValueError(f"{spec_path}: unknown key(s) {unknown}; a target file has [[images]] tables and renderer")
+        raise ValueError(f"{spec_path}: unknown key(s) {unknown}; a target file has [[images]] tables, renderer, "
+                         "gains and white_balance")
+    for key, allowed in (("gains", GAIN_MODES), ("white_balance", WHITE_BALANCE_MODES)):
+        if key in spec and spec[key] not in allowed:
+            raise ValueError(f"{spec_path}: {key} = {spec[key]!r}; allowed: {list(allowed)}")
     if spec.get("renderer", "warp-hair") not in RENDERERS:
         raise ValueError(f"{spec_path}: renderer = {spec['renderer']!r}; allowed: {list(RENDERERS)}")
     entries = spec.get("images")
@@ -134,29 +145,70 @@ def _read_spec(directory) -> dict:
                 raise ValueError(f"{where}: needs {key} = \"<file name>\"")
         if "mask" in entry and not isinstance(entry["mask"], str):
             raise ValueError(f"{where}: mask must be a file name, got {entry['mask']!r}")
+        if "transfer" in entry and entry["transfer"] not in TRANSFERS:
+            raise ValueError(f"{where}: transfer = {entry['transfer']!r}; allowed: {list(TRANSFERS)}")
     return spec
 
 
 def load_target(directory) -> Target:
     """Read and check a target directory (see the module docstring); errors name the file and the problem."""
     directory = Path(directory)
-    entries = read_target_spec(directory)
+    spec = _read_spec(directory)
     images = []
-    for entry in entries:
+    for entry in spec["images"]:
         scene = load_scene(directory / entry["scene"])
         image_path = directory / entry["image"]
-        image, metadata = _read_target_image(image_path, scene)
+        image, metadata, photo = _read_target_image(image_path, scene, entry.get("transfer", "auto"))
         mask = None if "mask" not in entry else _read_mask(directory / entry["mask"], image.shape[:2])
-        images.append(TargetImage(Path(entry["image"]).stem, scene, image, mask, image_path, metadata))
+        if photo is not None:
+            mask = _photo_mask(photo, mask)
+        images.append(TargetImage(Path(entry["image"]).stem, scene, image, mask, image_path, metadata, photo))
     _check_consistent(images)
     truth = _read_truth(directory / TRUTH_FILE)
-    return Target(directory.resolve().name, directory, images, truth, target_renderer(directory))
+    gains, white_balance = _camera_unknowns(directory / TARGET_FILE, spec, images)
+    return Target(directory.resolve().name, directory, images, truth, spec.get("renderer", "warp-hair"), gains,
+                  white_balance)
 
 
-def _read_target_image(path: Path, scene: Scene) -> tuple:
+def _photo_mask(photo, mask):
+    """The given mask (or every pixel) without the photo's clipped and crushed pixels; an error if none is left."""
+    keep = ~(photo.clipped | photo.crushed)
+    combined = keep if mask is None else (mask & keep)
+    if not combined.any():
+        raise ValueError(f"{photo.path}: every pixel{' the mask selects' if mask is not None else ''} is clipped "
+                         f"({int(photo.clipped.sum())}) or crushed to black ({int(photo.crushed.sum())}): nothing "
+                         "is left to fit; expose the photo so that the hair lies within the range")
+    return combined
+
+
+def _camera_unknowns(spec_path: Path, spec: dict, images) -> tuple:
+    """(gains, white_balance) for the fit (optimize/camera.py): target.toml's, else, where any image is
+    display-referred (a camera chose its exposure and white balance), both fitted: one gain and EXIF's ratios
+    when every image has EXIF exposure (t, N, ISO), a gain per image otherwise; for linear images (EXR), none."""
+    photos = [image.photo for image in images]
+    display = any(p is not None and p.display_referred for p in photos)
+    with_exif = all(p is not None and p.relative_exposure is not None for p in photos)
+    gains = spec.get("gains", ("exif" if with_exif else "per-image") if display else "none")
+    white_balance = spec.get("white_balance", "fit" if display else "none")
+    if gains == "exif" and not with_exif:
+        lacking = next(image for image, p in zip(images, photos) if p is None or p.relative_exposure is None)
+        raise ValueError(f"{spec_path}: gains = \"exif\" but {lacking.image_path.name} has no EXIF exposure time, "
+                         "f-number and ISO to relate its exposure to the others'; use gains = \"per-image\"")
+    return gains, white_balance
+
+
+def _read_target_image(path: Path, scene: Scene, transfer: str = "auto") -> tuple:
+    """(linear image, EXR metadata, Photo or None): an EXR as it is, a PNG, JPEG or TIFF decoded (warp_hair.photo)."""
     if not path.is_file():
         raise FileNotFoundError(f"{path}: target image not found")
-    image, metadata = read_exr(path)
+    photo = None
+    if path.suffix.lower() == ".exr":
+        if transfer not in ("auto", "linear"):
+            raise ValueError(f"{path}: an EXR holds linear values; transfer = {transfer!r} does not apply")
+        image, metadata = read_exr(path)
+    else:
+        photo = read_photo(path, transfer)
+        image, metadata = photo.image, {}
     width, height = scene.camera.resolution
     if image.shape[:2] != (height, width):
         raise ValueError(
@@ -170,7 +222,7 @@ def _read_target_image(path: Path, scene: Scene) -> tuple:
     if (image < 0).any():
         y, x, c = np.argwhere(image < 0)[0]
         raise ValueError(f"{path}: negative radiance {image[y, x, c]} at pixel (x={x}, y={y}); targets are linear radiance >= 0")
-    return image, metadata
+    return image, metadata, photo
 
 
 def _read_mask(path: Path, shape) -> np.ndarray:
