@@ -44,6 +44,9 @@ from warp_hair.photo import read_photo
 RIGS = ("draped", "flat", "fur")
 FOV_TOLERANCE = 0.02
 BACKGROUND_TOLERANCE = 0.05
+# The [render] spp written: a photo's noise (its sensor's, its codes') taken as a 1024-sample render's, as the
+# shipped peer targets are; the photo's quantisation is counted apart (identify.py).
+PHOTO_SPP = 1024
 START_HAIR = {"albedo": [0.5, 0.5, 0.5], "beta_m": 0.3, "beta_n": 0.3, "alpha": 2.0, "eta": 1.55}
 
 
@@ -191,7 +194,8 @@ def make_photo_target(out_dir, args) -> list[Path]:
         parts += [_table("fibers", _fibers_table(args.rig, args)), _table("hair", START_HAIR)]
         if args.card is not None:
             parts.append(_table("card", {"albedo": [args.card] * 3}))
-        parts.append(_table("render", {"spp": 64, "max_depth": 32, "seed": 1}))
+        # A photo has no samples: its spp says how noisy `targets check` and the fit's refinement take it to be.
+        parts.append(_table("render", {"spp": PHOTO_SPP, "max_depth": 32, "seed": 1}))
         (out_dir / scene_name).write_text("\n\n".join(parts) + "\n", encoding="utf-8")
         write_exr(out_dir / exr_name, image, {"photo": {"file": path.name, "transfer": photo.transfer,
                                                         "exif": photo.exif}})

@@ -19,6 +19,18 @@ target.toml:
     scene = "scene_back.toml"
     image = "back.exr"
 
+Photographs: an image may be a PNG, JPEG or TIFF (8 or 16 bit, or float) besides EXR (`warp_hair.photo`): it
+is decoded to linear through its transfer function (per image, `transfer = "auto"` by default: the file's ICC
+profile, else sRGB; or "srgb", "linear"), and its clipped and crushed pixels are left out of the loss (taken out
+of the mask). A camera chose each photo's exposure and white balance, so they are fitted with the hair
+(optimize/camera.py), as target.toml says:
+
+    gains = "per-image"        # or "exif" (one gain, EXIF's t·ISO/N² ratios), "shared", "none"
+    white_balance = "fit"      # or "none"
+
+By default both are fitted when any image is display-referred (gains "exif" when every image has EXIF exposure,
+"per-image" otherwise) and neither for linear images (EXR); `warp-hair fit --gains/--white-balance` override.
+
 All images of a target show the same fibers with the same hair: their scenes' [fibers] and [hair] must agree.
 `make_target` renders the images from their scenes (at the spp and seed of each scene's [render] table) and
 writes truth.json from the [hair] table: what the shipped targets are made with (`warp-hair targets make`).
