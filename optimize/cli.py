@@ -230,7 +230,8 @@ def add_targets(subparsers) -> None:
         "disagreement), the expected sigma of both (the model error as the fit counts it: 0 for warp-hair's own "
         "targets, 1% for others) and the largest correlation with another control. Identifiable when every "
         "control's expected sigma is below its acceptance bound (albedo 0.02, beta_m and beta_n 0.03); else exit "
-        "status 1, naming the control and what to add. Costs 8 renders of each image at 64 spp.",
+        "status 1, naming the control and what to add. For photos (whose gains and white balance are fitted, "
+        "optimize/camera.py) it also says which of those the images pin. Costs 8 renders of each image at 64 spp.",
     )
     check.add_argument("target", metavar="TARGET", help="a target directory, or the name of a shipped target")
     check.add_argument("--fit", default=",".join(DEFAULT_FIT), metavar="NAMES",

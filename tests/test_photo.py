@@ -226,3 +226,29 @@ def test_target_from_photos_in_one_command(tmp_path):
     args.light = []
     with pytest.raises(ValueError, match="1 photo\\(s\\) but 0 --light"):
         make_photo_target(tmp_path / "other", args)
+
+
+def test_exif_orientation_is_applied_with_a_note(tmp_path):
+    """A camera's portrait JPEG is stored sideways with EXIF Orientation 6: read as a viewer shows it."""
+    codes = np.zeros((4, 6, 3), np.uint8)
+    codes[0, 0] = 200
+    exif = Image.Exif()
+    exif[0x0112] = 6  # rotate 90° clockwise to view
+    Image.fromarray(codes).save(tmp_path / "o.png", exif=exif)
+    photo = read_photo(tmp_path / "o.png")
+    assert photo.image.shape == (6, 4, 3) and photo.image[0, -1, 0] > 0.5
+    assert photo.notes == ["EXIF Orientation 6 applied (the image as a viewer shows it)"]
+    assert read_photo(tmp_path / "o.png").notes and not read_photo(_plain_png(tmp_path)).notes
+
+
+def _plain_png(tmp_path):
+    Image.fromarray(np.full((4, 6, 3), 90, np.uint8)).save(tmp_path / "plain.png")
+    return tmp_path / "plain.png"
+
+
+def test_exposure_is_not_fitted_on_top_of_the_gains(tmp_path):
+    from optimize.fit import fit
+
+    target = load_target(_photo_target(tmp_path))
+    with pytest.raises(ValueError, match="its gains are fitted already"):
+        fit(target, controls=("albedo", "exposure"), progress=False)

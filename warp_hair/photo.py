@@ -160,10 +160,10 @@ def _read_pillow(path: Path):
             fmt = im.format
             im.load()  # decode now: a truncated file fails here, not later
             exif = _exif(im.getexif())
-            oriented = ImageOps.exif_transpose(im)
-            if oriented is not im:
-                notes.append("EXIF Orientation applied (the image as a viewer shows it)")
-            im = oriented
+            orientation = im.getexif().get(ExifTags.Base.Orientation, 1)
+            if orientation not in (1, None):
+                im = ImageOps.exif_transpose(im)
+                notes.append(f"EXIF Orientation {orientation} applied (the image as a viewer shows it)")
             icc = im.info.get("icc_profile") or None
             gamma = im.info.get("gamma") if not (icc or "srgb" in im.info) else None
             mode = im.mode
