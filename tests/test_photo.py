@@ -252,3 +252,20 @@ def test_exposure_is_not_fitted_on_top_of_the_gains(tmp_path):
     target = load_target(_photo_target(tmp_path))
     with pytest.raises(ValueError, match="its gains are fitted already"):
         fit(target, controls=("albedo", "exposure"), progress=False)
+
+
+def test_exif_gains_keep_the_exposure_ratios():
+    """gains = "exif": one gain times each view's t·ISO/N² over the first's; the views' ratio is not fitted."""
+    from types import SimpleNamespace
+
+    views = [SimpleNamespace(photo=SimpleNamespace(relative_exposure=e)) for e in (0.01, 0.04)]
+    T = SimpleNamespace(gains="exif", white_balance="fit", images=views)
+    renders = [torch.rand(8, 8, 3, dtype=torch.float64) + 0.1 for _ in range(2)]
+    w = np.array([0.95, 1.0, 1.1])
+    references = [r * torch.from_numpy(g * w) for r, g in zip(renders, (0.7, 2.8))]  # 4× apart, as EXIF says
+    solved = camera.gains_for(T, [(r, r) for r in renders], references, [None, None], "l2", 1, [1.0, 1.0])
+    assert np.allclose(solved.g, [0.7, 2.8], rtol=1e-9) and np.allclose(solved.w, w, rtol=1e-9)
+    # With the second view really 5× the first, the ratio stays EXIF's 4 and the gain settles between.
+    references[1] = references[1] * 1.25
+    solved = camera.gains_for(T, [(r, r) for r in renders], references, [None, None], "l2", 1, [1.0, 1.0])
+    assert solved.g[1] / solved.g[0] == pytest.approx(4.0) and 0.7 < solved.g[0] < 0.875
