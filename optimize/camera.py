@@ -24,11 +24,12 @@ gain and a hair control (the Schur complement of the joint curvature).
 What the images can tell apart: a gain on every pixel of an image and a brighter albedo differ in where they
 brighten. The primary highlight R is reflected at the cuticle, so it has the light's colour whatever the fiber's
 absorption; TT, TRT and the multiply scattered light are filtered by the fiber. A per-channel w brightens both
-alike, albedo_c only the second: the ratio of R to the rest in each channel tells them apart. Where R is bright
-next to the rest (dark and medium hair lit from the front) that pins w; in light hair, which scatters most of
-its light, R is a small part, and albedo and w trade off (`warp-hair targets check` says by how much). A grey
-card in the scene (a `[card]` the camera sees) pins both outright: its radiance is its reflectance times the
-light's, with no hair in it.
+alike, and in every view alike; albedo_c only the second, and the back-lit view's transmission more than the
+front-lit view's glow: that pins w (within 0.4% on the photo-like swatches, light hair too). The overall level
+is what the gains take: in light hair, which scatters most of its light, a lighter albedo and a brighter gain
+change the images almost alike (`warp-hair targets check` says by how much). A grey card in the scene (a
+`[card]` the camera sees) pins both outright: its radiance is its reflectance times the light's, with no hair
+in it.
 """
 
 from __future__ import annotations
