@@ -216,9 +216,11 @@ def linearize(target, values: dict, settings, spp: int, seed: int, threads=None,
     image_residuals = tuple(len(t) for t in ts)
     projection = None
     if solved is not None:
-        # The loss minimised over the gains (camera.py): what no change of the gains makes, of each part.
-        m = (residuals + targets).mean(axis=0)
-        projection = camera.Projection(solved, camera.columns(target, m, image_residuals), loss_weights,
+        # The loss minimised over the gains (camera.py): what no change of the gains makes, of each part. The
+        # gains' columns are ∂r/∂log g = ω G I, which at the gains' optimum is the weighted target t up to the
+        # residual: taken from t, the projection is the same at every linearisation and free of our render
+        # noise (from the renders, it would tie the two passes' noise together and move with each step's).
+        projection = camera.Projection(solved, camera.columns(target, targets, image_residuals), loss_weights,
                                        jacobians.mean(axis=0), camera.labels(target))
         residuals = np.stack([projection.apply(r) for r in residuals])
         jacobians = np.stack([projection.apply(a) for a in jacobians])
