@@ -119,6 +119,24 @@ def table(out: Path, names) -> str:
     return "\n".join(rows)
 
 
+def check_table(out: Path, names) -> str:
+    rows = ["| target | albedo r, g, b | β_m | β_n | not pinned | gains (front, back) | white balance (r, b) |",
+            "| --- | --- | --- | --- | --- | --- | --- |"]
+    for name in names:
+        path = out / f"{name}.check.json"
+        if not path.is_file():
+            continue
+        c = json.loads(path.read_text())
+        sigma, pinned = c["sigma"], c["pinned"]
+        camera = {label: s for label, _, s in c["camera"]}
+        unpinned = [label for label, p in zip(c["labels"], pinned) if not p]
+        rows.append(f"| {name} | {sigma[0]:.4f}, {sigma[1]:.4f}, {sigma[2]:.4f} | {sigma[3]:.4f} | {sigma[4]:.4f} "
+                    f"| {', '.join(unpinned) or 'none'} "
+                    f"| {100 * camera['gain[front]']:.1f}%, {100 * camera['gain[back]']:.1f}% "
+                    f"| {100 * camera['white_balance[r]']:.2f}%, {100 * camera['white_balance[b]']:.2f}% |")
+    return "\n".join(rows)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("action", choices=("check", "fit", "table"))
@@ -132,7 +150,7 @@ def main() -> None:
     if unknown:
         parser.error(f"unknown target(s) {unknown}; allowed: {sorted(found)}")
     if args.action == "table":
-        print(table(args.out, names))
+        print(check_table(args.out, names) + "\n\n" + table(args.out, names))
         return
     for name in names:
         if args.action == "check" and not name.endswith("_png"):
