@@ -293,6 +293,9 @@ def make_target(directory, threads=None, progress=None) -> list[Path]:
     entries = read_target_spec(directory)
     _check_writable_target(directory)
     renderer = target_renderer(directory)
+    if any(Path(entry["image"]).suffix.lower() != ".exr" for entry in entries):
+        raise ValueError(f"{directory}: its images are photos (or made to look like them), not renders to remake; "
+                         "the shipped photo-like targets are remade with `python benchmarks/make_photo_targets.py`")
     if renderer != "warp-hair":
         raise ValueError(f"{directory}: its images were rendered by {renderer}; re-render them with "
                          f"`python benchmarks/make_peer_targets.py {directory.name}` (from a source checkout, with "
