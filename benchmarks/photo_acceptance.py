@@ -85,8 +85,8 @@ def run_fit(name: str, directory: Path, out: Path) -> None:
 
 def table(out: Path, names) -> str:
     rows = ["| target | pinned (check) | fitted albedo / β_m / β_n ± σ | error albedo / β_m / β_n | "
-            "within bound or 2σ | gains error | white balance error | left out | time |",
-            "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+            "within bound or 2σ | largest error / σ | gains error | white balance error | left out | time |",
+            "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
     for name in names:
         fit_file, check_file = out / f"{name}.fit.json", out / f"{name}.check.json"
         if not fit_file.is_file():
@@ -114,6 +114,7 @@ def table(out: Path, names) -> str:
             f" / {values[3]:.3f} ± {sigma[3]:.3f} / {values[4]:.3f} ± {sigma[4]:.3f} "
             f"| ({error[0]:+.3f}, {error[1]:+.3f}, {error[2]:+.3f}) / {error[3]:+.3f} / {error[4]:+.3f} "
             f"| {'yes' if ok.all() else 'no: ' + ', '.join(l for l, o in zip(labels, ok) if not o)} "
+            f"| {np.max(np.abs(error) / sigma):.1f} "
             f"| {gain_err[0]:+.1f}%, {gain_err[1]:+.1f}% | {wb_err[0]:+.1f}%, {wb_err[2]:+.1f}% "
             f"| {sum(f['left_out'])} | {f['seconds']:.0f} s |")
     return "\n".join(rows)
