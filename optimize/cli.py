@@ -276,8 +276,10 @@ def _add_photo(actions) -> None:
                        help="per --image, in order: the direction its directional light travels, in the rig's frame "
                        "(x across, y along the fibers, z towards the camera)")
     photo.add_argument("--hdri", metavar="EXR", help="a lat-long EXR taken where the swatch stood, for every view")
-    photo.add_argument("--transfer", choices=TRANSFERS, default="auto", help="the photos' transfer curve (default auto)")
-    photo.add_argument("--width", type=float, default=0.4, help="swatch width across the fibers (scene units, default 0.4)")
+    photo.add_argument("--transfer", choices=TRANSFERS, default="auto",
+                       help="the photos' transfer curve (default auto)")
+    photo.add_argument("--width", type=float, default=0.4,
+                       help="swatch width across the fibers (scene units, default 0.4)")
     photo.add_argument("--length", type=float, default=0.5, help="swatch length along the fibers (default 0.5)")
     photo.add_argument("--count", type=int, default=152, help="fibers (default 152)")
     photo.add_argument("--layers", type=int, default=4, help="layers of fibers (default 4)")
@@ -294,7 +296,7 @@ def _add_photo(actions) -> None:
                        help="perspective: sensor width in mm, with the photo's EXIF focal length")
     photo.add_argument("--resolution", type=int, default=64, help="pixels across of the target's images (default 64)")
     photo.add_argument("--card", type=float, metavar="REFLECTANCE",
-                       help="a grey card behind the swatch, of this reflectance (e.g. 0.18): pins gains and white balance")
+                       help="a grey card behind the swatch, of this reflectance (e.g. 0.18), rendered as its [card]")
     photo.add_argument("--mask", nargs="+", metavar="auto|FILE",
                        help="'auto': leave out the background (not with --card); or a mask per photo (white = counts)")
     photo.set_defaults(run=run_photo)

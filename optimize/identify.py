@@ -183,7 +183,8 @@ def check_target(target, values: dict | None = None, controls=DEFAULT_FIT, spp: 
     if projection is not None:
         # The gains' covariance: the target's noise on them, and the hair's carried over (camera.Projection).
         normal_inv = np.linalg.pinv(projection.normal)
-        noise_gg = normal_inv @ _target_gradient_covariance(lins, projection.columns, factors, quantisation) @ normal_inv
+        gradient_gg = _target_gradient_covariance(lins, projection.columns, factors, quantisation)
+        noise_gg = normal_inv @ gradient_gg @ normal_inv
         follow = -normal_inv @ (projection.columns.T @ (w[:, None] * projection.jacobian))
         cov_gg = noise_gg + follow @ (cov + np.outer(shift, shift) * (model_error / 0.01) ** 2) @ follow.T
         is_gain = np.array([label.startswith("gain") for label in projection.labels], dtype=float)

@@ -223,8 +223,8 @@ def camera_table(result: FitResult, truth: dict | None = None) -> str:
              "to the photo, green's white balance is 1):"]
     for name, (value, sigma) in camera["gains"].items():
         true = truth.get("gains", {}).get(name)
-        lines.append(f"  gain[{name}]  {value:.4f} ± {sigma:.4f}" + ("" if true is None else
-                                                                    f"  true {true:.4f}  error {100 * (value / true - 1):+.1f}%"))
+        versus = "" if true is None else f"  true {true:.4f}  error {100 * (value / true - 1):+.1f}%"
+        lines.append(f"  gain[{name}]  {value:.4f} ± {sigma:.4f}{versus}")
     wb = camera["white_balance"]
     true = truth.get("white_balance")
     lines.append("  white_balance  " + _fmt(wb["value"], 4) + " ± " + _fmt(wb["sigma"], 4)

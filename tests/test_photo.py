@@ -148,7 +148,7 @@ def test_photo_target_bad_input(tmp_path):
     def wrong_size(directory):
         Image.fromarray(np.full((40, 64, 3), 100, np.uint8), "RGB").save(directory / "front.png")
 
-    with pytest.raises(ValueError, match="front.png: the image is 64x40 pixels but scene_front.toml's camera renders 64x64"):
+    with pytest.raises(ValueError, match="front.png: the image is 64x40 pixels but scene_front.toml's camera renders"):
         load_target(_photo_target(tmp_path / "b", edit=wrong_size))
 
     def exif_gains(directory):
@@ -179,7 +179,8 @@ def test_projection_is_the_schur_complement():
     a, c, w = RNG.normal(size=(n, p)), RNG.normal(size=(n, q)), RNG.uniform(0.5, 2, n)
     proj = camera.Projection(camera.Gains(np.ones(1), np.ones(3)), c, w, a, ["gain", "white_balance[r]"])
     projected = proj.apply(a)
-    joint = np.block([[a.T @ (w[:, None] * a), a.T @ (w[:, None] * c)], [c.T @ (w[:, None] * a), c.T @ (w[:, None] * c)]])
+    wa, wc = w[:, None] * a, w[:, None] * c
+    joint = np.block([[a.T @ wa, a.T @ wc], [c.T @ wa, c.T @ wc]])
     schur = joint[:p, :p] - joint[:p, p:] @ np.linalg.inv(joint[p:, p:]) @ joint[p:, :p]
     assert np.allclose(projected.T @ (w[:, None] * projected), schur)
     assert np.allclose(c.T @ (w[:, None] * projected), 0, atol=1e-10)
