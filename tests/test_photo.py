@@ -270,3 +270,25 @@ def test_exif_gains_keep_the_exposure_ratios():
     references[1] = references[1] * 1.25
     solved = camera.gains_for(T, [(r, r) for r in renders], references, [None, None], "l2", 1, [1.0, 1.0])
     assert solved.g[1] / solved.g[0] == pytest.approx(4.0) and 0.7 < solved.g[0] < 0.875
+
+
+def test_fur_rig_with_a_perspective_camera_and_an_hdri(tmp_path):
+    """The fur rig, a perspective camera from --fov, an HDRI for the light, a grey card: the scene written loads."""
+    from warp_hair.io import write_exr
+
+    write_exr(tmp_path / "sky.exr", np.full((8, 16, 3), 0.5, np.float32))
+    write_photo(tmp_path / "fur.png", np.full((40, 40, 3), 0.3, np.float32) + _gradient(40))
+    args = argparse.Namespace(
+        image=[str(tmp_path / "fur.png")], light=None, hdri=str(tmp_path / "sky.exr"), rig="fur", transfer="auto",
+        width=0.4, length=0.5, count=200, layers=4, fiber_radius=0.0015, drape=0.25, patch=0.3, fur_length=0.1,
+        elevation=30.0, distance=3.0, ortho_width=None, fov=8.0, sensor_width=None, resolution=20, card=0.18,
+        mask=None)
+    make_photo_target(tmp_path / "fur", args)
+    scene = load_target(tmp_path / "fur").images[0].scene
+    assert scene.camera.type == "perspective" and scene.camera.fov == 8.0 and scene.camera.resolution == (20, 20)
+    assert type(scene.lights[0]).__name__ == "EnvironmentLight" and scene.card.albedo == (0.18, 0.18, 0.18)
+    assert scene.camera.origin[2] == pytest.approx(1.5) and len(scene.fibers.radii) > 0
+
+
+def _gradient(n):
+    return (np.linspace(0, 0.4, n)[None, :, None] * np.ones((n, 1, 3))).astype(np.float32)
