@@ -15,7 +15,7 @@ from pathlib import Path
 
 from warp_hair.cli import exit_on_interrupt
 from warp_hair.model.params import HairParams
-from warp_hair.renderer.forward import render
+from warp_hair.renderer.render import render
 from warp_hair.scene import load_scene
 
 SCENE = Path(__file__).with_name("standard_swatch.toml")

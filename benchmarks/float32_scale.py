@@ -20,7 +20,7 @@ import numpy as np
 
 from warp_hair.cli import exit_on_interrupt
 from warp_hair.geometry.assembly import FiberAssembly
-from warp_hair.renderer.forward import render
+from warp_hair.renderer.render import render
 from warp_hair.scene import scene_from_dict
 from warp_hair.validate import RESOLUTION_LIMIT
 
@@ -42,7 +42,7 @@ def main() -> None:
     print("| shift | extent / radius | mean relative to unshifted | the scene check |")
     print("| --- | --- | --- | --- |")
     # Measured without the check, to show what it prevents.
-    importlib.import_module("warp_hair.renderer.forward").check_scene = lambda scene: None
+    importlib.import_module("warp_hair.renderer.prepare").check_scene = lambda scene: None
     for shift in args.shifts:
         moved = copy.copy(scene)
         moved.camera = dataclasses.replace(scene.camera, origin=np.add(scene.camera.origin, [shift, 0, 0]).tolist(),

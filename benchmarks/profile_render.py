@@ -36,15 +36,17 @@ from warp_hair.geometry.bvh import build_bvh
 from warp_hair.renderer.camera import generate_ray
 from warp_hair.renderer.envmap import env_sample
 from warp_hair.model.hair_bsdf import hair_sample, hair_value_pdf, lobe_setup
-from warp_hair.renderer.integrator import SceneData, pixel_start, rand2, to_local, to_world
+from warp_hair.numerics import rand2, to_local, to_world
+from warp_hair.renderer.integrator import SceneData
 from warp_hair.geometry.bvh import TRAVERSAL_COST
 from warp_hair.geometry.intersect import intersect_fibers
 from warp_hair.geometry.tubes import MAX_LEAF, _segment_boxes, _segment_frames
 from warp_hair.numerics import NO_HIT
 from warp_hair.geometry.rays import intersect, occluded
 from warp_hair.parallel import default_threads
-from warp_hair.renderer.forward import prepare, render
-from warp_hair.renderer.jacobian import render_jacobian
+from warp_hair.renderer.gradients import render_jacobian
+from warp_hair.renderer.prepare import prepare
+from warp_hair.renderer.render import pixel_start, render
 from warp_hair.scene import load_scene
 
 HERE = Path(__file__).resolve().parent

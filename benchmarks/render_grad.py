@@ -40,9 +40,8 @@ import numpy as np
 
 from warp_hair.cli import exit_on_interrupt
 from warp_hair.parallel import default_threads
-from warp_hair.renderer.forward import render
-from warp_hair.renderer.gradients import contract_crossed, named_gradients, render_grad
-from warp_hair.renderer.jacobian import render_jacobian
+from warp_hair.renderer.gradients import contract_crossed, named_gradients, render_grad, render_jacobian
+from warp_hair.renderer.render import render
 from warp_hair.scene import load_scene
 
 HERE = Path(__file__).resolve().parent

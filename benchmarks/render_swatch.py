@@ -25,7 +25,7 @@ import numpy as np
 from warp_hair.cli import exit_on_interrupt
 from warp_hair.io import write_exr, write_png
 from warp_hair.parallel import default_threads
-from warp_hair.renderer.forward import render
+from warp_hair.renderer.render import render
 from warp_hair.scene import load_scene
 
 from mitsuba_peer import import_mitsuba, mitsuba_scene, time_mitsuba

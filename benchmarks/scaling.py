@@ -65,7 +65,8 @@ def with_settings(scene, resolution, depth):
 
 def sweep_swatch(threads) -> list:
     """[(parameter, value, wall s, cpu s, rays)] of the standard swatch's renders, one parameter varied at a time."""
-    from warp_hair.renderer.forward import prepare, render
+    from warp_hair.renderer.prepare import prepare
+    from warp_hair.renderer.render import render
     from warp_hair.scene import load_scene
 
     swatch = load_scene(SWATCH)
@@ -123,7 +124,8 @@ def segments_case(segments: int, threads, numpy_build: bool) -> dict:
     """One size of the segments sweep, in this process: preparation, BVH size and cost, render time, peak memory."""
     import warp as wp
 
-    from warp_hair.renderer.forward import prepare, render
+    from warp_hair.renderer.prepare import prepare
+    from warp_hair.renderer.render import render
 
     wp.init()
     render(draped_swatch(1000), spp=1, threads=threads)  # compile or load the kernels

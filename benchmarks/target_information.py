@@ -30,7 +30,7 @@ from optimize.target import TARGET_FILE, load_target
 from targets import path as shipped_path
 from warp_hair.cli import exit_on_interrupt
 from warp_hair.io import write_exr
-from warp_hair.renderer.forward import render, render_metadata
+from warp_hair.renderer.render import render, render_metadata
 from warp_hair.scene import load_scene
 
 DEFAULT_TARGETS = ("blonde_straight", "cycles_blonde_straight", "mitsuba_blonde_straight")

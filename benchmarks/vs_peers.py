@@ -60,7 +60,7 @@ from warp_hair.geometry.formats import save_fibers
 from warp_hair.geometry.generators import swatch
 from warp_hair.io import write_exr, write_png
 from warp_hair.parallel import default_threads
-from warp_hair.renderer.forward import render
+from warp_hair.renderer.render import render
 from warp_hair.scene import scene_from_dict
 
 from cycles_peer import import_bpy, render_cycles

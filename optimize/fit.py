@@ -23,10 +23,16 @@ Then a few Gauss–Newton (Levenberg–Marquardt) steps from that estimate (`ref
 valleys where controls trade off, Gauss–Newton crosses them), and from the loss linearised at the result, at
 4 × spp per render, the final images and loss and, unless interrupted, each control's uncertainty and
 identifiability (`uncertainty.py`). Ctrl-C during the refinement keeps its best step so far.
+
+The code follows those stages: `fit` makes a `FitRun`, which holds the state of the descent (latents, Adam,
+prepared scenes, the record so far) and advances it one iteration per `step()`, as Warp's examples' `step()`
+does; `descend`, `refine`, `evaluate` and `uncertainty` each return a frozen result (`Descent`, `Refinement`,
+`Evaluation`, `Uncertainty`), and `result` builds the `FitResult` from them once.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from dataclasses import dataclass, field
@@ -36,16 +42,17 @@ import torch
 from tqdm import tqdm
 
 from warp_hair.model.params import effective_beta
-from warp_hair.renderer.forward import prepare, render
+from warp_hair.renderer.prepare import prepare
+from warp_hair.renderer.render import render
 from warp_hair.torch import render_torch_pair, scene_with_controls
 
 from . import camera
 from .latents import DEFAULT_FIT, SPECS, as_values, hair_and_gain, parse_control_names
-from .linearize import linearize
+from .linearize import Linearization, linearize
 from .losses import LOSSES, image_loss, loss_scale
-from .refine import REFINABLE_LOSSES, refine
+from .refine import REFINABLE_LOSSES, GaussNewton, GaussNewtonStep, Refinement
 from .target import Target
-from .uncertainty import check_model_error, estimate_uncertainty, target_model_error
+from .uncertainty import Uncertainty, check_model_error, estimate_uncertainty, target_model_error
 
 SPP_STAGES = ((0.25, 4), (0.5, 2), (1.0, 1))  # (fraction of the iterations, divisor of spp) in order
 FINAL_LR_FRACTION = 0.05
@@ -81,16 +88,27 @@ class FitSettings:
     model_error: float | None = None
 
 
-@dataclass
+@dataclass(frozen=True)
+class History:
+    """The fit's course: per Adam iteration its loss, samples per pixel and learning rate, and each fitted
+    control's value ((iterations,) or (iterations, 3) for an RGB control); then every Gauss–Newton step tried."""
+
+    loss: np.ndarray
+    spp: np.ndarray
+    lr: np.ndarray
+    values: dict  # control → array of its values, one row per iteration
+    refine: tuple[GaussNewtonStep, ...] = ()
+
+
+@dataclass(frozen=True)
 class FitResult:
     target: str
     values: dict  # fitted control → float, or list of 3 for RGB controls
     uncertainties: dict | None  # the same shapes; None when not estimated
     loss: float  # at the fitted controls, from the final evaluation
     start: dict
-    history: dict  # "loss", "spp", "lr": one entry per iteration; "values": {control: per-iteration values};
-    # "refine": one {"values", "loss", "accepted"} per Gauss–Newton step
-    iterations: int
+    history: History
+    iterations: int  # Adam iterations run
     stop_reason: str  # "plateau", "iterations" or "interrupted"
     seconds: float
     images: list  # the fitted renders (H, W, 3) of the final evaluation, one per target image
@@ -98,6 +116,29 @@ class FitResult:
     correlations: dict = field(default_factory=dict)  # "a/b" → correlation of the two estimates
     uncertainty_parts: dict | None = None  # the noise and model-error parts of `uncertainties` (uncertainty.py)
     camera: dict | None = None  # a photo target's fitted gains and white balance with their σ (camera.report)
+
+
+@dataclass(frozen=True)
+class Descent:
+    """What the Adam iterations leave: the estimate (the mean of the last AVERAGED_FRACTION of the iterates),
+    their history, how many ran and why they stopped."""
+
+    estimate: dict
+    history: History
+    iterations: int
+    stop_reason: str
+
+
+@dataclass(frozen=True)
+class Evaluation:
+    """The fitted renders, one per target image, the mean image loss at them and the loss linearised there
+    (what the uncertainties come from). `interrupted`: Ctrl-C stopped the fit at some stage; the images are then
+    the linearisation's."""
+
+    images: list
+    loss: float
+    linearization: Linearization
+    interrupted: bool = False
 
 
 def spp_at(iteration: int, iters: int, spp: int) -> int:
@@ -232,30 +273,6 @@ class Batches:
         return pixels, torch.from_numpy(mask.reshape(self.shape))
 
 
-def _loss(target: Target, scenes, values: dict, spp: int, seeds, settings: FitSettings, targets, masks, batches,
-          scales):
-    """The mean image loss over the target's images (`scenes`: theirs, prepared), each rendered as a decorrelated
-    pair of spp/2 each, on a mini-batch of its blocks where it is larger than settings.batch."""
-    hair, gain = hair_and_gain(values)
-    pairs, used = [], []
-    for k, image in enumerate(target.images):
-        pixels, batch_mask = batches[k].draw(seeds[k])  # of counted pixels only: it implies the target's mask
-        used.append(masks[k] if batch_mask is None else batch_mask)
-        pairs.append(render_torch_pair(scenes[k], hair, spp=max(1, spp // 2), seed=seeds[k], threads=settings.threads,
-                                       pixels=pixels))
-    gains = [gain] * len(pairs)
-    if camera.fitted(target):  # a photo's exposures and white balance, solved for these renders (camera.py)
-        solved = camera.gains_for(target, pairs, targets, used, settings.loss,
-                                  settings.pool, scales).per_channel
-        gains = [torch.from_numpy(g) for g in solved]
-    total = 0.0
-    for k, pair in enumerate(pairs):
-        for rendered in pair:
-            total = total + image_loss(rendered * gains[k], targets[k], settings.loss, used[k], settings.pool,
-                                       scales[k])
-    return total / (2 * len(target.images))
-
-
 def _describe(values: dict) -> str:
     parts = []
     for name, v in values.items():
@@ -271,130 +288,233 @@ def fit(target: Target, settings: FitSettings | None = None, progress: bool = Tr
         if unknown:
             raise TypeError(f"unknown fit setting(s) {unknown}")
         settings = FitSettings(**{**settings.__dict__, **overrides})
-    names = check_settings(target, settings)
-    start = start_values(names, settings)
-    latents = _Latents(start, target.hair.beta_n, target.hair.albedo_inversion)
-    optimizer = torch.optim.Adam(latents.tensors.values(), lr=settings.lr)
-    schedule = torch.optim.lr_scheduler.LambdaLR(optimizer, lambda it: lr_factor(it, settings.iters))
-    targets = [torch.from_numpy(image.image) for image in target.images]
-    masks = [None if image.mask is None else torch.from_numpy(image.mask) for image in target.images]
-    scales = [loss_scale(t, settings.loss, m, settings.pool) for t, m in zip(targets, masks)]
-    batches = [Batches(image, settings.pool, settings.batch) for image in target.images]
-
-    history = {"loss": [], "spp": [], "lr": [], "values": {name: [] for name in names}}
-    stop_reason = "iterations"
-    ema = best = None
-    since_best = 0
-    final_stage_start = spp_at(settings.iters - 1, settings.iters, settings.spp)
-    begun = time.perf_counter()
-    # The fibers, BVH, camera and lights of each image, built once: only the hair changes between renders.
-    scenes = [prepare(image.scene) for image in target.images]
-    bar = tqdm(total=settings.iters, desc=f"fit {target.name}", unit="it", disable=not progress)
-    try:
-        for it in range(settings.iters):
-            spp = spp_at(it, settings.iters, settings.spp)
-            optimizer.zero_grad()
-            values = latents.values()
-            seeds = [iteration_seed(settings.seed, it, k) for k in range(len(target.images))]
-            loss = _loss(target, scenes, values, spp, seeds, settings, targets, masks, batches, scales)
-            loss.backward()
-            history["loss"].append(float(loss.detach()))
-            history["spp"].append(spp)
-            history["lr"].append(optimizer.param_groups[0]["lr"])
-            for name, v in _plain(values).items():
-                history["values"][name].append(v)
-            optimizer.step()
-            schedule.step()
-            bar.set_postfix_str(f"loss={float(loss.detach()):.3g} spp={spp} {_describe(_plain(values))}", refresh=False)
-            bar.update()
-
-            value = float(loss.detach())
-            ema = value if ema is None else SMOOTHING * ema + (1 - SMOOTHING) * value
-            if spp == final_stage_start and it >= 1 and history["spp"][-2] == spp:
-                if best is None or ema < best * (1 - PLATEAU_TOLERANCE):
-                    best, since_best = ema, 0
-                else:
-                    since_best += 1
-                    if since_best >= settings.patience:
-                        stop_reason = "plateau"
-                        break
-    except KeyboardInterrupt:
-        stop_reason = "interrupted"
-    finally:
-        bar.close()
-    done = len(history["loss"])
-    if done == 0:
-        estimate = {name: _as_control(name, start[name]) for name in names}
-    else:
-        estimate = _mean_values(history["values"], max(1, int(AVERAGED_FRACTION * done)))
-    return _finish(target, scenes, settings, names, start, estimate, history, done, stop_reason, begun, progress)
+    return FitRun(target, settings, progress).run()
 
 
-def _finish(target, scenes, settings, names, start, estimate, history, done, stop_reason, begun, progress) -> FitResult:
-    """Gauss–Newton refinement (unless interrupted), then the final renders and the uncertainties from the
-    loss linearised at the result, all at FINAL_SPP_FACTOR × spp per render."""
-    final_spp = gauss_newton_spp(settings, target)
-    seed = iteration_seed(settings.seed, 2**31, 0)
-    steps = 0 if stop_reason == "interrupted" else _refine_steps(settings, target)
-    history["refine"] = []
-    notes = []  # the refinement's warnings
-    if steps:
-        last_kept = {"values": estimate}  # what a KeyboardInterrupt during the refinement returns
-        bar = tqdm(total=steps, desc="Gauss-Newton", unit="step", disable=not progress)
+class FitRun:
+    """One fit of a target, as a run: the state of the descent is held here and `step()` takes one Adam
+    iteration; the stages after it each return a frozen result:
 
-        def on_step(record):
-            history["refine"].append(record)
-            if bar.n >= bar.total:  # the refinement runs on while its points still move (refine.py)
-                bar.total = bar.n + 1
-            bar.set_postfix_str(f"loss={record['loss']:.3g} {'kept' if record['accepted'] else 'undone'} "
-                                f"{_describe(record['values'])}", refresh=False)
-            bar.update()
+        run = FitRun(target, settings)
+        descent = run.descend()                 # step() until the iterations, a plateau or Ctrl-C
+        refinement = run.refine(descent)        # Gauss–Newton steps (refine.py); None when there are none
+        evaluation = run.evaluate(descent, refinement)   # the final images and loss, the loss linearised there
+        uncertainty = run.uncertainty(evaluation, refinement)   # uncertainty.py (skipped when interrupted)
+        result = run.result(descent, refinement, evaluation, uncertainty)   # or all of it: run.run()
+    """
 
-        lin, mc_covariance = None, None
+    def __init__(self, target: Target, settings: FitSettings, progress: bool = True):
+        self.target, self.settings, self.progress = target, settings, progress
+        self.names = check_settings(target, settings)
+        self.start = start_values(self.names, settings)
+        self.latents = _Latents(self.start, target.hair.beta_n, target.hair.albedo_inversion)
+        self.optimizer = torch.optim.Adam(self.latents.tensors.values(), lr=settings.lr)
+        self.schedule = torch.optim.lr_scheduler.LambdaLR(self.optimizer, lambda it: lr_factor(it, settings.iters))
+        self.targets = [torch.from_numpy(image.image) for image in target.images]
+        self.masks = [None if image.mask is None else torch.from_numpy(image.mask) for image in target.images]
+        self.scales = [loss_scale(t, settings.loss, m, settings.pool) for t, m in zip(self.targets, self.masks)]
+        self.batches = [Batches(image, settings.pool, settings.batch) for image in target.images]
+        self.begun = time.perf_counter()
+        # The fibers, BVH, camera and lights of each image, built once: only the hair changes between renders.
+        self.scenes = [prepare(image.scene) for image in target.images]
+        self.final_stage_spp = spp_at(settings.iters - 1, settings.iters, settings.spp)
+        self.iteration = 0
+        self.stop_reason = None  # set by step() on a plateau
+        self.ema = self.best = None  # the smoothed loss, and its best at the final spp
+        self.since_best = 0
+        self.record = {"loss": [], "spp": [], "lr": [], "values": {name: [] for name in self.names}}
+
+    @property
+    def done(self) -> bool:
+        return self.stop_reason is not None or self.iteration >= self.settings.iters
+
+    def loss(self, values: dict, spp: int, seeds) -> torch.Tensor:
+        """The mean image loss over the target's images, each rendered as a decorrelated pair of spp/2 each, on a
+        mini-batch of its blocks where it is larger than settings.batch."""
+        hair, gain = hair_and_gain(values)
+        pairs, used = [], []
+        for k, image in enumerate(self.target.images):
+            pixels, batch_mask = self.batches[k].draw(seeds[k])  # of counted pixels only: it implies the target's mask
+            used.append(self.masks[k] if batch_mask is None else batch_mask)
+            pairs.append(render_torch_pair(self.scenes[k], hair, spp=max(1, spp // 2), seed=seeds[k],
+                                           threads=self.settings.threads, pixels=pixels))
+        gains = [gain] * len(pairs)
+        if camera.fitted(self.target):  # a photo's exposures and white balance, solved for these renders
+            solved = camera.gains_for(self.target, pairs, self.targets, used, self.settings.loss, self.settings.pool,
+                                      self.scales).per_channel
+            gains = [torch.from_numpy(g) for g in solved]
+        total = 0.0
+        for k, pair in enumerate(pairs):
+            for rendered in pair:
+                total = total + image_loss(rendered * gains[k], self.targets[k], self.settings.loss, used[k],
+                                           self.settings.pool, self.scales[k])
+        return total / (2 * len(self.target.images))
+
+    def step(self) -> float:
+        """One Adam iteration at the schedules' spp and learning rate, with fresh seeds; returns its loss. Sets
+        `stop_reason` to "plateau" when the smoothed loss has not improved for `patience` iterations at the final
+        spp."""
+        settings, it = self.settings, self.iteration
+        spp = spp_at(it, settings.iters, settings.spp)
+        self.optimizer.zero_grad()
+        values = self.latents.values()
+        seeds = [iteration_seed(settings.seed, it, k) for k in range(len(self.target.images))]
+        loss = self.loss(values, spp, seeds)
+        loss.backward()
+        value = float(loss.detach())
+        self.record["loss"].append(value)
+        self.record["spp"].append(spp)
+        self.record["lr"].append(self.optimizer.param_groups[0]["lr"])
+        for name, v in _plain(values).items():
+            self.record["values"][name].append(v)
+        self.optimizer.step()
+        self.schedule.step()
+        self.iteration += 1
+        self.ema = value if self.ema is None else SMOOTHING * self.ema + (1 - SMOOTHING) * value
+        if spp == self.final_stage_spp and it >= 1 and self.record["spp"][-2] == spp:
+            if self.best is None or self.ema < self.best * (1 - PLATEAU_TOLERANCE):
+                self.best, self.since_best = self.ema, 0
+            else:
+                self.since_best += 1
+                if self.since_best >= settings.patience:
+                    self.stop_reason = "plateau"
+        return value
+
+    def history(self) -> History:
+        """The Adam iterations recorded so far."""
+        r = self.record
+        values = {name: np.array(v, dtype=np.float64).reshape((-1, 3) if SPECS[name].size == 3 else (-1,))
+                  for name, v in r["values"].items()}
+        return History(loss=np.array(r["loss"], dtype=np.float64), spp=np.array(r["spp"], dtype=np.int64),
+                       lr=np.array(r["lr"], dtype=np.float64), values=values)
+
+    def descend(self) -> Descent:
+        """step() until the iterations are done or the loss plateaus; Ctrl-C stops it with the estimate so far."""
+        stop_reason = None
+        bar = tqdm(total=self.settings.iters, desc=f"fit {self.target.name}", unit="it", disable=not self.progress)
         try:
-            estimate, lin, mc_covariance, notes = refine(target, estimate, settings, final_spp, seed, steps, on_step,
-                                                         lambda values: last_kept.update(values=values), scenes=scenes)
+            while not self.done:
+                loss = self.step()
+                bar.set_postfix_str(f"loss={loss:.3g} spp={self.record['spp'][-1]} "
+                                    f"{_describe({n: v[-1] for n, v in self.record['values'].items()})}", refresh=False)
+                bar.update()
         except KeyboardInterrupt:
             stop_reason = "interrupted"
-            estimate = last_kept["values"]
         finally:
             bar.close()
-    if not steps or lin is None:
-        lin, mc_covariance = linearize(target, estimate, settings, final_spp, seed, threads=settings.threads,
-                                       scenes=scenes), None
-    images = lin.images
-    if final_spp < settings.spp * FINAL_SPP_FACTOR and stop_reason != "interrupted":
-        # The linearisations of a large image rendered few samples a pixel: a picture of the fit that a person
-        # compares with the target (comparison.png) wants the full samples.
+        history = self.history()
+        done = len(history.loss)
+        if done == 0:
+            estimate = {name: _as_control(name, self.start[name]) for name in self.names}
+        else:
+            estimate = _mean_values(history.values, max(1, int(AVERAGED_FRACTION * done)))
+        return Descent(estimate, history, done, stop_reason or self.stop_reason or "iterations")
+
+    @property
+    def final_spp(self) -> int:
+        return gauss_newton_spp(self.settings, self.target)
+
+    @property
+    def final_seed(self) -> int:
+        return iteration_seed(self.settings.seed, 2**31, 0)
+
+    def refine(self, descent: Descent) -> Refinement | None:
+        """Gauss–Newton steps from the descent's estimate (none after an interruption, or where `_refine_steps`
+        says 0). Ctrl-C keeps the last kept step."""
+        steps = 0 if descent.stop_reason == "interrupted" else _refine_steps(self.settings, self.target)
+        if not steps:
+            return None
+        bar = tqdm(total=steps, desc="Gauss-Newton", unit="step", disable=not self.progress)
+        run = None
         try:
-            images = _render_fitted(scenes, estimate, settings.spp * FINAL_SPP_FACTOR, seed, settings.threads,
-                                    None if lin.camera is None else lin.camera.gains.per_channel)
+            run = GaussNewton(self.target, descent.estimate, self.settings, self.final_spp, self.final_seed, steps,
+                              scenes=self.scenes)
+            while not run.done:
+                record = run.step()
+                if bar.n >= bar.total:  # the refinement runs on while its points still move (refine.py)
+                    bar.total = bar.n + 1
+                bar.set_postfix_str(f"loss={record.loss:.3g} {'kept' if record.accepted else 'undone'} "
+                                    f"{_describe(record.values)}", refresh=False)
+                bar.update()
+            return run.result()
         except KeyboardInterrupt:
-            stop_reason = "interrupted"
-    losses = [image_loss(torch.from_numpy(fitted), torch.from_numpy(image.image), settings.loss,
-                         None if image.mask is None else torch.from_numpy(image.mask), settings.pool)
-              for fitted, image in zip(images, target.images)]
-    result = FitResult(
-        target=target.name,
-        values=estimate,
-        uncertainties=None,
-        loss=float(np.mean([float(v) for v in losses])),
-        start={name: _as_control(name, v) for name, v in start.items()},
-        history=history,
-        iterations=done,
-        stop_reason=stop_reason,
-        seconds=0.0,
-        images=images,
-    )
-    result.warnings.extend(notes)
-    if settings.uncertainty and stop_reason != "interrupted":
-        estimate_uncertainty(result, lin, mc_covariance, target_model_error(target, settings.model_error))
-    if lin.camera is not None:
-        hair_covariance = lin.statistical_covariance + (0 if mc_covariance is None else mc_covariance)
-        result.camera = camera.report(lin.camera, target, hair_covariance, lin.scatter,
-                                      target_model_error(target, settings.model_error))
-    result.seconds = time.perf_counter() - begun
-    return result
+            if run is None:
+                return Refinement(descent.estimate, None, None, (), interrupted=True)
+            return Refinement(run.kept_values, None, None, tuple(run.steps), interrupted=True)
+        finally:
+            bar.close()
+
+    def evaluate(self, descent: Descent, refinement: Refinement | None) -> Evaluation:
+        """The final images and loss at the fitted controls, and the linearisation there (the refinement's, else
+        one made now at FINAL_SPP_FACTOR × spp per render)."""
+        values = descent.estimate if refinement is None else refinement.values
+        interrupted = descent.stop_reason == "interrupted" or (refinement is not None and refinement.interrupted)
+        lin = None if refinement is None else refinement.linearization
+        if lin is None:
+            lin = linearize(self.target, values, self.settings, self.final_spp, self.final_seed,
+                            threads=self.settings.threads, scenes=self.scenes)
+        images = lin.images
+        full_spp = self.settings.spp * FINAL_SPP_FACTOR
+        if self.final_spp < full_spp and not interrupted:
+            # The linearisations of a large image rendered few samples a pixel: a picture of the fit that a person
+            # compares with the target (comparison.png) wants the full samples.
+            try:
+                images = _render_fitted(self.scenes, values, full_spp, self.final_seed, self.settings.threads,
+                                        None if lin.camera is None else lin.camera.gains.per_channel)
+            except KeyboardInterrupt:
+                interrupted = True
+        losses = [image_loss(torch.from_numpy(fitted), torch.from_numpy(image.image), self.settings.loss,
+                             None if image.mask is None else torch.from_numpy(image.mask), self.settings.pool)
+                  for fitted, image in zip(images, self.target.images)]
+        return Evaluation(images, float(np.mean([float(v) for v in losses])), lin, interrupted)
+
+    def uncertainty(self, evaluation: Evaluation, refinement: Refinement | None) -> Uncertainty:
+        """The uncertainties from the loss linearised at the result, with the refinement's Monte Carlo error."""
+        return estimate_uncertainty(evaluation.linearization, None if refinement is None else refinement.mc_covariance,
+                                    target_model_error(self.target, self.settings.model_error))
+
+    def run(self) -> FitResult:
+        """Every stage in order (see the module docstring), and the FitResult of them."""
+        descent = self.descend()
+        refinement = self.refine(descent)
+        evaluation = self.evaluate(descent, refinement)
+        uncertainty = None
+        if self.settings.uncertainty and not evaluation.interrupted:
+            uncertainty = self.uncertainty(evaluation, refinement)
+        return self.result(descent, refinement, evaluation, uncertainty)
+
+    def result(self, descent: Descent, refinement: Refinement | None, evaluation: Evaluation,
+               uncertainty: Uncertainty | None) -> FitResult:
+        warnings = [] if refinement is None else list(refinement.warnings)
+        if uncertainty is not None:
+            warnings += uncertainty.warnings
+        return FitResult(
+            target=self.target.name,
+            values=descent.estimate if refinement is None else refinement.values,
+            uncertainties=None if uncertainty is None else uncertainty.uncertainties,
+            loss=evaluation.loss,
+            start={name: _as_control(name, v) for name, v in self.start.items()},
+            history=descent.history if refinement is None else dataclasses.replace(descent.history,
+                                                                                  refine=refinement.steps),
+            iterations=descent.iterations,
+            stop_reason="interrupted" if evaluation.interrupted else descent.stop_reason,
+            seconds=time.perf_counter() - self.begun,
+            images=evaluation.images,
+            warnings=warnings,
+            correlations={} if uncertainty is None else uncertainty.correlations,
+            uncertainty_parts=None if uncertainty is None else uncertainty.parts,
+            camera=self.camera_report(evaluation, refinement),
+        )
+
+    def camera_report(self, evaluation: Evaluation, refinement: Refinement | None) -> dict | None:
+        """A photo target's gains and white balance with their σ (camera.report), None for other targets."""
+        lin = evaluation.linearization
+        if lin.camera is None:
+            return None
+        mc = None if refinement is None else refinement.mc_covariance
+        hair_covariance = lin.statistical_covariance + (0 if mc is None else mc)
+        return camera.report(lin.camera, self.target, hair_covariance, lin.scatter,
+                             target_model_error(self.target, self.settings.model_error))
 
 
 def _render_fitted(scenes, values: dict, spp: int, seed: int, threads, gains=None) -> list:

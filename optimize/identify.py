@@ -30,7 +30,7 @@ import itertools
 
 import numpy as np
 
-from warp_hair.renderer.forward import prepare
+from warp_hair.renderer.prepare import prepare
 
 from . import camera
 from .latents import DEFAULT_FIT, SPECS, as_values, parse_control_names
@@ -200,15 +200,15 @@ def _quantisation_variances(target, settings) -> np.ndarray | None:
     rounded to 1/(2^bits − 1) of the range, an error uniform over one step (variance step²/12), times the
     transfer curve's slope there. JPEG's compression error comes on top of that and is not counted here (the
     fit's own σ, from its residuals' scatter, counts it). None when no image is a photo."""
-    from .linearize import _reduce, _weight
+    from .linearize import loss_weights, pool_like_loss
     from warp_hair.photo import srgb_decode
 
     if all(image.photo is None for image in target.images):
         return None
     parts = []
     for image in target.images:
-        reference, _ = _reduce(image, image.image, None, settings.pool)
-        weight = _weight(reference, settings.loss)
+        reference, _ = pool_like_loss(image, image.image, None, settings.pool)
+        weight = loss_weights(reference, settings.loss)
         photo = image.photo
         if photo is None or photo.bits == 32:
             parts.append(np.zeros(reference.size))
@@ -221,7 +221,7 @@ def _quantisation_variances(target, settings) -> np.ndarray | None:
             encoded = np.clip(np.where(linear <= 0.0031308, 12.92 * linear, 1.055 * linear ** (1 / 2.4) - 0.055), 0, 1)
             slope = (srgb_decode(np.minimum(encoded + step, 1.0)) - linear) / step
         variance = (slope * step) ** 2 / 12.0
-        _, pooled = _reduce(image, np.zeros_like(linear), variance, settings.pool)
+        _, pooled = pool_like_loss(image, np.zeros_like(linear), variance, settings.pool)
         parts.append(pooled * weight**2)
     return np.concatenate(parts)
 

@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import torch
 
 from warp_hair.controls import COLOUR_CONTROL_NAMES, COLOUR_CONTROLS, CONTROLS
-from warp_hair.model.params import BETA_FLOOR, albedo_polynomial
+from warp_hair.model.params import albedo_polynomial
 
 EXPOSURE = "exposure"
 DEFAULT_FIT = ("albedo", "beta_m", "beta_n")
@@ -85,37 +85,21 @@ def _need_inversion(inversion) -> None:
         raise ValueError("the albedo's latent needs the target's albedo inversion coefficients (HairParams.albedo_inversion)")
 
 
-def _spec(name: str, lo: float | None = None, hi: float | None = None, neutral: float | None = None) -> ControlSpec:
-    """A hair control's spec: its size from the table, its interval the table's range (ends open, as every
-    latent's map reaches a bound only at infinity) unless the fit narrows or widens it, its start the table's
-    default unless given."""
+def _spec(name: str) -> ControlSpec:
+    """A hair control's spec, from the table: its size, its open interval (the control's range, from its floor
+    if it has one and up to `fit_hi` if given: every latent's map reaches a bound only at infinity) and its start
+    (`fit_start`, else the default)."""
     control = CONTROLS[name]
     return ControlSpec(
         name,
         control.size,
-        control.lo if lo is None else lo,
-        control.hi if hi is None else hi,
-        control.default if neutral is None else neutral,
+        control.fit_lo,
+        control.hi if control.fit_hi is None else control.fit_hi,
+        control.default if control.fit_start is None else control.fit_start,
     )
 
 
-SPECS = {
-    spec.name: spec
-    for spec in (
-        _spec("albedo", neutral=0.5),
-        # The absorptions' upper limit guards float32, it is no bound a fit can reach: the log map suits them.
-        _spec("sigma_a", hi=math.inf, neutral=1.0),
-        _spec("eumelanin", hi=math.inf, neutral=1.0),
-        _spec("pheomelanin", hi=math.inf, neutral=0.3),
-        _spec("beta_m", lo=BETA_FLOOR, neutral=0.5),
-        _spec("beta_n", lo=BETA_FLOOR, neutral=0.5),
-        _spec("alpha"),
-        _spec("eta"),
-        # Bounded below only: its upper limit (1e6) is far beyond any fit, and the log map suits a scale.
-        _spec("r_roughness_scale", hi=math.inf),
-        ControlSpec(EXPOSURE, 1, 0.0, math.inf, 1.0),
-    )
-}
+SPECS = {name: _spec(name) for name in CONTROLS} | {EXPOSURE: ControlSpec(EXPOSURE, 1, 0.0, math.inf, 1.0)}
 
 
 def parse_control_names(names, colour_input: str) -> tuple:

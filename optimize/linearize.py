@@ -26,8 +26,8 @@ import numpy as np
 import torch
 
 from warp_hair.controls import CONTROL_NAMES, columns
-from warp_hair.renderer.forward import prepare
-from warp_hair.renderer.jacobian import render_jacobian
+from warp_hair.renderer.gradients import render_jacobian
+from warp_hair.renderer.prepare import prepare
 from warp_hair.torch import default_grad_seed, scene_with_controls
 
 from . import camera
@@ -53,7 +53,7 @@ class Linearization:
     earlier_jacobians: np.ndarray | None = None  # (n, N, p): of earlier, independent renders near `values`
     curvature: np.ndarray | None = None  # (p, p) Gauss–Newton matrix; default: `crossed_curvature` of all Jacobians
     scatter: float | None = None  # s² of `statistical_covariance`; default: this linearisation's `scatter_estimate`
-    camera: object | None = None  # a photo's gains, projected out of residuals and Jacobians (camera.Projection)
+    camera: object | None = None  # a photo's gains, projected out of residuals and Jacobian (camera.Projection)
 
     def __post_init__(self):
         if self.residuals.shape[1] % CHANNELS:
@@ -170,7 +170,7 @@ def crossed_curvature(jacobians: np.ndarray, weights: np.ndarray) -> np.ndarray:
 def linearize(target, values: dict, settings, spp: int, seed: int, threads=None, scenes=None) -> Linearization:
     """Render every image of `target` twice at `values` (spp each) and linearise the loss there.
 
-    `scenes`: the target's scenes prepared once (`warp_hair.render.prepare`, one per image, in order), so that
+    `scenes`: the target's scenes prepared once (`warp_hair.prepare`, one per image, in order), so that
     repeated linearisations do not rebuild the BVH; by default each image's scene, prepared here once for both
     passes."""
     hair, gain = hair_and_gain(values)
@@ -182,7 +182,7 @@ def linearize(target, values: dict, settings, spp: int, seed: int, threads=None,
                         for pass_seed in (seed + k, default_grad_seed(seed + k))])
     gains = np.full((len(target.images), 3), float(gain))
     solved = None
-    if camera.fitted(target):  # a photo's exposures and white balance, for the passes' mean (camera.py)
+    if camera.fitted(target):  # a photo's exposures and white balance, for these renders (camera.py)
         pairs = [(p[0][1], p[1][1]) for p in renders]
         masks = [None if image.mask is None else torch.from_numpy(image.mask) for image in target.images]
         references = [torch.from_numpy(image.image) for image in target.images]
@@ -192,8 +192,8 @@ def linearize(target, values: dict, settings, spp: int, seed: int, threads=None,
     rs, vs, js = [[], []], [[], []], [[], []]
     images, weights, ts = [], [], []
     for k, image in enumerate(target.images):
-        reference, _ = _reduce(image, image.image, None, settings.pool)
-        weight = _weight(reference, settings.loss)
+        reference, _ = pool_like_loss(image, image.image, None, settings.pool)
+        weight = loss_weights(reference, settings.loss)
         ts.append(reference * weight)
         pair = []
         g = gains[k].astype(np.float32)
@@ -201,8 +201,8 @@ def linearize(target, values: dict, settings, spp: int, seed: int, threads=None,
             rendered = g * raw
             # r = weight · (gain·I − T): ∂r/∂gain = weight · I, ∂r/∂θ = weight · gain · ∂I/∂θ.
             columns = [raw[..., None] if name == EXPOSURE else g[:, None] * jac[..., COLUMNS[name]] for name in values]
-            a, _ = _reduce(image, np.concatenate(columns, axis=-1).astype(np.float64), None, settings.pool)
-            r, var = _reduce(image, rendered - image.image, (g * stderr) ** 2, settings.pool)
+            a, _ = pool_like_loss(image, np.concatenate(columns, axis=-1).astype(np.float64), None, settings.pool)
+            r, var = pool_like_loss(image, rendered - image.image, (g * stderr) ** 2, settings.pool)
             rs[half].append(r * weight)
             vs[half].append(var * weight**2)
             js[half].append(a * weight[:, None])
@@ -212,7 +212,7 @@ def linearize(target, values: dict, settings, spp: int, seed: int, threads=None,
     residuals = np.stack([np.concatenate(r) for r in rs])
     jacobians = np.stack([np.concatenate(j) for j in js])
     targets = np.concatenate(ts)
-    loss_weights = np.concatenate(weights)
+    weights = np.concatenate(weights)
     image_residuals = tuple(len(t) for t in ts)
     projection = None
     if solved is not None:
@@ -220,7 +220,7 @@ def linearize(target, values: dict, settings, spp: int, seed: int, threads=None,
         # gains' columns are ∂r/∂log g = ω G I, which at the gains' optimum is the weighted target t up to the
         # residual: taken from t, the projection is the same at every linearisation and free of our render
         # noise (from the renders, it would tie the two passes' noise together and move with each step's).
-        projection = camera.Projection(solved, camera.columns(target, targets, image_residuals), loss_weights,
+        projection = camera.Projection(solved, camera.columns(target, targets, image_residuals), weights,
                                        jacobians.mean(axis=0), camera.labels(target))
         residuals = np.stack([projection.apply(r) for r in residuals])
         jacobians = np.stack([projection.apply(a) for a in jacobians])
@@ -231,14 +231,14 @@ def linearize(target, values: dict, settings, spp: int, seed: int, threads=None,
         variances=np.stack([np.concatenate(v) for v in vs]),
         jacobians=jacobians,
         images=images,
-        loss_weights=loss_weights,
+        loss_weights=weights,
         targets=targets,
         image_residuals=image_residuals,
         camera=projection,
     )
 
 
-def _weight(reference: np.ndarray, loss: str) -> np.ndarray:
+def loss_weights(reference: np.ndarray, loss: str) -> np.ndarray:
     """Per pooled residual, the loss's weight (losses.py): 1/sqrt(mean T²) for L2 and L1, 1/(T + ε mean T) for
     relative L2, T the pooled target."""
     if loss == "rel_l2":
@@ -254,7 +254,7 @@ def _pooled(x: np.ndarray, weight: np.ndarray, pool: int) -> tuple:
     return means.numpy(), totals.numpy()
 
 
-def _reduce(image, x, var, pool):
+def pool_like_loss(image, x, var, pool):
     """Pool (H, W, ...) like the loss does (masked pixels left out) and flatten; var is pooled as a variance."""
     weight = np.ones(x.shape[:2]) if image.mask is None else image.mask.astype(np.float64)
     if pool > 1:

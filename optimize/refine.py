@@ -29,7 +29,7 @@ is not, and is not refined.
 from __future__ import annotations
 
 import dataclasses
-
+from dataclasses import dataclass
 from statistics import NormalDist
 
 import numpy as np
@@ -70,78 +70,120 @@ def inside(x: np.ndarray, step: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> n
     return step * float(np.min(limits, initial=1.0))
 
 
-def refine(target, start: dict, settings, spp: int, seed: int, steps: int, on_step=None, on_keep=None, scenes=None):
-    """(values, Linearization at them, the Monte Carlo covariance of `values` or None, warnings) after `steps`
-    steps, or more while the averaged points still move (up to MAX_EXTENSION × steps).
+@dataclass(frozen=True)
+class GaussNewtonStep:
+    """One Levenberg–Marquardt step as it was tried: the linearisation at its end point (values, loss, misfit),
+    the change of the loss along it by the slope test, and whether it was kept."""
 
-    start: the controls to refine from ({name: float or list of 3}). `on_keep(values)` is called with each kept
-    step (the fit keeps it, to return after a KeyboardInterrupt), and `on_step(record)` after every step with
-    {"values", "loss", "misfit", "change", "accepted"}. The returned linearisation carries the last
-    linearisations' Jacobians and the target's scatter averaged over the later ones. `scenes`: the target's
-    prepared scenes (`linearize`).
+    values: dict
+    loss: float
+    misfit: float
+    change: float
+    accepted: bool
+
+
+@dataclass(frozen=True)
+class Refinement:
+    """What the refinement leaves: the refined controls, the linearisation at them and the Monte Carlo
+    covariance of their mean (None when fewer than two steps were kept, or when interrupted), every step tried
+    and its warnings. `interrupted`: Ctrl-C stopped it; `values` are then the last kept step's (the start's if
+    none was kept) and there is no linearisation at them."""
+
+    values: dict
+    linearization: Linearization | None
+    mc_covariance: np.ndarray | None
+    steps: tuple[GaussNewtonStep, ...]
+    warnings: tuple[str, ...] = ()
+    interrupted: bool = False
+
+
+class GaussNewton:
+    """The refinement as a run: `step()` takes one Levenberg–Marquardt step, `done` says when to stop (after
+    `steps` steps, or more while the averaged points still move, up to MAX_EXTENSION × steps; or when the
+    damping has grown so large that a step moves nothing), `result()` averages the later kept points and
+    linearises there.
+
+    start: the controls to refine from ({name: float or list of 3}); constructing the run linearises there.
+    `kept_values` is the last kept step's end point (the start before any): what a fit interrupted during the
+    refinement returns. Each linearisation renders with its own seeds (seed + SEED_STRIDE × its index); `scenes`:
+    the target's prepared scenes (`linearize`).
     """
-    names = list(start)
-    lo, hi = _bounds(names)
-    x = _flat(start)
 
-    def linearized(x_at, k) -> Linearization:
-        return linearize(target, by_control(names, x_at), settings, spp, seed + SEED_STRIDE * k, threads=settings.threads,
-                         scenes=scenes)
+    def __init__(self, target, start: dict, settings, spp: int, seed: int, steps: int, scenes=None):
+        self.target, self.settings, self.spp, self.seed, self.scenes = target, settings, spp, seed, scenes
+        self.names = list(start)
+        self.lo, self.hi = _bounds(self.names)
+        self.planned = steps
+        self.limit = steps
+        self.k = 0
+        self.x = _flat(start)
+        self.kept_values = start
+        # One linearisation's Jacobian is noisy, and so then are the curvature (where it comes out too small, a
+        # step overshoots and the steps oscillate around the optimum) and the gradient. Those of the last few
+        # linearisations together are steadier, and unlike all of them they forget the start's, whose curvature
+        # far from the optimum would keep the steps short.
+        self.jacobians = []  # each linearisation's pair, in order
+        self.kept, self.scatters = [], []  # the kept end points and their linearisations' scatter estimates
+        self.steps: list[GaussNewtonStep] = []
+        self.damping = LAMBDA_START
+        self.lin = self._with_earlier(self._linearized(self.x, 0))
 
-    def with_earlier(lin_at: Linearization) -> Linearization:
+    def _linearized(self, x_at, k) -> Linearization:
+        return linearize(self.target, by_control(self.names, x_at), self.settings, self.spp,
+                         self.seed + SEED_STRIDE * k, threads=self.settings.threads, scenes=self.scenes)
+
+    def _with_earlier(self, lin_at: Linearization) -> Linearization:
         """lin_at with the Jacobians of the JACOBIAN_WINDOW − 1 linearisations before it."""
-        earlier = jacobians[-(JACOBIAN_WINDOW - 1):]
-        jacobians.append(lin_at.jacobians)
+        earlier = self.jacobians[-(JACOBIAN_WINDOW - 1):]
+        self.jacobians.append(lin_at.jacobians)
         if not earlier:
             return lin_at
         return dataclasses.replace(lin_at, earlier_jacobians=np.concatenate(earlier), curvature=None)
 
-    # One linearisation's Jacobian is noisy, and so then are the curvature (where it comes out too small, a step
-    # overshoots and the steps oscillate around the optimum) and the gradient. Those of the last few
-    # linearisations together are steadier, and unlike all of them they forget the start's, whose curvature far
-    # from the optimum would keep the steps short.
-    jacobians = []  # each linearisation's pair, in order
-    lin = with_earlier(linearized(x, 0))
-    kept, scatters = [], []  # the kept end points and their linearisations' scatter estimates
-    damping = LAMBDA_START
-    limit, k = steps, 0
-    while k < limit:
-        k += 1
+    @property
+    def done(self) -> bool:
+        return self.k >= self.limit or self.damping > LAMBDA_MAX
+
+    def step(self) -> GaussNewtonStep:
+        self.k += 1
+        lin, x = self.lin, self.x
         h = lin.curvature
-        step = inside(x, -np.linalg.solve(h + damping * np.diag(np.diag(h)) + 1e-12 * np.eye(len(x)), lin.gradient), lo, hi)
-        lin_new = with_earlier(linearized(x + step, k))
+        damped = h + self.damping * np.diag(np.diag(h)) + 1e-12 * np.eye(len(x))
+        step = inside(x, -np.linalg.solve(damped, lin.gradient), self.lo, self.hi)
+        lin_new = self._with_earlier(self._linearized(x + step, self.k))
         # The change of ½·loss along the step by the trapezoid rule on its slopes at both ends: exact for a
         # quadratic, and built from unbiased gradients instead of noisy loss values.
         change = 0.5 * float(lin.gradient @ step + lin_new.gradient @ step)
         accepted = bool(np.isfinite(change) and (change < 0 or within_noise(step, lin)))
         if accepted:
-            x, lin = x + step, lin_new
-            kept.append(x)
-            scatters.append(lin.scatter_estimate)
-            if on_keep is not None:
-                on_keep(lin.values)
-            damping = max(damping * LAMBDA_DOWN, 1e-9)
+            self.x, self.lin = x + step, lin_new
+            self.kept.append(self.x)
+            self.scatters.append(lin_new.scatter_estimate)
+            self.kept_values = lin_new.values
+            self.damping = max(self.damping * LAMBDA_DOWN, 1e-9)
         else:
-            damping *= LAMBDA_UP
-        if on_step is not None:
-            on_step({"values": lin_new.values, "loss": lin_new.loss, "misfit": lin_new.misfit,
-                     "change": 2.0 * change, "accepted": accepted})
-        if damping > LAMBDA_MAX:
-            break
-        if k == limit and limit < MAX_EXTENSION * steps and _drifting(_later(kept)):
-            limit += 1
-    # Each linearisation's own render noise moves its step's end point; the later kept points scatter around
-    # the optimum, and their mean scatters less.
-    averaged = _later(kept)
-    notes = [] if not _drifting(averaged) else [_unsettled(averaged, k, names)]
-    if len(kept) < 2:
-        return lin.values, lin, None, notes
-    final = with_earlier(linearized(np.mean(averaged, axis=0), k + 1))
-    # One linearisation's scatter estimate is noisy where our render is much noisier than the target.
-    final = dataclasses.replace(final, scatter=float(np.mean(_later(scatters) + [final.scatter_estimate])))
-    if on_keep is not None:
-        on_keep(final.values)
-    return final.values, final, mean_covariance(averaged, final), notes
+            self.damping *= LAMBDA_UP
+        record = GaussNewtonStep(values=lin_new.values, loss=lin_new.loss, misfit=lin_new.misfit, change=2.0 * change,
+                                 accepted=accepted)
+        self.steps.append(record)
+        if (self.damping <= LAMBDA_MAX and self.k == self.limit and self.limit < MAX_EXTENSION * self.planned
+                and drifting(_later(self.kept))):
+            self.limit += 1
+        return record
+
+    def result(self) -> Refinement:
+        """The mean of the later kept points, linearised there (see the module docstring)."""
+        # Each linearisation's own render noise moves its step's end point; the later kept points scatter around
+        # the optimum, and their mean scatters less.
+        averaged = _later(self.kept)
+        notes = () if not drifting(averaged) else (_unsettled(averaged, self.k, self.names),)
+        if len(self.kept) < 2:
+            return Refinement(self.lin.values, self.lin, None, tuple(self.steps), notes)
+        final = self._with_earlier(self._linearized(np.mean(averaged, axis=0), self.k + 1))
+        # One linearisation's scatter estimate is noisy where our render is much noisier than the target.
+        final = dataclasses.replace(final, scatter=float(np.mean(_later(self.scatters) + [final.scatter_estimate])))
+        self.kept_values = final.values
+        return Refinement(final.values, final, mean_covariance(averaged, final), tuple(self.steps), notes)
 
 
 def _unsettled(points: list, steps: int, names) -> str:
@@ -189,7 +231,7 @@ def drift_statistic(points: list) -> np.ndarray:
     return np.abs(slope) / np.sqrt(np.maximum(variance, 1e-300) / sxx)
 
 
-def _drifting(points: list) -> bool:
+def drifting(points: list) -> bool:
     """Whether the points averaged into the estimate still move along a trend (a curved valley that the steps
     creep along, from a start far from the optimum): their mean would then lag behind the optimum."""
     return len(points) >= DRIFT_POINTS and bool(np.max(drift_statistic(points)) > DRIFT_T)

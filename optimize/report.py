@@ -54,8 +54,7 @@ def write_params(path: Path, result: FitResult, truth: dict, look: HairParams, e
         "start": result.start,
         "loss": result.loss,
         "iterations": result.iterations,
-        "gauss_newton_steps": [{"loss": r["loss"], "misfit": r["misfit"], "kept": r["accepted"]}
-                               for r in result.history.get("refine", [])],
+        "gauss_newton_steps": [{"loss": r.loss, "misfit": r.misfit, "kept": r.accepted} for r in result.history.refine],
         "stop_reason": result.stop_reason,
         "seconds": round(result.seconds, 1),
         "warnings": result.warnings,
@@ -107,26 +106,27 @@ def plot_convergence(path: Path, result: FitResult, truth: dict) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    names = list(result.history["values"])
+    names = list(result.history.values)
     fig, axes = plt.subplots(1, len(names) + 1, figsize=(3.2 * (len(names) + 1), 3.0), constrained_layout=True)
     its = np.arange(1, result.iterations + 1)
     ax = axes[0]
-    ax.semilogy(its, result.history["loss"], color="0.3", lw=0.8)
-    refine = result.history.get("refine", [])
+    ax.semilogy(its, result.history.loss, color="0.3", lw=0.8)
+    refine = result.history.refine
     steps = result.iterations + 1 + np.arange(len(refine))
-    kept = [r["accepted"] for r in refine]
+    kept = [r.accepted for r in refine]
     for x, r in zip(steps, refine):
-        ax.plot(x, r["loss"], "o", ms=3, color="0.3", mfc="0.3" if r["accepted"] else "none")
+        ax.plot(x, r.loss, "o", ms=3, color="0.3", mfc="0.3" if r.accepted else "none")
     ax.set_title(f"loss ({result.stop_reason})")
     ax.set_xlabel("iteration")
     for ax, name in zip(axes[1:], names):
-        values = np.asarray(result.history["values"][name], dtype=np.float64).reshape(result.iterations, -1)
+        values = result.history.values[name].reshape(result.iterations, -1)
         colours = CHANNEL_COLOURS if values.shape[1] == 3 else ("0.2",)
         true = np.atleast_1d(truth[name]) if name in truth else None
         for k in range(values.shape[1]):
             ax.plot(its, values[:, k], color=colours[k], lw=1.0)
             for x, r, keep in zip(steps, refine, kept):
-                ax.plot(x, np.atleast_1d(r["values"][name])[k], "o", ms=3, color=colours[k], mfc=colours[k] if keep else "none")
+                ax.plot(x, np.atleast_1d(r.values[name])[k], "o", ms=3, color=colours[k],
+                        mfc=colours[k] if keep else "none")
             if true is not None:
                 ax.axhline(true[k], color=colours[k], ls="--", lw=1.0)
         spec = SPECS[name]

@@ -60,7 +60,7 @@ from .camera import GAIN_MODES, WHITE_BALANCE_MODES
 from warp_hair.io import read_exr, write_exr
 from warp_hair.model.params import HairParams
 from warp_hair.photo import TRANSFERS, Photo, read_photo
-from warp_hair.renderer.forward import render, render_metadata
+from warp_hair.renderer.render import render, render_metadata
 from warp_hair.scene import Scene, load_scene
 
 TARGET_FILE = shipped.TARGET_FILE
@@ -176,7 +176,7 @@ def load_target(directory) -> Target:
             mask = _photo_mask(photo, mask)
         images.append(TargetImage(Path(entry["image"]).stem, scene, image, mask, image_path, metadata, photo))
     _check_consistent(images)
-    truth = _read_truth(directory / TRUTH_FILE)
+    truth = read_truth(directory / TRUTH_FILE)
     gains, white_balance = _camera_unknowns(directory / TARGET_FILE, spec, images)
     return Target(directory.resolve().name, directory, images, truth, spec.get("renderer", "warp-hair"), gains,
                   white_balance)
@@ -267,7 +267,8 @@ def _check_consistent(images) -> None:
             raise ValueError(f"{pair} have different fibers; the images of a target show the same fibers")
 
 
-def _read_truth(path: Path) -> HairParams | None:
+def read_truth(path: Path) -> HairParams | None:
+    """A target's truth.json (its true controls), None where there is none; a ValueError naming the file else."""
     if not path.exists():
         return None
     try:

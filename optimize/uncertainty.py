@@ -25,19 +25,21 @@ samples averages that away, so it is a term of its own: with ε the relative bri
 
     Cov(x) += ε² s sᵀ,
 
-reported apart as well (`result.uncertainty_parts`), so that it shows which part of a σ is noise and which the
-renderers' disagreement. The correlations and their warnings come from the noise part alone: they say how the
-images constrain the controls, and the rank-one model term would read as a trade-off that no extra view undoes.
+reported apart as well (`Uncertainty.parts`, a fit's `uncertainty_parts`), so that it shows which part of a σ
+is noise and which the renderers' disagreement. The correlations and their warnings come from the noise part
+alone: they say how the images constrain the controls, and the rank-one model term would read as a trade-off
+that no extra view undoes.
 
 Identifiability: two components whose estimates correlate by |ρ| > 0.95 trade off against each other in these
 images (albedo and β_n can, through the albedo inversion, under a single front light); a control the images do
-not change with has a zero column in A. Both end in `result.warnings` with what to do about them.
+not change with has a zero column in A. Both end in `Uncertainty.warnings` with what to do about them.
 """
 
 from __future__ import annotations
 
 import itertools
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -73,7 +75,7 @@ def check_model_error(value, where: str = "model_error") -> None:
 def brightness_sensitivity(lin: Linearization) -> np.ndarray:
     """(p,): how far the least-squares estimate moves per unit ε when the target is (1 + ε) times as bright.
 
-    The loss is Σ w ρ² with ρ = ω (gain·I(x) − T) (ω the loss's own weights, `linearize._weight`). Near the
+    The loss is Σ w ρ² with ρ = ω (gain·I(x) − T) (ω the loss's own weights, `linearize.loss_weights`). Near the
     linearisation point x̂, with r = ω (gain·I(x̂) − T), A = ∂r/∂x and t = ω T (`lin.targets`), the target
     (1 + ε) T gives ρ ≈ r + A δx − ε t, and the normal equations Aᵀ W (r + A δx − ε t) = 0 give
 
@@ -102,19 +104,31 @@ def component_labels(names) -> list[str]:
     return labels
 
 
-def estimate_uncertainty(result, lin: Linearization, mc_covariance: np.ndarray | None = None,
-                         model_error: float = 0.0) -> None:
-    """Fill result.uncertainties, result.uncertainty_parts, result.correlations and identifiability warnings
-    (see the module docstring). mc_covariance: the estimate's own Monte Carlo covariance (`refine`); None leaves
-    it out. model_error: ε, the relative brightness disagreement between the target's renderer and ours; 0 adds
-    nothing, and the uncertainties are the noise's alone."""
+@dataclass(frozen=True)
+class Uncertainty:
+    """Each fitted control's 1σ (`uncertainties`, shaped as the values), its noise and model-error parts, the
+    correlations between the components of different controls ("a/b" → ρ, from the noise part) and the
+    identifiability warnings."""
+
+    uncertainties: dict
+    parts: dict
+    correlations: dict
+    warnings: tuple[str, ...]
+
+
+def estimate_uncertainty(lin: Linearization, mc_covariance: np.ndarray | None = None,
+                         model_error: float = 0.0) -> Uncertainty:
+    """The uncertainties at the linearisation's values (see the module docstring). mc_covariance: the
+    estimate's own Monte Carlo covariance (`refine`); None leaves it out. model_error: ε, the relative
+    brightness disagreement between the target's renderer and ours; 0 adds nothing, and the uncertainties are
+    the noise's alone."""
     names = list(lin.values)
     A = lin.mean_jacobian
     p = A.shape[1]
     labels = component_labels(names)
     flat = np.abs(A).max(axis=0) == 0
-    for label in np.array(labels)[flat]:
-        result.warnings.append(f"{label} does not change the rendered images at all: it cannot be fitted from this target")
+    warnings = [f"{label} does not change the rendered images at all: it cannot be fitted from this target"
+                for label in np.array(labels)[flat]]
     cov = lin.statistical_covariance
     if mc_covariance is not None:
         cov = cov + mc_covariance
@@ -123,9 +137,7 @@ def estimate_uncertainty(result, lin: Linearization, mc_covariance: np.ndarray |
     if model_error and sensitivity is None:
         raise ValueError("model_error > 0 needs the linearisation's target values (Linearization.targets)")
     model = np.abs(model_error * sensitivity) if model_error else np.zeros(p)
-    # The diagonal of cov + ε² s sᵀ; with ε = 0 the noise's σ as it stands.
-    result.uncertainties = by_control(names, np.sqrt(sigma**2 + model**2) if model_error else sigma)
-    result.uncertainty_parts = {
+    parts = {
         "model_error": float(model_error),
         "noise": by_control(names, sigma),
         "model": by_control(names, model),
@@ -135,15 +147,18 @@ def estimate_uncertainty(result, lin: Linearization, mc_covariance: np.ndarray |
     with np.errstate(invalid="ignore", divide="ignore"):
         rho = cov / np.outer(sigma, sigma)
     owners = [label.split("[")[0] for label in labels]
+    correlations = {}
     for i, j in itertools.combinations(range(p), 2):
         if owners[i] == owners[j] or not np.isfinite(rho[i, j]):
             continue
-        result.correlations[f"{labels[i]}/{labels[j]}"] = float(rho[i, j])
+        correlations[f"{labels[i]}/{labels[j]}"] = float(rho[i, j])
         if abs(rho[i, j]) > CORRELATION_WARNING:
-            result.warnings.append(
+            warnings.append(
                 f"{labels[i]} and {labels[j]} trade off in these images (correlation {rho[i, j]:+.3f}): a change of "
                 f"one is largely compensated by the other, and their uncertainties (±{sigma[i]:.2g}, "
                 f"±{sigma[j]:.2g}) lie mostly along that trade-off. To tell them apart, add an image under another "
                 "light or from another view (a back-lit one shows transmission), or fix one of them."
             )
-
+    # The diagonal of cov + ε² s sᵀ; with ε = 0 the noise's σ as it stands.
+    uncertainties = by_control(names, np.sqrt(sigma**2 + model**2) if model_error else sigma)
+    return Uncertainty(uncertainties, parts, correlations, tuple(warnings))

@@ -1,4 +1,4 @@
-"""Derivatives of S and pdf with respect to every artist control (warp_hair.testing.bsdf_grad) against the reference.
+"""Derivatives of S and pdf with respect to every artist control (tests/helpers/bsdf_grad.py) against the reference.
 
 The reference derivative d of each output (S_r, S_g, S_b, pdf) is a five-point central finite difference of
 the float64 NumPy model (tests/helpers/reference_model.py), step 1e-5 of the control's scale (steps of 5e-6 and
@@ -55,7 +55,7 @@ from helpers.bsdf_derivatives import (
 from helpers.sphere import random_directions
 
 import warp_hair as wh
-from warp_hair.testing import bsdf_grad
+from helpers import bsdf_grad
 from warp_hair.model.hair_bsdf import HairCoefficients, hair_coefficients
 from warp_hair.model.params import TALK_ALBEDO_INVERSION, sigma_a_from_albedo
 
@@ -119,7 +119,7 @@ def _material_pairs(rng, n):
     for _ in range(n):
         controls = random_controls(rng, "albedo")
         with_albedo = wh.HairParams(**controls)
-        yield controls, with_albedo, with_albedo.replace(sigma_a=list(with_albedo.sigma_a))
+        yield controls, with_albedo, with_albedo.replace(sigma_a=list(with_albedo.absorption))
 
 
 def _sigma_a_slopes(controls, step=1e-6):

@@ -34,7 +34,7 @@ from scipy.special import i0e, i1e
 from helpers import bsdf_derivatives as fd
 
 import warp_hair as wh
-from warp_hair.testing import bsdf_grad
+from helpers import bsdf_grad
 from warp_hair.model.jacobian import (
     CoefficientDerivatives,
     coefficient_derivatives,
@@ -44,7 +44,8 @@ from warp_hair.model.jacobian import (
     value_jacobian_mat,
 )
 from warp_hair.model.hair_bsdf import HairCoefficients, hair_coefficients, lobe_setup
-from warp_hair.model.lobes import bessel_i0e_with_log_slope, logistic_norm, longitudinal_norm
+from warp_hair.model.lobes import logistic_norm, longitudinal_norm
+from warp_hair.numerics import bessel_i0e_with_log_slope
 from warp_hair.model.params import BETA_FLOOR
 
 wp.set_module_options({"enable_backward": False})
@@ -249,9 +250,9 @@ def test_coefficient_derivatives_match_central_differences():
             colour = [entry for entry in fd.control_entries(controls) if entry[0] not in bsdf_grad.SCALAR_CONTROLS]
             d_colour = np.array(k.d_sigma_d_colour).reshape(3, 3)
             for column, (name, component) in enumerate(colour):
-                expected = _central(lambda p: p.sigma_a, controls, name, component)
+                expected = _central(lambda p: p.absorption, controls, name, component)
                 np.testing.assert_allclose(d_colour[:, column], expected, rtol=1e-6, atol=1e-9)
-            expected = _central(lambda p: p.sigma_a, controls, "beta_n")
+            expected = _central(lambda p: p.absorption, controls, "beta_n")
             np.testing.assert_allclose(np.array(k.d_sigma_d_beta_n), expected, rtol=1e-5, atol=1e-9)
             expected = _central(lambda p: math.log(p.lobe_variances[1]), controls, "beta_m")
             np.testing.assert_allclose(k.d_log_v_d_beta_m, expected, rtol=1e-5)
@@ -298,7 +299,7 @@ CUSTOM_INVERSION = [4.0, 3.0, -6.0, 2.0, 1.0, -0.5]
 def test_custom_albedo_inversion_matches_finite_differences():
     """With an albedo input and custom inversion coefficients, ∂S/∂albedo and ∂S/∂β_n of the closed form and of
     wp.grad both meet test_bsdf_grad's allowance against five-point differences of the float64 reference (which
-    applies the same coefficients), and the host's ∂σ_a/∂β_n is the central difference of HairParams.sigma_a."""
+    applies the same coefficients), and the host's ∂σ_a/∂β_n is the central difference of HairParams.absorption."""
     rng = np.random.default_rng(61)
     entries = [("albedo", 0), ("albedo", 1), ("albedo", 2), ("beta_n", None)]
     columns = [0, 1, 2, bsdf_grad.BETA_N]
@@ -316,7 +317,7 @@ def test_custom_albedo_inversion_matches_finite_differences():
             for derivative in (J, R):
                 assert np.all(np.abs(derivative[:, :, column] - d[:, :3]) <= allowed), (controls, name, component)
         k = coefficient_derivatives(params)
-        expected = _central(lambda p: p.sigma_a, controls, "beta_n")
+        expected = _central(lambda p: p.absorption, controls, "beta_n")
         np.testing.assert_allclose(np.array(k.d_sigma_d_beta_n), expected, rtol=1e-5, atol=1e-9)
         talk = coefficient_derivatives(params.replace(albedo_inversion=wh.model.params.TALK_ALBEDO_INVERSION))
         assert not np.allclose(np.array(talk.d_sigma_d_beta_n), expected, rtol=1e-2)

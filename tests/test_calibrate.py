@@ -14,10 +14,9 @@ import warnings
 
 import numpy as np
 import pytest
-import warp as wp
 
 from warp_hair.calibrate import (
-    _environment_white,
+    environment_white,
     block_scene,
     fit_inversion,
     measure_points,
@@ -29,8 +28,6 @@ from warp_hair.calibrate import (
 from warp_hair.cli import main
 from warp_hair.model.params import TALK_ALBEDO_INVERSION, HairParams, check_albedo_inversion
 from warp_hair.scene import DirectionalLight, load_scene, scene_from_dict
-
-wp.config.quiet = True
 
 CUSTOM = (4.0, 3.0, -6.0, 2.0, 1.0, -0.5)  # positive over [0.01, 1], and far from the talk's polynomial
 BETA_N = (0.05, 0.25, 0.45, 0.65, 0.85, 1.0)
@@ -97,8 +94,8 @@ def test_hair_params_use_their_own_coefficients():
             custom = HairParams(albedo=albedo, beta_n=beta_n, albedo_inversion=CUSTOM)
             talk = HairParams(albedo=albedo, beta_n=beta_n)
         b = max(beta_n, 0.01)
-        np.testing.assert_allclose(custom.sigma_a, (np.log(albedo) / _polynomial(b, CUSTOM)) ** 2, rtol=1e-12)
-        np.testing.assert_allclose(talk.sigma_a, (np.log(albedo) / _polynomial(b, TALK_ALBEDO_INVERSION)) ** 2,
+        np.testing.assert_allclose(custom.absorption, (np.log(albedo) / _polynomial(b, CUSTOM)) ** 2, rtol=1e-12)
+        np.testing.assert_allclose(talk.absorption, (np.log(albedo) / _polynomial(b, TALK_ALBEDO_INVERSION)) ** 2,
                                    rtol=1e-12)
     assert talk.albedo_inversion == TALK_ALBEDO_INVERSION
     # Changing a control keeps the inversion; it is no control itself.
@@ -113,6 +110,7 @@ def test_hair_params_use_their_own_coefficients():
         ((-1.0, 0.0, 0.0, 0.0, 0.0, 0.0), r"at β_n = 0.01"),  # negative everywhere
         ((5.0, 0.0, 0.0, 0.0, 0.0, -6.0), r"positive over all of \[0.01, 1.0\]"),  # root near the top end
         ((5.0, 1.0, 2.0), r"must be 6 numbers"),
+        ([[5.969, -0.215, 2.532, -10.73, 5.574, 0.245]], r"must be 6 numbers"),  # nested: not flattened
         ((5.0, 1.0, 2.0, 0.0, math.nan, 0.0), r"albedo_inversion\[4\] must be finite"),
     ],
 )
@@ -180,7 +178,7 @@ def test_white_reference_and_measured_pixels():
     lit = dataclasses.replace(scene, lights=[sun, behind])
     np.testing.assert_allclose(white_radiance(lit), np.array([3.0, 2.0, 1.0]) * math.cos(0.5) / math.pi, rtol=1e-6)
     normal = -scene.camera.frame()[0]
-    np.testing.assert_allclose(_environment_white(np.full((64, 128, 3), 2.0), normal), [2.0, 2.0, 2.0], rtol=2e-3)
+    np.testing.assert_allclose(environment_white(np.full((64, 128, 3), 2.0), normal), [2.0, 2.0, 2.0], rtol=2e-3)
     assert measured_pixels(scene).all()
     data = tomllib.loads(BLOCK_TOML)
     wide = scene_from_dict({**data, "camera": {**data["camera"], "width": 3.0}})
@@ -192,7 +190,7 @@ def test_recovered_coefficients_reproduce_talk_renders_within_noise():
     """Renders made with the talk's inversion (requested albedo 0.3 and 0.75 at six β_n) are measured; the
     coefficients fitted to them give back each render's measured albedo within its standard error."""
     scene = scene_from_dict(tomllib.loads(BLOCK_TOML))
-    points = [(float(HairParams(albedo=c, beta_n=b).sigma_a[0]), b) for b in BETA_N for c in (0.3, 0.75)]
+    points = [(float(HairParams(albedo=c, beta_n=b).absorption[0]), b) for b in BETA_N for c in (0.3, 0.75)]
     albedo, stderr = measure_points(scene, points, seed=3)
     sigma_a, beta_n = np.array(points).T
     coefficients = fit_inversion(sigma_a, beta_n, albedo, stderr)
@@ -200,7 +198,7 @@ def test_recovered_coefficients_reproduce_talk_renders_within_noise():
     assert np.all(np.abs(z) < 3.5), z
     assert np.sum(z**2) / (len(z) - 6) < 3.0
     # And through HairParams: asking for the measured albedo with the fitted inversion gives back σ_a.
-    recovered = [HairParams(albedo=c, beta_n=b, albedo_inversion=coefficients).sigma_a[0]
+    recovered = [HairParams(albedo=c, beta_n=b, albedo_inversion=coefficients).absorption[0]
                  for c, b in zip(albedo, beta_n)]
     slope = 2 * sigma_a / (albedo * np.abs(np.log(albedo)))  # |dσ_a/dc| of the inversion
     assert np.all(np.abs(np.array(recovered) - sigma_a) < 1.1 * slope * 3.5 * stderr)

@@ -3,6 +3,7 @@
 import struct
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -119,7 +120,7 @@ def test_render_writes_exr_with_metadata_and_png(tiny_scene, tmp_path, capsys):
     assert image.shape == (8, 12, 3) and np.isfinite(image).all() and image.max() > 0.0
     made = metadata["warp_hair"]
     assert made["spp"] == 3 and made["seed"] == 4 and made["hair"]["eumelanin"] == 1.3
-    np.testing.assert_allclose(made["sigma_a"], wh.HairParams(eumelanin=1.3).sigma_a)
+    np.testing.assert_allclose(made["sigma_a"], wh.HairParams(eumelanin=1.3).absorption)
     assert png_size(png) == (12, 8)
     # The same scene and seed give the same image as the Python API.
     np.testing.assert_array_equal(image, wh.render(wh.load_scene(scene), spp=3))
@@ -132,3 +133,18 @@ def test_render_bad_scene_names_the_key(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "bad.toml: [camera] resolution must be two positive integers, got [12]" in err
     assert not (tmp_path / "x.exr").exists()
+
+
+def test_warps_log_level_is_the_hosts(tmp_path):
+    """A library leaves its host's settings alone: importing warp_hair (and optimize) keeps Warp's log level, and
+    the command, run inside a program, quiets Warp only while it runs."""
+    code = (
+        "import warp as wp; wp.config.log_level = wp.LOG_DEBUG; "
+        "import warp_hair, warp_hair.torch, optimize.fit; from warp_hair.cli import main; "
+        "levels = [wp.config.log_level]; "
+        f"main(['render', {str(tmp_path / 'missing.toml')!r}, '-o', {str(tmp_path / 'x.exr')!r}]); "
+        "levels.append(wp.config.log_level); print(levels == [wp.LOG_DEBUG] * 2)"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
+                         cwd=Path(__file__).resolve().parents[1])
+    assert out.stdout.strip().splitlines()[-1] == "True"

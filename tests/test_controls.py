@@ -12,6 +12,7 @@ import pytest
 
 from optimize.latents import SPECS, parse_control_names
 from optimize.linearize import COLUMNS
+from warp_hair import cli
 from warp_hair.controls import (
     COLOUR_CONTROLS,
     COLOUR_INPUTS,
@@ -26,7 +27,7 @@ from warp_hair.controls import (
 from warp_hair.model.params import HairParams
 from warp_hair.renderer.gradients import named_gradients
 from warp_hair.scene import load_scene
-from warp_hair.testing import bsdf_grad
+from helpers import bsdf_grad
 from warp_hair.torch import allowed_controls
 
 EXAMPLE_SCENE = Path(__file__).resolve().parents[1] / "examples" / "swatch.toml"
@@ -78,6 +79,11 @@ def test_hair_params_takes_exactly_the_tables_range(name):
     label = f"{name}[r]" if control.size == 3 else name
     for end, is_open, outward in ((control.lo, control.lo_open, -math.inf), (control.hi, control.hi_open, math.inf)):
         accepted = _inside(end, middle) if is_open else end
+        if control.float32 and is_open:
+            # The kernels read it as float32: just inside in float64 rounds onto the bound (η = 1: not finite).
+            with pytest.raises(ValueError, match=rf"^{name} = {accepted} is outside .* in float32.* rounds to {end}"):
+                _params_with(name, accepted)
+            accepted = float(np.nextafter(np.float32(end), np.float32(middle)))
         rejected = end if is_open else _inside(end, outward)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # a roughness at 0 warns of the floor
@@ -98,6 +104,26 @@ def test_defaults_are_the_tables():
     }
     melanin = HairParams(eumelanin=1.0)
     assert melanin.pheomelanin == CONTROLS["pheomelanin"].default
+
+
+@pytest.mark.parametrize("colour_input", COLOUR_INPUTS)
+def test_hair_params_and_the_command_line_are_the_tables(colour_input):
+    """One attribute of HairParams and one flag of the command line per control, named as in the table: a
+    material's every control given as flags arrives in HairParams unchanged."""
+    params = MATERIALS[colour_input]
+    assert [f.name for f in dataclasses.fields(HairParams)] == list(CONTROL_NAMES) + ["albedo_inversion"]
+    for name in CONTROL_NAMES:
+        given = getattr(params, name)
+        assert (given is None) == (name not in controls_of(colour_input))
+    argv = ["plot-bsdf", "-o", "lobes.png"]
+    for name, value in params.to_dict().items():
+        argv += [f"--{name.replace('_', '-')}", *(str(v) for v in np.atleast_1d(value))]
+    assert cli.hair_params(cli.build_parser().parse_args(argv)) == params
+    # The derived σ_a has its own name; the sigma_a attribute is the input as given.
+    if colour_input == "sigma_a":
+        np.testing.assert_array_equal(params.absorption, params.sigma_a)
+    else:
+        assert params.sigma_a is None and params.absorption.shape == (3,) and np.all(params.absorption > 0)
 
 
 @pytest.mark.parametrize("colour_input", COLOUR_INPUTS)
@@ -182,10 +208,11 @@ def test_theta_vector_refuses_a_wrong_set_of_controls():
 
 
 def test_the_product_does_not_import_the_test_oracle():
-    """θ's layout comes from the table: the renderer, the torch front and the fit load without warp_hair.testing."""
+    """θ's layout comes from the table: the renderer, the torch front and the fit load without the test oracle
+    (tests/helpers/bsdf_grad.py) or any other test code."""
     code = (
         "import sys, warp_hair, warp_hair.torch, warp_hair.renderer.gradients, optimize.fit, optimize.linearize; "
-        "print(sorted(m for m in sys.modules if m.startswith('warp_hair.testing')))"
+        "print(sorted(m for m in sys.modules if m.split('.')[0] in ('tests', 'helpers') or 'bsdf_grad' in m))"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
                          cwd=Path(__file__).resolve().parents[1])

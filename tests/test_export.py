@@ -38,7 +38,7 @@ def expected_sigma_a(params):
     if params.colour_input == "albedo":
         return (np.log(params.albedo) / chiang_denominator(max(params.beta_n, 0.01))) ** 2
     if params.colour_input == "sigma_a":
-        return np.array(params.sigma_a_input)
+        return np.array(params.sigma_a)
     return params.eumelanin * D_EON_EU + params.pheomelanin * D_EON_PHEO
 
 

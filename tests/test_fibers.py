@@ -413,6 +413,20 @@ def test_fur_rejects_fibers_that_would_not_rise():
         fur(lean=60, bend=40)
 
 
+@pytest.mark.parametrize(
+    "patch, pattern",
+    [
+        (0, r"^patch must be a positive finite number, got 0.0$"),
+        ((0.5, 0.0), r"^patch\[1\] must be a positive finite number, got 0.0$"),
+        ((0.5, 0.5, 0.5), r"^patch must be one number .* or two"),
+    ],
+)
+def test_fur_errors_name_the_patch_as_written(patch, pattern):
+    """The error names the key the user wrote (patch, or one of its two entries), not an internal name."""
+    with pytest.raises(ValueError, match=pattern):
+        fur(count=5, patch=patch)
+
+
 def test_draped_swatch_lies_on_its_cylinder():
     """drape bends the flat swatch over a cylinder (axis along x at z = −R): each fiber keeps its distance to the
     axis (R + its flat z) and its length along y becomes arc length."""

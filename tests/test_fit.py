@@ -68,7 +68,7 @@ def test_reduced_fit_recovers_the_true_controls(small_target, batch):
         error = np.abs(np.atleast_1d(value) - np.atleast_1d(TRUTH[name]))
         assert np.all(error < 4 * sigma), (name, error, sigma)
     # From the neutral guess the loss must have come down by a large factor.
-    assert np.mean(result.history["loss"][-10:]) < 0.5 * np.mean(result.history["loss"][:5])
+    assert np.mean(result.history.loss[-10:]) < 0.5 * np.mean(result.history.loss[:5])
 
 
 def test_fit_command_writes_its_outputs(small_target, tmp_path, capsys):

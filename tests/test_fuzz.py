@@ -1,18 +1,11 @@
-"""A few hundred seeded mutations of the shipped scenes, fiber files, hair controls and targets (benchmarks/fuzz.py
-runs thousands, each in a child process with limits): every outcome is an error naming the input, or a finite
-render of an input that loads."""
+"""A few hundred seeded mutations of the shipped scenes, fiber files, hair controls and targets (helpers/fuzz.py;
+benchmarks/fuzz.py runs thousands, each in a child process with limits): every outcome is an error naming the
+input, or a finite render of an input that loads."""
 
-import importlib.util
-import sys
 from collections import Counter
-from pathlib import Path
 
 import pytest
-
-SPEC = importlib.util.spec_from_file_location("fuzz", Path(__file__).parents[1] / "benchmarks" / "fuzz.py")
-fuzz = importlib.util.module_from_spec(SPEC)
-sys.modules["fuzz"] = fuzz  # dataclasses look their module up there
-SPEC.loader.exec_module(fuzz)
+from helpers import fuzz
 
 CASES = 300
 

@@ -9,9 +9,10 @@ from helpers.scenes import front_camera, toml_text
 from optimize.cli import main
 from optimize.fit import FitSettings
 from optimize.identify import ALBEDO_BOUND, BETA_BOUND, BOUNDS, check_target
-from optimize.linearize import _reduce, _weight, linearize
+from optimize.linearize import linearize, loss_weights, pool_like_loss
 from optimize.target import SHIPPED_TARGETS, load_target, make_target
-from warp_hair.renderer.forward import prepare, render
+from warp_hair.renderer.prepare import prepare
+from warp_hair.renderer.render import render
 
 HAIR = {"albedo": [0.7, 0.5, 0.3], "beta_m": 0.3, "beta_n": 0.4}
 
@@ -79,12 +80,13 @@ def test_the_expected_sigma_is_the_scatter_that_the_targets_own_noise_gives_the_
     h_inv = np.linalg.inv(lin.curvature)
     # The loss's weights are the target's, one factor per image that does not move the minimum: the committed
     # target's weights serve for every render of it.
-    weights = [_weight(_reduce(image, image.image, None, settings.pool)[0], settings.loss) for image in target.images]
+    weights = [loss_weights(pool_like_loss(image, image.image, None, settings.pool)[0], settings.loss)
+               for image in target.images]
     estimates = []
     for seed in range(200):
         t = []
         for image, scene, weight in zip(target.images, scenes, weights):
-            pooled, _ = _reduce(image, render(scene, spp=32, seed=1000 + seed, threads=1), None, settings.pool)
+            pooled, _ = pool_like_loss(image, render(scene, spp=32, seed=1000 + seed, threads=1), None, settings.pool)
             t.append(pooled * weight)
         # The target enters the gradient as −Aᵀ W t: the estimate moves by H⁻¹ Aᵀ W t.
         estimates.append(h_inv @ lin.crossed(np.stack([np.concatenate(t)] * 2)))

@@ -22,6 +22,12 @@ from warp_hair.model.params import HairParams
         (dict(albedo=0.5, beta_n=-0.2), r"beta_n = -0.2 is outside the allowed range \[0.0, 1.0\]"),
         (dict(albedo=0.5, alpha=45.0), r"alpha = 45.0 is outside the allowed range \[-30.0, 30.0\]"),
         (dict(albedo=0.5, eta=1.0), r"eta = 1.0 is outside the allowed range \(1.0, 10.0\]"),
+        # Above 1 in float64 but 1 in float32, where the kernels evaluate the BSDF.
+        (dict(albedo=0.5, eta=1.000000001), r"eta = 1.000000001 is outside .*\(1.0, 10.0\] in float32.*rounds to 1.0"),
+        # Nested lists are not flattened: the key is named.
+        (dict(albedo=[[0.5, 0.5, 0.5]]), r"albedo must be one number or three \(RGB\), in a flat list"),
+        (dict(sigma_a=[[0.5], [0.5], [0.5]]), r"sigma_a must be one number or three \(RGB\), in a flat list"),
+        (dict(sigma_a=[0.5, [0.5], 0.5]), r"sigma_a\[g\] must be a number"),
         (dict(albedo=0.5, r_roughness_scale=0.0), r"r_roughness_scale = 0.0 is outside the allowed range \[1e-06, 1000000.0\]"),
         (dict(albedo=0.5, beta_m=float("nan")), r"beta_m must be finite"),
         (dict(albedo=0.5, eta="glass"), r"eta must be a number, got 'glass'"),
@@ -33,6 +39,27 @@ from warp_hair.model.params import HairParams
 def test_bad_controls_name_the_parameter(controls, pattern):
     with pytest.raises(ValueError, match=pattern):
         HairParams(**controls)
+
+
+def test_eta_is_checked_in_float32_where_the_bsdf_is_finite():
+    """The kernels read η as float32. At float32 η = 1 the Fresnel reflectance is 0, so a strongly absorbing fiber
+    has no lobe left and the lobe-selection pdf is 0/0: that is why the range (1, 10] is checked in float32. At
+    the smallest η it accepts (the float32 just above 1) every value is finite."""
+    axes = np.array([[1, 0, 0], [0, 1, 0], [0, 0, 1], [0.6, 0.8, 0], [0.3, 0.4, 0.866], [0, -0.6, -0.8]])
+    wo, wi = np.repeat(axes, len(axes), axis=0), np.tile(axes, (len(axes), 1))
+    u = np.random.default_rng(0).uniform(size=(len(wo), 3))
+    smallest = float(np.nextafter(np.float32(1.0), np.float32(2.0)))
+
+    def values(eta):
+        params = HairParams(eumelanin=1e6, pheomelanin=8.0, eta=smallest)
+        object.__setattr__(params, "eta", eta)  # past the check, to show what it guards
+        h = 0.0
+        return [wh.bsdf.eval(params, wo, wi, h), wh.bsdf.pdf(params, wo, wi, h), *wh.bsdf.sample(params, wo, h, u)]
+
+    assert all(np.isfinite(a).all() for a in values(smallest))
+    assert not all(np.isfinite(a).all() for a in values(1.0 + 1e-9))
+    with pytest.raises(ValueError, match=r"eta = 1.000000001 .* in float32"):
+        HairParams(eumelanin=1e6, pheomelanin=8.0, eta=1.0 + 1e-9)
 
 
 def test_roughness_below_the_floor_warns_and_renders_as_the_floor():

@@ -43,13 +43,13 @@ def test_albedo_inversion():
     albedos = np.linspace(0.05, 1.0, 40)
     for beta_n in (0.0, 0.3, 0.7, 1.0):
         with pytest.warns(UserWarning) if beta_n < 0.01 else _no_warning():
-            sigma = np.array([wh.HairParams(albedo=a, beta_n=beta_n).sigma_a[0] for a in albedos])
+            sigma = np.array([wh.HairParams(albedo=a, beta_n=beta_n).absorption[0] for a in albedos])
         assert np.all(np.diff(sigma) < 0.0)
         assert sigma[-1] == 0.0
     # The β_n polynomial at β_n = 1 sums to 3.375: σ_a(albedo = e^-1) = 1 / 3.375².
-    np.testing.assert_allclose(wh.HairParams(albedo=np.exp(-1.0), beta_n=1.0).sigma_a, 1.0 / 3.375**2, rtol=1e-12)
+    np.testing.assert_allclose(wh.HairParams(albedo=np.exp(-1.0), beta_n=1.0).absorption, 1.0 / 3.375**2, rtol=1e-12)
     # Rougher azimuthal scattering keeps light in the assembly longer: the same albedo needs more σ_a.
-    assert wh.HairParams(albedo=0.5, beta_n=0.8).sigma_a[0] > wh.HairParams(albedo=0.5, beta_n=0.2).sigma_a[0]
+    assert wh.HairParams(albedo=0.5, beta_n=0.8).absorption[0] > wh.HairParams(albedo=0.5, beta_n=0.2).absorption[0]
 
 
 class _no_warning:
@@ -61,13 +61,15 @@ class _no_warning:
 
 
 def test_melanin_coefficients():
-    np.testing.assert_allclose(wh.HairParams(eumelanin=1.0).sigma_a, [0.419, 0.697, 1.37])
-    np.testing.assert_allclose(wh.HairParams(pheomelanin=1.0).sigma_a, [0.187, 0.4, 1.05])
+    np.testing.assert_allclose(wh.HairParams(eumelanin=1.0).absorption, [0.419, 0.697, 1.37])
+    np.testing.assert_allclose(wh.HairParams(pheomelanin=1.0).absorption, [0.187, 0.4, 1.05])
     np.testing.assert_allclose(
-        wh.HairParams(eumelanin=0.3, pheomelanin=0.1).sigma_a, 0.3 * EUMELANIN_SIGMA_A + 0.1 * PHEOMELANIN_SIGMA_A
+        wh.HairParams(eumelanin=0.3, pheomelanin=0.1).absorption, 0.3 * EUMELANIN_SIGMA_A + 0.1 * PHEOMELANIN_SIGMA_A
     )
     # The benchmark scene's σ_a is eumelanin 0.3 + pheomelanin 0.1, rounded to 4 digits.
-    np.testing.assert_allclose(wh.HairParams(eumelanin=0.3, pheomelanin=0.1).sigma_a, [0.1444, 0.2491, 0.516], atol=1e-4)
+    np.testing.assert_allclose(
+        wh.HairParams(eumelanin=0.3, pheomelanin=0.1).absorption, [0.1444, 0.2491, 0.516], atol=1e-4
+    )
 
 
 def lobe_peak_theta(params, lobe, theta_o_deg, dphi):

@@ -21,7 +21,7 @@ from optimize.uncertainty import (
     target_model_error,
 )
 from warp_hair.io import write_exr
-from warp_hair.renderer.forward import prepare
+from warp_hair.renderer.prepare import prepare
 
 TRUTH = {"albedo": [0.6, 0.42, 0.25], "beta_m": 0.3, "beta_n": 0.4}
 
@@ -144,9 +144,7 @@ def _linearization(rng, n=999):
 
 
 def _estimated(lin, model_error, mc):
-    result = types.SimpleNamespace(warnings=[], correlations={}, uncertainties=None, uncertainty_parts=None)
-    estimate_uncertainty(result, lin, mc, model_error)
-    return result
+    return estimate_uncertainty(lin, mc, model_error)
 
 
 def test_model_error_adds_its_own_part_and_zero_adds_nothing():
@@ -158,30 +156,30 @@ def test_model_error_adds_its_own_part_and_zero_adds_nothing():
     none = _estimated(lin, 0.0, mc)
     noise = np.sqrt(np.diag(lin.statistical_covariance + mc))
     assert [none.uncertainties["beta_m"], none.uncertainties["beta_n"]] == noise.tolist()
-    assert none.uncertainty_parts["model"] == {"beta_m": 0.0, "beta_n": 0.0}
+    assert none.parts["model"] == {"beta_m": 0.0, "beta_n": 0.0}
 
     some = _estimated(lin, 0.02, mc)
     s = brightness_sensitivity(lin)
     expected = np.sqrt(np.diag(lin.statistical_covariance + mc + 0.02**2 * np.outer(s, s)))
     np.testing.assert_allclose([some.uncertainties["beta_m"], some.uncertainties["beta_n"]], expected, rtol=1e-12)
-    assert some.uncertainty_parts["noise"] == none.uncertainties
-    np.testing.assert_allclose(list(some.uncertainty_parts["model"].values()), 0.02 * np.abs(s), rtol=1e-12)
-    np.testing.assert_allclose(list(some.uncertainty_parts["shift_per_percent_brightness"].values()), 0.01 * s)
-    assert some.correlations == none.correlations and some.uncertainty_parts["model_error"] == 0.02
+    assert some.parts["noise"] == none.uncertainties
+    np.testing.assert_allclose(list(some.parts["model"].values()), 0.02 * np.abs(s), rtol=1e-12)
+    np.testing.assert_allclose(list(some.parts["shift_per_percent_brightness"].values()), 0.01 * s)
+    assert some.correlations == none.correlations and some.parts["model_error"] == 0.02
 
 
 def test_the_model_part_is_written_and_printed():
     rng = np.random.default_rng(13)
     result = _estimated(_linearization(rng), 0.01, None)
     fit_result = types.SimpleNamespace(values={"beta_m": 0.31, "beta_n": 0.39}, uncertainties=result.uncertainties,
-                                       uncertainty_parts=result.uncertainty_parts)
+                                       uncertainty_parts=result.parts)
     table = format_table(fit_result, {"beta_m": 0.3, "beta_n": 0.4}, "mitsuba")
     header = table.splitlines()[0].split("  ")
     assert [cell.strip() for cell in header if cell.strip()] == ["control", "fitted", "± 1σ", "± noise", "± model",
                                                                    "true", "error"]
     assert "1% disagreement in brightness between mitsuba" in table
-    plain = types.SimpleNamespace(values=fit_result.values, uncertainties=result.uncertainty_parts["noise"],
-                                  uncertainty_parts={**result.uncertainty_parts, "model_error": 0.0})
+    plain = types.SimpleNamespace(values=fit_result.values, uncertainties=result.parts["noise"],
+                                  uncertainty_parts={**result.parts, "model_error": 0.0})
     assert "± model" not in format_table(plain, {})
 
 
@@ -223,8 +221,9 @@ def test_params_json_holds_the_parts(tmp_path):
     rng = np.random.default_rng(14)
     result = _estimated(_linearization(rng), 0.01, None)
     fit_result = types.SimpleNamespace(target="t", values={"beta_m": 0.31, "beta_n": 0.39}, start={}, loss=0.1,
-                                       uncertainties=result.uncertainties, uncertainty_parts=result.uncertainty_parts,
-                                       iterations=1, history={}, stop_reason="iterations", seconds=1.0, warnings=[],
+                                       uncertainties=result.uncertainties, uncertainty_parts=result.parts,
+                                       iterations=1, history=types.SimpleNamespace(refine=()), stop_reason="iterations",
+                                       seconds=1.0, warnings=[],
                                        correlations={})
     look = types.SimpleNamespace(to_dict=dict)
     write_params(tmp_path / "params.json", fit_result, {}, look)

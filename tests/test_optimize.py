@@ -17,12 +17,12 @@ from optimize.latents import SPECS, parse_control_names
 from optimize.fit import Batches, FitSettings, check_settings, spp_at
 from optimize.linearize import Linearization, linearize
 from optimize.losses import image_loss, loss_scale
-from optimize.refine import _drifting, chi2_quantile, inside, mean_covariance, within_noise
+from optimize.refine import drifting, chi2_quantile, inside, mean_covariance, within_noise
 from optimize.uncertainty import estimate_uncertainty
 from optimize.target import SHIPPED_TARGETS, load_target, make_target, shipped_targets
 from warp_hair.io import read_exr, write_exr
 from warp_hair.model.params import TALK_ALBEDO_INVERSION
-from warp_hair.renderer.forward import render
+from warp_hair.renderer.render import render
 from warp_hair.torch import default_grad_seed, scene_with_controls
 
 def scene_text(w, h, dz, red):
@@ -299,9 +299,9 @@ def test_a_trend_in_the_averaged_steps_is_seen_and_noise_rarely():
     in ten are, which costs an extra step each, not a wrong answer)."""
     rng = np.random.default_rng(13)
     trend = [np.r_[0.01 * k, 0.0, 0.0, 0.0, 0.0] + 0.002 * rng.standard_normal(5) for k in range(8)]
-    assert _drifting(trend)
-    assert not _drifting(trend[:4])  # too few points to tell
-    still = [_drifting(list(0.01 * rng.standard_normal((8, 5)))) for _ in range(400)]
+    assert drifting(trend)
+    assert not drifting(trend[:4])  # too few points to tell
+    still = [drifting(list(0.01 * rng.standard_normal((8, 5)))) for _ in range(400)]
     assert np.mean(still) < 0.35
 
 
@@ -399,8 +399,7 @@ def test_a_trade_off_between_two_controls_is_named_with_its_uncertainties():
     for second, warned in ((base + 0.1 * rng.standard_normal(n), True), (rng.standard_normal(n), False)):
         lin = _noisy_linearization(rng, np.stack([base, second], axis=1), np.zeros(2), 0.2, 0.0)
         lin = dataclasses.replace(lin, values={"beta_m": 0.3, "beta_n": 0.4})
-        result = types.SimpleNamespace(warnings=[], correlations={}, uncertainties=None)
-        estimate_uncertainty(result, lin)
+        result = estimate_uncertainty(lin)
         rho = result.correlations["beta_m/beta_n"]
         assert (abs(rho) > 0.95) == warned
         if warned:
@@ -409,7 +408,7 @@ def test_a_trade_off_between_two_controls_is_named_with_its_uncertainties():
             assert message.startswith(f"beta_m and beta_n trade off in these images (correlation {rho:+.3f})")
             assert f"(±{sigma['beta_m']:.2g}, ±{sigma['beta_n']:.2g})" in message
         else:
-            assert result.warnings == []
+            assert result.warnings == ()
 
 
 def test_refine_steps_stay_inside_the_ranges():

@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 import torch
 
-from warp_hair.renderer.forward import PreparedScene, prepare, render
-from warp_hair.renderer.gradients import render_grad
-from warp_hair.renderer.jacobian import render_jacobian
+from warp_hair.renderer.gradients import render_grad, render_jacobian
+from warp_hair.renderer.prepare import PreparedScene, prepare
+from warp_hair.renderer.render import render
 from warp_hair.scene import scene_from_dict
 from warp_hair.torch import render_torch_pair, scene_with_controls
 
@@ -113,5 +113,5 @@ def test_fit_builds_each_images_scene_once(monkeypatch):
 
     monkeypatch.setattr(PreparedScene, "__init__", counting)
     result = fit(target, iters=3, spp=2, refine=2, uncertainty=False, progress=False)
-    assert result.iterations == 3 and len(result.history["refine"]) == 2
+    assert result.iterations == 3 and len(result.history.refine) == 2
     assert len(built) == len(images)

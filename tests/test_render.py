@@ -7,8 +7,8 @@ from helpers import reference_model as ref
 from helpers.scenes import front_camera, swatch_scene
 
 from warp_hair.geometry.assembly import FiberAssembly
-from warp_hair.renderer.forward import render
-from warp_hair.renderer.jacobian import render_jacobian
+from warp_hair.renderer.gradients import render_jacobian
+from warp_hair.renderer.render import render
 from warp_hair.scene import EnvironmentLight, scene_from_dict
 
 

@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 from helpers.scenes import SPARSE_HAIR, sparse_scene
 
-from warp_hair.renderer.forward import render
 from warp_hair.renderer.gradients import render_grad
+from warp_hair.renderer.render import render
 
 HAIR = SPARSE_HAIR
 # Central-difference steps (ε; the differences are extrapolated from ε and ε/2): large enough that the 1/ε

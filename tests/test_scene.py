@@ -102,7 +102,7 @@ def test_benchmark_scene_loads():
     np.testing.assert_allclose(sun.direction, np.array([0.3, -0.4, -1.0]) / np.linalg.norm([0.3, -0.4, -1.0]))
     assert sky.radiance == (0.3, 0.3, 0.3) and sky.image is None
     assert scene.hair.colour_input == "sigma_a"
-    np.testing.assert_array_equal(scene.hair.sigma_a, [0.1444, 0.2491, 0.516])
+    np.testing.assert_array_equal(scene.hair.absorption, [0.1444, 0.2491, 0.516])
     assert scene.render == RenderSettings(spp=64, max_depth=16, seed=0)
     assert scene.card is None
     assert scene.path == BENCHMARK.resolve()

@@ -8,8 +8,8 @@ import pytest
 import torch
 from helpers.scenes import swatch_scene
 
-from warp_hair.renderer.forward import render
 from warp_hair.renderer.gradients import render_grad
+from warp_hair.renderer.render import render
 from warp_hair.torch import default_grad_seed, render_torch, render_torch_pair
 
 LIGHTS = [

@@ -5,18 +5,17 @@
     scene = warp_hair.load_scene("swatch.toml")             # or warp_hair.scene_from_dict({...})
     image = warp_hair.render(scene, spp=64)                 # float32 (H, W, 3) linear radiance
     warp_hair.io.write_exr("swatch.exr", image)
+
+Importing it leaves Warp's settings (its log level among them) as the host program set them; the `warp-hair`
+command shows Warp's warnings and errors only.
 """
 
-import warp as wp
-
-# Warp logs every module load at INFO; users want warnings and errors only.
-wp.config.log_level = wp.LOG_WARNING
-
-from . import geometry, io  # noqa: E402
-from .model import bsdf  # noqa: E402
-from .model.params import HairParams  # noqa: E402
-from .renderer.forward import prepare, render  # noqa: E402
-from .scene import load_scene, scene_from_dict  # noqa: E402
+from . import geometry, io
+from .model import bsdf
+from .model.params import HairParams
+from .renderer.prepare import prepare
+from .renderer.render import render
+from .scene import load_scene, scene_from_dict
 
 __all__ = ["HairParams", "bsdf", "geometry", "io", "load_scene", "prepare", "render", "scene_from_dict"]
 __version__ = "0.1.0"

@@ -43,7 +43,7 @@ from .model.params import (
     check_albedo_inversion,
     effective_beta,
 )
-from .renderer.forward import render
+from .renderer.render import render
 from .scene import DirectionalLight, EnvironmentLight, Scene, scene_from_dict
 
 DEFAULT_SIGMA_A = (0.002, 0.01, 0.04, 0.12, 0.35)
@@ -104,11 +104,11 @@ def white_radiance(scene: Scene) -> np.ndarray:
         elif isinstance(light, EnvironmentLight) and light.image is None:
             total += np.asarray(light.radiance)
         elif isinstance(light, EnvironmentLight):
-            total += _environment_white(light.image, normal)
+            total += environment_white(light.image, normal)
     return total
 
 
-def _environment_white(image: np.ndarray, normal: np.ndarray) -> np.ndarray:
+def environment_white(image: np.ndarray, normal: np.ndarray) -> np.ndarray:
     """(1/π) ∫ L(ω) max(0, ω·n) dω over a lat-long image, cell by cell (envmap.py's convention)."""
     height, width = image.shape[:2]
     theta = math.pi * (np.arange(height) + 0.5) / height

@@ -24,8 +24,10 @@ import traceback
 import warnings
 from pathlib import Path
 
+import warp as wp
+
 from . import validate
-from .controls import CONTROLS, SCALAR_CONTROLS
+from .controls import COLOUR_CONTROL_NAMES, COLOUR_CONTROLS, CONTROLS
 from .model.params import HairParams
 
 PROG = "warp-hair"
@@ -53,36 +55,34 @@ def common_flags(*, threads=True, spp=None, seed=None, spp_default=None, seed_de
 
 
 def add_hair_controls(parser: argparse.ArgumentParser) -> None:
+    """One flag per control of the table (`warp_hair.controls`), its help the table's range, unit and doc."""
+    inputs = " or ".join("/".join(f"--{flag(name)}" for name in names) for names in COLOUR_CONTROLS.values())
     group = parser.add_argument_group(
         "hair controls",
-        "Colour: one of --albedo, --sigma-a, or --eumelanin/--pheomelanin (default --albedo 0.6 0.4 0.2).",
+        f"Colour: one of {inputs} (default --albedo {' '.join(f'{c:g}' for c in DEFAULT_ALBEDO)}).",
     )
-    add = group.add_argument
-    add("--albedo", nargs="+", type=float, metavar="C",
-        help="multiple-scattering albedo in (0, 1]: one value (grey) or three (R G B)")
-    add("--sigma-a", nargs="+", type=float, metavar="S",
-        help="absorption per unit fiber radius, >= 0: one value (grey) or three (R G B)")
-    add("--eumelanin", type=float, metavar="X", help="eumelanin concentration >= 0 (blonde 0.3, brown 1.3, black 8)")
-    add("--pheomelanin", type=float, metavar="Y", help="pheomelanin (red-yellow pigment) concentration >= 0")
-    metavars = {"alpha": "DEG", "eta": "E", "r_roughness_scale": "K"}
-    for name in SCALAR_CONTROLS:
-        c = CONTROLS[name]
-        add(f"--{name.replace('_', '-')}", type=float, default=c.default, metavar=metavars.get(name, "B"),
-            help=f"{c.doc}, in {c.interval} (default {c.default:g})")
+    for name, c in CONTROLS.items():
+        where = f"in {c.interval}" + (f" ({c.unit})" if c.unit else "")
+        if c.size == 3:
+            group.add_argument(f"--{flag(name)}", nargs="+", type=float, metavar="X",
+                               help=f"{c.doc}; {where}: one value (grey) or three (R G B)")
+        elif c.colour_input is not None:  # unset unless given: the colour input is the one given
+            group.add_argument(f"--{flag(name)}", type=float, metavar="X", help=f"{c.doc}; {where}")
+        else:
+            group.add_argument(f"--{flag(name)}", type=float, default=c.default, metavar="X",
+                               help=f"{c.doc}; {where} (default {c.default:g})")
+
+
+def flag(name: str) -> str:
+    """A control's command-line flag, without the dashes: beta_m → beta-m."""
+    return name.replace("_", "-")
 
 
 def hair_params(args: argparse.Namespace) -> HairParams:
-    colour = dict(albedo=args.albedo, sigma_a=args.sigma_a, eumelanin=args.eumelanin, pheomelanin=args.pheomelanin)
-    if all(value is None for value in colour.values()):
-        colour["albedo"] = DEFAULT_ALBEDO
-    return HairParams(
-        **colour,
-        beta_m=args.beta_m,
-        beta_n=args.beta_n,
-        alpha=args.alpha,
-        eta=args.eta,
-        r_roughness_scale=args.r_roughness_scale,
-    )
+    controls = {name: getattr(args, name) for name in CONTROLS}
+    if all(controls[name] is None for name in COLOUR_CONTROL_NAMES):
+        controls["albedo"] = DEFAULT_ALBEDO
+    return HairParams(**controls)
 
 
 def add_plot_bsdf(subparsers) -> None:
@@ -127,7 +127,7 @@ def render_scene(args: argparse.Namespace) -> None:
     import time
 
     from .io import write_exr, write_png
-    from .renderer.forward import render, render_metadata
+    from .renderer.render import render, render_metadata
     from .scene import load_scene
 
     check_sampling_args(args)
@@ -158,9 +158,8 @@ def add_gradcheck(subparsers) -> None:
         description="Compare the render-level gradients (render_grad) of L = mean 0.5 (image - target)^2 with "
         "central finite differences of render (common random numbers, Richardson-extrapolated from eps and "
         "eps/2), over K seed pairs, one row per control component. The target is the scene rendered at 16x "
-        "the spp with the checked controls moved (albedo x0.9, sigma_a and melanins x1.1, beta_m, beta_n +0.05, "
-        "alpha +3 deg, eta +0.05, r_roughness_scale +0.1). Cost: about (2 + 8 x components) x K renders at "
-        "--spp plus the target, at the scene's own resolution; lower the resolution in the scene for quick checks.",
+        f"the spp with the checked controls moved ({_gradcheck_moves()}). Cost: about (2 + 8 x components) x K "
+        "renders at --spp plus the target, at the scene's own resolution; lower the resolution in the scene for quick checks.",
     )
     parser.add_argument("scene", type=Path, metavar="SCENE.toml", help="the scene file")
     parser.add_argument("--seeds", type=int, default=4, metavar="K",
@@ -168,9 +167,15 @@ def add_gradcheck(subparsers) -> None:
     parser.add_argument("--params", metavar="NAMES",
                         help="comma-separated controls to check, e.g. albedo,beta_m (default: all of the scene's)")
     parser.add_argument("--eps", type=float, metavar="E",
-                        help="one finite-difference step for every control (default per control: colour 0.04, "
-                        "melanins 0.05, beta_m 0.04, beta_n 0.08, alpha 1 deg, eta 0.04, r_roughness_scale 0.4)")
+                        help="one finite-difference step for every control (default per control: "
+                        + ", ".join(f"{name} {c.gradcheck_step:g}" for name, c in CONTROLS.items()) + ")")
     parser.set_defaults(run=gradcheck_scene)
+
+
+def _gradcheck_moves() -> str:
+    """How gradcheck's target moves each control, from the table: "albedo x0.9, ..., eta +0.05, ..."."""
+    return ", ".join(f"{name} {'x' if kind == 'scale' else '+'}{amount:g}"
+                     for name, c in CONTROLS.items() for kind, amount in [c.gradcheck_move])
 
 
 def check_sampling_args(args: argparse.Namespace) -> None:
@@ -259,7 +264,7 @@ def calibrate_scene(args: argparse.Namespace) -> None:
         inversion_toml,
         write_calibrated_scene,
     )
-    from .renderer.forward import sampling
+    from .renderer.prepare import sampling
     from .scene import load_scene
 
     sigma_a, beta_n = check_grid(args.sigma_a or DEFAULT_SIGMA_A, args.beta_n or DEFAULT_BETA_N)
@@ -310,7 +315,8 @@ def build_parser(extra=()) -> argparse.ArgumentParser:
 def exit_on_interrupt(run) -> None:
     """Run `run()` (a script's main) and exit: on Ctrl-C with one line and status 130, as the command does."""
     try:
-        run()
+        with wp.ScopedLogLevel(wp.LOG_WARNING):  # Warp logs every module load at INFO
+            run()
     except KeyboardInterrupt:
         print(f"{sys.argv[0]}: interrupted", file=sys.stderr)
         sys.exit(130)
@@ -324,7 +330,9 @@ def main(argv: list[str] | None = None, extra=()) -> int:
     """Run a subcommand. The installed `warp-hair` is optimize.cli.main, which adds the fitting subcommands
     (fit, targets) through `extra`: the renderer does not depend on the optimiser."""
     args = build_parser(extra).parse_args(argv)
-    with warnings.catch_warnings():
+    # Warp logs every module load at INFO: the command shows its warnings and errors only, and leaves the level
+    # as it was when it returns (main may run inside a host program).
+    with warnings.catch_warnings(), wp.ScopedLogLevel(wp.LOG_WARNING):
         # Users of the command see the library's warnings as messages, not as source locations.
         warnings.showwarning = _show_warning
         try:

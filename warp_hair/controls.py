@@ -2,8 +2,10 @@
 
 Each control is defined here once: its name, size (1, or 3 for RGB), the columns it fills in θ (the vector the
 gradient tracer differentiates, THETA_SIZE = 8 wide), its allowed range, its default, the colour input it
-belongs to, its unit and what it does. `HairParams` checks values against it, the gradient tracer lays out its
-Jacobian columns by it, and `render_grad`, the torch front and the fit name θ through it.
+belongs to, its unit and what it does, and how the fit and gradcheck move it. Built from it: `HairParams` (one
+field per control, its constructor and checks), the command line's hair flags, the fit's latents
+(`optimize.latents.SPECS`), gradcheck's steps and the Jacobian's columns; `render_grad`, the torch front and the
+fit name θ through it. Adding a control: one entry in CONTROLS, plus its physics (see the comment above it).
 
     from warp_hair.controls import CONTROLS, controls_of, named_theta, theta_vector
     CONTROLS["eta"].interval                      # '(1.0, 10.0]'
@@ -18,6 +20,7 @@ colour controls of different inputs share columns.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -29,9 +32,21 @@ ABSORPTION_MAX = 1e30
 COLOUR_INPUTS = ("albedo", "sigma_a", "melanin")
 
 
+# Below this roughness the lobes are narrower than float32 angles can resolve, and at 0 the mappings give
+# v = s = 0 (a delta lobe no path tracer can sample). pbrt, Mitsuba and Cycles clamp the same way.
+BETA_FLOOR = 0.01
+
+
 @dataclass(frozen=True)
 class Control:
-    """One artist control: where it sits in θ, what values it takes, and what it means."""
+    """One artist control: where it sits in θ, what values it takes, and what it means.
+
+    Beyond the range: `floor` (a value below it renders as the floor, with a warning), `float32` (the kernels read
+    the value as float32, and the range must hold there too), and what the fit and gradcheck do with it:
+    `fit_hi` and `fit_start` (the open interval the fit's latent maps onto, and its neutral start; by default the
+    range, above `floor`, and the default) and `gradcheck_move`, `gradcheck_step` (how `warp-hair gradcheck`
+    moves the control for its target, and its finite-difference step).
+    """
 
     name: str
     size: int  # 1, or 3 for an RGB control
@@ -44,6 +59,12 @@ class Control:
     colour_input: str | None  # the colour input it belongs to, None for the scalar controls
     unit: str
     doc: str
+    floor: float | None = None
+    float32: bool = False
+    fit_hi: float | None = None
+    fit_start: float | None = None
+    gradcheck_move: tuple = ("add", 0.0)  # ("scale", factor) or ("add", amount)
+    gradcheck_step: float = 0.0
 
     @property
     def interval(self) -> str:
@@ -56,39 +77,66 @@ class Control:
         return above_lo and below_hi
 
     def check(self, value: float, label: str | None = None) -> None:
-        """A ValueError naming the control (or `label`, e.g. "albedo[g]") and its range if value is outside."""
+        """A ValueError naming the control (or `label`, e.g. "albedo[g]") and its range if value is outside (or,
+        for a `float32` control, if its float32 is)."""
         if not self.contains(value):
             raise ValueError(f"{label or self.name} = {value} is outside the allowed range {self.interval}")
+        if self.float32 and not self.contains(float(np.float32(value))):
+            raise ValueError(
+                f"{label or self.name} = {value} is outside the allowed range {self.interval} in float32, the "
+                f"precision the renderer uses: it rounds to {float(np.float32(value))}"
+            )
+
+    @property
+    def fit_lo(self) -> float:
+        """The lower end of the fit's open interval: below the floor the renderer clamps, the loss is flat."""
+        return self.lo if self.floor is None else self.floor
 
 
 def _control(name, size, first_column, lo, hi, lo_open=False, hi_open=False, default=None, colour_input=None,
-             unit="", doc=""):
+             unit="", doc="", **more):
     return Control(name, size, tuple(range(first_column, first_column + size)), lo, hi, lo_open, hi_open, default,
-                   colour_input, unit, doc)
+                   colour_input, unit, doc, **more)
 
 
+# One entry per control. Adding one: an entry here, and its physics (the mapping to the model's coefficients in
+# model/params.py and hair_bsdf.py, its column of the BSDF's Jacobian in model/jacobian.py). HairParams, the
+# command line's flags, the fit's latents and gradcheck are built from this table.
 CONTROLS = {
     control.name: control
     for control in (
         _control("albedo", 3, 0, 0.0, 1.0, lo_open=True, colour_input="albedo", unit="fraction",
                  doc="multiple-scattering albedo per channel; σ_a follows from the albedo inversion, which depends "
-                     "on β_n"),
+                     "on β_n",
+                 fit_start=0.5, gradcheck_move=("scale", 0.9), gradcheck_step=0.04),
+        # The absorptions' upper limit guards float32, it is no bound a fit can reach: the log map suits them.
         _control("sigma_a", 3, 0, 0.0, ABSORPTION_MAX, colour_input="sigma_a", unit="1 / fiber radius",
-                 doc="absorption coefficient per channel"),
+                 doc="absorption coefficient per channel",
+                 fit_hi=math.inf, fit_start=1.0, gradcheck_move=("scale", 1.1), gradcheck_step=0.04),
         _control("eumelanin", 1, 0, 0.0, ABSORPTION_MAX, default=0.0, colour_input="melanin",
-                 unit="concentration", doc="dark pigment (blonde ≈ 0.3, brown ≈ 1.3, black ≈ 8)"),
+                 unit="concentration", doc="dark pigment (blonde ≈ 0.3, brown ≈ 1.3, black ≈ 8)",
+                 fit_hi=math.inf, fit_start=1.0, gradcheck_move=("scale", 1.1), gradcheck_step=0.05),
         _control("pheomelanin", 1, 1, 0.0, ABSORPTION_MAX, default=0.0, colour_input="melanin",
-                 unit="concentration", doc="red pigment"),
-        _control("beta_m", 1, 3, 0.0, 1.0, default=0.3, unit="",
-                 doc="longitudinal roughness (below params.BETA_FLOOR it renders as the floor)"),
-        _control("beta_n", 1, 4, 0.0, 1.0, default=0.3, unit="",
-                 doc="azimuthal roughness (below params.BETA_FLOOR it renders as the floor)"),
-        _control("alpha", 1, 5, -30.0, 30.0, default=2.0, unit="degrees", doc="cuticle scale tilt; > 0 (human hair) moves the primary highlight toward the root"),
-        # Above 1 (a fiber that refracts); 10 is beyond every dielectric in visible light (diamond 2.4, silicon ~4).
-        _control("eta", 1, 6, 1.0, 10.0, lo_open=True, default=1.55, unit="", doc="index of refraction"),
-        # 1e-6 to 1e6 spans any species by far, and the lobes are tested finite there.
+                 unit="concentration", doc="red pigment",
+                 fit_hi=math.inf, fit_start=0.3, gradcheck_move=("scale", 1.1), gradcheck_step=0.05),
+        _control("beta_m", 1, 3, 0.0, 1.0, default=0.3, unit="", floor=BETA_FLOOR,
+                 doc="longitudinal roughness (below BETA_FLOOR = 0.01 it renders as the floor)",
+                 fit_start=0.5, gradcheck_move=("add", 0.05), gradcheck_step=0.04),
+        _control("beta_n", 1, 4, 0.0, 1.0, default=0.3, unit="", floor=BETA_FLOOR,
+                 doc="azimuthal roughness (below BETA_FLOOR = 0.01 it renders as the floor)",
+                 fit_start=0.5, gradcheck_move=("add", 0.05), gradcheck_step=0.08),
+        _control("alpha", 1, 5, -30.0, 30.0, default=2.0, unit="degrees",
+                 doc="cuticle scale tilt; > 0 (human hair) moves the primary highlight toward the root",
+                 gradcheck_move=("add", 3.0), gradcheck_step=1.0),
+        # Above 1 (a fiber that refracts), in float32 too: at η = 1 the BSDF is not finite. 10 is beyond every
+        # dielectric in visible light (diamond 2.4, silicon ~4).
+        _control("eta", 1, 6, 1.0, 10.0, lo_open=True, default=1.55, unit="", doc="index of refraction",
+                 float32=True, gradcheck_move=("add", 0.05), gradcheck_step=0.04),
+        # 1e-6 to 1e6 spans any species by far, and the lobes are tested finite there. The fit bounds it below
+        # only: its upper limit is far beyond any fit, and the log map suits a scale.
         _control("r_roughness_scale", 1, 7, 1e-6, 1e6, default=1.0, unit="factor",
-                 doc="the species control: a factor on the R lobe's longitudinal variance only"),
+                 doc="the species control: a factor on the R lobe's longitudinal variance only",
+                 fit_hi=math.inf, gradcheck_move=("add", 0.1), gradcheck_step=0.4),
     )
 }
 

@@ -39,37 +39,20 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .renderer.forward import prepare, render
+from .controls import CONTROLS
 from .renderer.gradients import render_grad
+from .renderer.prepare import prepare
+from .renderer.render import render
 from .scene import Scene
 from .validate import SEED_LIMIT
 
-# The target's controls: (kind, amount) per control; "scale" multiplies, "add" adds.
-TARGET_PERTURBATION = {
-    "albedo": ("scale", 0.9),
-    "sigma_a": ("scale", 1.1),
-    "eumelanin": ("scale", 1.1),
-    "pheomelanin": ("scale", 1.1),
-    "beta_m": ("add", 0.05),
-    "beta_n": ("add", 0.05),
-    "alpha": ("add", 3.0),
-    "eta": ("add", 0.05),
-    "r_roughness_scale": ("add", 0.1),
-}
+# The target's controls: (kind, amount) per control; "scale" multiplies, "add" adds (the table's gradcheck_move).
+TARGET_PERTURBATION = {name: control.gradcheck_move for name, control in CONTROLS.items()}
 
-# Central-difference steps ε (the difference is extrapolated from ε and ε/2): large enough that the 1/ε variance
-# of the discrete choices a change of θ flips (which lobe, which fiber) stays small; as tests/test_render_grad.py.
-DEFAULT_STEPS = {
-    "albedo": 0.04,
-    "sigma_a": 0.04,
-    "eumelanin": 0.05,
-    "pheomelanin": 0.05,
-    "beta_m": 0.04,
-    "beta_n": 0.08,
-    "alpha": 1.0,
-    "eta": 0.04,
-    "r_roughness_scale": 0.4,
-}
+# Central-difference steps ε (the difference is extrapolated from ε and ε/2; the table's gradcheck_step): large
+# enough that the 1/ε variance of the discrete choices a change of θ flips (which lobe, which fiber) stays small;
+# as tests/test_render_grad.py.
+DEFAULT_STEPS = {name: control.gradcheck_step for name, control in CONTROLS.items()}
 
 CHANNELS = "rgb"
 RELATIVE_TOLERANCE = 0.03

@@ -167,7 +167,7 @@ def _triple(values) -> str:
 
 
 def _title(params: HairParams, h: float | None) -> str:
-    sigma_a = f"σ_a = {_triple(params.sigma_a)} per fiber radius"
+    sigma_a = f"σ_a = {_triple(params.absorption)} per fiber radius"
     if params.colour_input == "albedo":
         colour = f"albedo {_triple(params.albedo)}  →  {sigma_a}"
     elif params.colour_input == "melanin":

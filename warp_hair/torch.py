@@ -49,7 +49,7 @@ are the same, whatever `threads`).
 add a term per image: its backward pass meets each image's adjoint with the other's Jacobian, which the same
 pass computed, so it needs no second tracing of the paths (what `optimize.fit` uses; see its docstring).
 
-`scene` may be a `warp_hair.render.prepare(scene)`: a loop that renders the same scene with new controls then
+`scene` may be a `warp_hair.prepare(scene)`: a loop that renders the same scene with new controls then
 builds its BVH once, not once per render (the images are the same, bit for bit).
 
 Everything runs on Warp's CPU device; the image is returned on the device of the first control tensor (CPU if
@@ -64,10 +64,9 @@ import numpy as np
 import torch
 
 from .controls import COLOUR_CONTROLS, CONTROL_NAMES, RGB_CONTROLS, controls_of
-from .renderer.forward import render
+from .renderer.gradients import contract, contract_crossed, named_gradients, render_jacobian
 from .renderer.prepare import PreparedScene, sampling, scene_of
-from .renderer.gradients import contract, contract_crossed, named_gradients
-from .renderer.jacobian import render_jacobian
+from .renderer.render import render
 from .scene import Scene
 
 GRAD_SEED_OFFSET = 1_000_003

@@ -75,8 +75,8 @@ def shifted(controls: dict, name: str, component, step: float) -> dict:
 
 def lobe_factors(controls, wo, wi, h):
     """G (N, 4) = M_p N_p per lobe, and F (N, 4, 4): A_p per channel of S, then the lobe probability."""
-    MN, A = ref._lobe_terms(ref.coefficients(controls), wo, wi, h)
-    return MN, np.concatenate([A, ref._lobe_probs(A)[:, :, None]], axis=2)
+    MN, A = ref.lobe_terms(ref.coefficients(controls), wo, wi, h)
+    return MN, np.concatenate([A, ref.lobe_probs(A)[:, :, None]], axis=2)
 
 
 def reference_derivative(controls, name, component, wo, wi, h):

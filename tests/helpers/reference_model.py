@@ -113,7 +113,7 @@ def _trimmed_logistic(x, s):
     return e / (s * (1.0 + e) ** 2) / np.tanh(np.pi / (2.0 * s))
 
 
-def _lobe_terms(co, wo, wi, h):
+def lobe_terms(co, wo, wi, h):
     """(M_p N_p (N,4), A (N,4,3)): the per-lobe geometry and attenuation."""
     A, g_o, g_t = _fiber(co, wo, h)
     sin_i, cos_i, phi_i = _angles(wi)
@@ -128,7 +128,7 @@ def _lobe_terms(co, wo, wi, h):
     return MN, A
 
 
-def _lobe_probs(A):
+def lobe_probs(A):
     """prob_p = mean_RGB(A_p) / sum_p mean_RGB(A_p) (project convention)."""
     m = A.mean(axis=2)
     tot = m.sum(axis=1, keepdims=True)
@@ -140,7 +140,7 @@ def attenuation(controls, wo, h):
 
 
 def eval_lobes(controls, wo, wi, h):
-    MN, A = _lobe_terms(coefficients(controls), wo, wi, h)
+    MN, A = lobe_terms(coefficients(controls), wo, wi, h)
     return MN[:, :, None] * A
 
 
@@ -149,8 +149,8 @@ def eval(controls, wo, wi, h):
 
 
 def pdf(controls, wo, wi, h):
-    MN, A = _lobe_terms(coefficients(controls), wo, wi, h)
-    return (_lobe_probs(A) * MN).sum(axis=1)
+    MN, A = lobe_terms(coefficients(controls), wo, wi, h)
+    return (lobe_probs(A) * MN).sum(axis=1)
 
 
 def sample(controls, wo, h, u):
@@ -159,7 +159,7 @@ def sample(controls, wo, h, u):
     u = np.asarray(u, dtype=np.float64)
     n = len(wo)
     A, g_o, g_t = _fiber(co, wo, h)
-    prob = _lobe_probs(A)
+    prob = lobe_probs(A)
     # 1. Lobe choice: smallest p with u0 < cdf_{p+1}; fallback to the last lobe with prob > 0.
     cdf = np.concatenate([np.zeros((n, 1)), np.cumsum(prob, axis=1)], axis=1)   # (N,5)
     below = u[:, :1] < cdf[:, 1:]
@@ -196,7 +196,7 @@ def sample(controls, wo, h, u):
     phi_i = _angles(wo)[2] + dphi
     wi = np.stack([sin_i, cos_i * np.cos(phi_i), cos_i * np.sin(phi_i)], axis=1)
     # 4. pdf and weight from the full formulas at the sampled direction.
-    MN, A = _lobe_terms(co, wo, wi, h)
+    MN, A = lobe_terms(co, wo, wi, h)
     pd = (prob * MN).sum(axis=1)
     S = (MN[:, :, None] * A).sum(axis=1)
     with np.errstate(divide="ignore", invalid="ignore"):

@@ -39,7 +39,7 @@ def tilt_degrees(params: HairParams, renderer: str) -> float:
 
 def sigma_a(params: HairParams) -> list[float]:
     """The absorption per unit fiber radius, whatever the colour input (the albedo inversion at β_n)."""
-    return [float(s) for s in np.asarray(params.sigma_a, dtype=np.float64)]
+    return [float(s) for s in params.absorption]
 
 
 def fmt(x: float) -> str:

@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import math
 
-from ..model.params import TALK_ALBEDO_INVERSION, HairParams
+from ..model.params import TALK_ALBEDO_INVERSION, HairParams, longitudinal_polynomial
 from .common import fmt, lossy, roughness, sigma_a, tilt_degrees
 
 NAME = "cycles"
@@ -38,11 +38,6 @@ SUFFIX = ".py"
 # bsdf_hair_chiang_setup clamps roughness (and the R lobe's (1 - coat) * roughness) to this interval.
 ROUGHNESS_CLAMP = (0.001, 1.0)
 MATERIAL_NAME = "warp-hair look"
-
-
-def _roughness_polynomial(beta):
-    """The talk's longitudinal mapping before squaring: v = poly(β)²."""
-    return 0.726 * beta + 0.812 * beta**2 + 3.7 * beta**20
 
 
 def coat_from_r_roughness_scale(beta_m: float, scale: float) -> float:
@@ -55,8 +50,8 @@ def coat_from_r_roughness_scale(beta_m: float, scale: float) -> float:
         lossy(NAME, f"Coat can only make the R lobe smoother: r_roughness_scale = {scale:g} > 1 becomes Coat 0 "
               "(R as rough as β_m)")
         return 0.0
-    target = math.sqrt(scale) * _roughness_polynomial(beta_m)
-    if target <= _roughness_polynomial(lo):
+    target = math.sqrt(scale) * longitudinal_polynomial(beta_m)
+    if target <= longitudinal_polynomial(lo):
         coat = 1.0 - lo / beta_m
         lossy(NAME, f"r_roughness_scale = {scale:g} asks for an R roughness below Cycles' clamp {lo:g}; "
               f"Coat {coat:.6g} renders the clamp")
@@ -65,7 +60,7 @@ def coat_from_r_roughness_scale(beta_m: float, scale: float) -> float:
     a, b = lo, beta_m
     for _ in range(80):
         mid = 0.5 * (a + b)
-        a, b = (mid, b) if _roughness_polynomial(mid) < target else (a, mid)
+        a, b = (mid, b) if longitudinal_polynomial(mid) < target else (a, mid)
     return 1.0 - 0.5 * (a + b) / beta_m
 
 

@@ -22,7 +22,7 @@ from __future__ import annotations
 import math
 import xml.etree.ElementTree as ET
 
-from ..model.params import HairParams
+from ..model.params import HairParams, logistic_polynomial, longitudinal_polynomial
 from .common import fmt, lossy, roughness, sigma_a, tilt_degrees
 
 NAME = "materialx"
@@ -37,8 +37,8 @@ LOBE_SCALES = {"R": 1.0, "TT": 0.5, "TRT": 2.0}
 def lobe_roughness(params: HairParams) -> dict:
     """{"R": (v, s), "TT": ..., "TRT": ...} as chiang_hair_bsdf takes them (s without √(π/8))."""
     beta_m, beta_n = roughness(params)
-    v = (0.726 * beta_m + 0.812 * beta_m**2 + 3.7 * beta_m**20) ** 2
-    s = 0.265 * beta_n + 1.194 * beta_n**2 + 5.372 * beta_n**22
+    v = longitudinal_polynomial(beta_m) ** 2
+    s = logistic_polynomial(beta_n)
     lobes = {name: (v * scale**2, s) for name, scale in LOBE_SCALES.items()}
     lobes["R"] = (v * params.r_roughness_scale, s)
     lo, hi = ROUGHNESS_CLAMP

@@ -317,8 +317,16 @@ def _swatch_assembly(x, y, z, radius, drape=None):
 
 
 def _patch_roots(patch, count, rng):
-    extent_x, extent_y = np.broadcast_to(np.asarray(patch, dtype=np.float64), (2,))
-    _check_positive(patch_x=extent_x, patch_y=extent_y)
+    """Roots uniform in the patch; errors name `patch` as the user wrote it: one number, or a pair."""
+    sizes = np.asarray(patch, dtype=object)
+    if sizes.size == 1 and sizes.ndim <= 1:
+        extent_x = extent_y = validate.real("patch", sizes.ravel()[0])
+        _check_positive(patch=extent_x)
+    elif sizes.shape == (2,):
+        extent_x, extent_y = (validate.real(f"patch[{k}]", v) for k, v in enumerate(sizes))
+        _check_positive(**{"patch[0]": extent_x, "patch[1]": extent_y})
+    else:
+        raise ValueError(f"patch must be one number (a square's side) or two (extent in x, in y), got {patch!r}")
     x = rng.uniform(-extent_x / 2, extent_x / 2, count)
     y = rng.uniform(-extent_y / 2, extent_y / 2, count)
     return np.column_stack([x, y, np.zeros(count)])

@@ -9,6 +9,9 @@ broadcasts against the others. Results are float32, as the renderer computes the
     wi, weight, p = sample(params, wo, h, u)   # u (N, 3) uniforms in [0, 1); weight = S / pdf
     lobes = eval_lobes(params, wo, wi, h)  # (N, 4, 3): the R, TT, TRT and residual terms of S
     A = attenuation(params, wo, h)         # (N, 4, 3): A_p per lobe
+
+A kernel of one's own over the same inputs (the derivative checks' in tests/helpers/bsdf_grad.py) takes the same
+checks and launch: `check_params`, `check_directions`, `check_offsets`, then `launch_batch`.
 """
 
 from __future__ import annotations
@@ -137,7 +140,8 @@ def _vectors(name: str, value) -> np.ndarray:
     return arr
 
 
-def _directions(name: str, value) -> np.ndarray:
+def check_directions(name: str, value) -> np.ndarray:
+    """`value` as an (N, 3) float64 array of unit vectors, else a ValueError naming `name`."""
     arr = _vectors(name, value)
     norm = np.linalg.norm(arr, axis=1)
     off = np.abs(norm - 1.0) > UNIT_TOLERANCE
@@ -149,7 +153,8 @@ def _directions(name: str, value) -> np.ndarray:
     return arr
 
 
-def _offsets(value) -> np.ndarray:
+def check_offsets(value) -> np.ndarray:
+    """The fiber offsets h as an (N,) float64 array in [−1, 1], else a ValueError."""
     arr = _numeric("h", value)
     if arr.ndim > 1:
         raise ValueError(f"h must be a scalar or have shape (N,), got {arr.shape}")
@@ -181,7 +186,8 @@ def _broadcast(**arrays: np.ndarray) -> tuple[int, dict]:
     return n, {name: np.broadcast_to(a, (n, *a.shape[1:])) for name, a in arrays.items()}
 
 
-def _check_params(params) -> HairCoefficients:
+def check_params(params) -> HairCoefficients:
+    """The model coefficients of a HairParams; a TypeError for anything else."""
     if not isinstance(params, HairParams):
         raise TypeError(f"params must be a warp_hair.HairParams, got {type(params).__name__}")
     return hair_coefficients(params)
@@ -195,7 +201,7 @@ def _to_warp(a: np.ndarray, dtype, device: str):
 _WARP_TYPES = {"wo": wp.vec3, "wi": wp.vec3, "h": float, "u": wp.vec3}
 
 
-def _launch(kernel, leading: list, items: dict, outputs: list, threads, device) -> list:
+def launch_batch(kernel, leading: list, items: dict, outputs: list, threads, device) -> list:
     """Broadcast the checked per-item inputs `items` (name → array), launch
     `kernel(*leading, *items, *outputs, first)` over all cores and return the outputs as NumPy arrays.
     `outputs` holds (shape per item, Warp dtype) pairs."""
@@ -208,14 +214,14 @@ def _launch(kernel, leading: list, items: dict, outputs: list, threads, device) 
 
 def eval(params: HairParams, wo, wi, h, threads: int | None = None, device: str = "cpu") -> np.ndarray:
     """S(wo, wi, h) per item, RGB: the cosine-weighted value (pbrt's f·|cos θ_i|, Mitsuba's eval)."""
-    items = dict(wo=_directions("wo", wo), wi=_directions("wi", wi), h=_offsets(h))
-    return _launch(_eval_kernel, [_check_params(params)], items, [((), wp.vec3)], threads, device)[0]
+    items = dict(wo=check_directions("wo", wo), wi=check_directions("wi", wi), h=check_offsets(h))
+    return launch_batch(_eval_kernel, [check_params(params)], items, [((), wp.vec3)], threads, device)[0]
 
 
 def pdf(params: HairParams, wo, wi, h, threads: int | None = None, device: str = "cpu") -> np.ndarray:
     """The solid-angle density with which `sample` draws wi."""
-    items = dict(wo=_directions("wo", wo), wi=_directions("wi", wi), h=_offsets(h))
-    return _launch(_pdf_kernel, [_check_params(params)], items, [((), float)], threads, device)[0]
+    items = dict(wo=check_directions("wo", wo), wi=check_directions("wi", wi), h=check_offsets(h))
+    return launch_batch(_pdf_kernel, [check_params(params)], items, [((), float)], threads, device)[0]
 
 
 def sample(params: HairParams, wo, h, u, threads: int | None = None, device: str = "cpu"):
@@ -224,19 +230,19 @@ def sample(params: HairParams, wo, h, u, threads: int | None = None, device: str
     u[:, 0] chooses the lobe (and its remainder the rotation about the longitudinal cone), u[:, 1] the
     longitudinal angle, u[:, 2] the azimuth.
     """
-    items = dict(wo=_directions("wo", wo), h=_offsets(h), u=_uniforms(u))
+    items = dict(wo=check_directions("wo", wo), h=check_offsets(h), u=_uniforms(u))
     outputs = [((), wp.vec3), ((), wp.vec3), ((), float)]
-    wi, weight, density = _launch(_sample_kernel, [_check_params(params)], items, outputs, threads, device)
+    wi, weight, density = launch_batch(_sample_kernel, [check_params(params)], items, outputs, threads, device)
     return wi, weight, density
 
 
 def eval_lobes(params: HairParams, wo, wi, h, threads: int | None = None, device: str = "cpu") -> np.ndarray:
     """The four terms of S (R, TT, TRT, residual), shape (N, 4, 3); they sum to `eval`."""
-    items = dict(wo=_directions("wo", wo), wi=_directions("wi", wi), h=_offsets(h))
-    return _launch(_lobes_kernel, [_check_params(params)], items, [((4,), wp.vec3)], threads, device)[0]
+    items = dict(wo=check_directions("wo", wo), wi=check_directions("wi", wi), h=check_offsets(h))
+    return launch_batch(_lobes_kernel, [check_params(params)], items, [((4,), wp.vec3)], threads, device)[0]
 
 
 def attenuation(params: HairParams, wo, h, threads: int | None = None, device: str = "cpu") -> np.ndarray:
     """A_p of each lobe (R, TT, TRT, residual), shape (N, 4, 3); with σ_a = 0 they sum to 1."""
-    items = dict(wo=_directions("wo", wo), h=_offsets(h))
-    return _launch(_attenuation_kernel, [_check_params(params)], items, [((4,), wp.vec3)], threads, device)[0]
+    items = dict(wo=check_directions("wo", wo), h=check_offsets(h))
+    return launch_batch(_attenuation_kernel, [check_params(params)], items, [((4,), wp.vec3)], threads, device)[0]

@@ -16,7 +16,7 @@ Nothing allocates; everything is float32.
 import numpy as np
 import warp as wp
 
-from ..numerics import INV_TWO_PI, PI64, TWO_PI64
+from ..numerics import INV_TWO_PI, PI64, TWO_PI64, cos_from_sin
 from .lobes import (
     attenuation,
     fresnel_dielectric,
@@ -52,7 +52,7 @@ class HairCoefficients:
 
 def hair_coefficients(params: HairParams) -> HairCoefficients:
     c = HairCoefficients()
-    c.sigma_a = wp.vec3(*params.sigma_a)
+    c.sigma_a = wp.vec3(*params.absorption)
     c.eta = float(params.eta)
     # The per-lobe normalisations are per material: formed here once, in float64.
     v = params.lobe_variances
@@ -81,12 +81,6 @@ class LobeSetup:
     A: mat43  # attenuation per lobe (rows), RGB
     prob: wp.vec4  # lobe selection probabilities ∝ channel mean of A_p
     c: HairCoefficients
-
-
-@wp.func
-def cos_from_sin(sin_x: float):
-    """cos x ≥ 0 from sin x as sqrt((1 − sin)(1 + sin)): no cancellation near grazing, unlike 1 − sin²."""
-    return wp.sqrt(wp.max(0.0, (1.0 - sin_x) * (1.0 + sin_x)))
 
 
 @wp.func

@@ -10,8 +10,8 @@
     J = hair_value_jacobian(setup, d_setup, derivs, lobes)      # ... J[c, k] = ∂S_c/∂θ_k there
 
 S and pdf are those of `hair_value_pdf` (the same operations on the same values), so the gradient tracer follows
-the renderer's paths, and J differentiates that same evaluation of the lobes. `bsdf_grad` (Warp's reverse mode
-through the model as written) is the independent check of J: tests/test_bsdf_jacobian.py.
+the renderer's paths, and J differentiates that same evaluation of the lobes. tests/helpers/bsdf_grad.py (Warp's
+reverse mode through the model as written) is the independent check of J: tests/test_bsdf_jacobian.py.
 
 Structure. S_c = Σ_p D_p A_pc with D_p = M_p N_p the same for every channel, so
 
@@ -38,9 +38,9 @@ import math
 import numpy as np
 import warp as wp
 
-from ..controls import THETA_SIZE, column
-from .hair_bsdf import LobeSetup, cos_from_sin
-from ..numerics import INV_TWO_PI
+from ..controls import COLOUR_CONTROL_NAMES, CONTROLS, SCALAR_CONTROLS, THETA_SIZE, column
+from .hair_bsdf import LobeSetup
+from ..numerics import INV_TWO_PI, cos_from_sin
 from .lobes import (
     attenuation_partials,
     fresnel_dielectric_d_eta,
@@ -65,9 +65,14 @@ wp.set_module_options({"enable_backward": False})
 # θ as kernels carry it, and ∂S_c/∂θ_k (rows: channels of S).
 controls_vec = wp.types.vector(length=THETA_SIZE, dtype=wp.float32)
 value_jacobian_mat = wp.types.matrix(shape=(3, THETA_SIZE), dtype=wp.float32)
-_BETA_M, _BETA_N, _ALPHA, _ETA, _R_ROUGHNESS_SCALE = (
-    column(name) for name in ("beta_m", "beta_n", "alpha", "eta", "r_roughness_scale")
-)
+# The scalar controls whose columns hair_value_jacobian fills (after the colour's). A control added to the table
+# without its derivative here stops the import, rather than fitting with a gradient of 0.
+_DIFFERENTIATED = ("beta_m", "beta_n", "alpha", "eta", "r_roughness_scale")
+if set(_DIFFERENTIATED) != set(SCALAR_CONTROLS):
+    raise ImportError(f"model/jacobian.py differentiates {_DIFFERENTIATED}, the table has {SCALAR_CONTROLS}")
+_COLOUR_COLUMNS = 3
+assert all(k < _COLOUR_COLUMNS for name in COLOUR_CONTROL_NAMES for k in CONTROLS[name].columns)
+_BETA_M, _BETA_N, _ALPHA, _ETA, _R_ROUGHNESS_SCALE = (column(name) for name in _DIFFERENTIATED)
 
 # ∂θ_o,p/∂α of the tilted angles (R: θ_o + 2α, TT: θ_o − α, TRT: θ_o − 4α, residual: θ_o), per degree of α.
 _TILT = wp.constant(wp.vec4(2.0 * math.pi / 180.0, -math.pi / 180.0, -4.0 * math.pi / 180.0, 0.0))
@@ -113,7 +118,7 @@ def coefficient_derivatives(params: HairParams) -> CoefficientDerivatives:
         # σ_c = (ln albedo_c / P(β_n))², P with the material's own inversion coefficients
         d_colour = np.diag(2.0 * np.log(albedo) / (denominator * denominator * albedo))
         if _live(params.beta_n):
-            d_beta_n = -2.0 * params.sigma_a * _slope(polynomial, params.beta_n) / denominator
+            d_beta_n = -2.0 * params.absorption * _slope(polynomial, params.beta_n) / denominator
     elif mode == "sigma_a":
         d_colour = np.eye(3)
     else:
@@ -263,7 +268,7 @@ def hair_value_jacobian(L: LobeSetup, G: LobeSetupGrad, k: CoefficientDerivative
     d_scale = (d[0] * log_v[0] * k.d_log_v_r_d_scale) * L.A[0]
     J = value_jacobian_mat()
     for c in range(3):
-        for j in range(3):  # the colour's columns
+        for j in range(_COLOUR_COLUMNS):
             J[c, j] = d_sigma[c] * k.d_sigma_d_colour[c, j]
         J[c, _BETA_M] = d_beta_m[c]
         J[c, _BETA_N] = d_beta_n[c]

@@ -9,61 +9,9 @@ grazing angles, h = ±1, σ_a = 0).
 import numpy as np
 import warp as wp
 
-from ..numerics import PI, PI64, TWO_PI, TWO_PI64
+from ..numerics import PI, PI64, TWO_PI, TWO_PI64, bessel_i0e, bessel_i0e_with_log_slope, log1p, one_minus_exp_neg
 
 mat43 = wp.types.matrix(shape=(4, 3), dtype=wp.float32)
-
-
-@wp.func
-def bessel_i0e(x: float):
-    """I0(x)·e^(−x) for x ≥ 0 (Abramowitz & Stegun 9.8.1–9.8.2, relative error < 5e-7).
-
-    The scaled form never overflows, and its e^(−x) cancels the e^(+a) of M analytically (see below).
-    """
-    if x < 3.75:
-        t = x / 3.75
-        t = t * t
-        i0 = 1.0 + t * (3.5156229 + t * (3.0899424 + t * (1.2067492 + t * (0.2659732 + t * (0.0360768 + t * 0.0045813)))))
-        return i0 * wp.exp(-x)
-    y = 3.75 / x
-    poly = 0.39894228 + y * (
-        0.01328592
-        + y * (0.00225319 + y * (-0.00157565 + y * (0.00916281 + y * (-0.02057706 + y * (0.02635537 + y * (-0.01647633 + y * 0.00392377))))))
-    )
-    return poly / wp.sqrt(x)
-
-
-@wp.func
-def bessel_i0e_with_log_slope(x: float):
-    """(bessel_i0e(x), d ln bessel_i0e(x)/dx) from one evaluation of the same polynomials: the value by the same
-    operations as `bessel_i0e` (so the same float32 result), the slope the exact one of that value (within
-    5e-6 relative of I1(x)/I0(x) − 1 over [0, 1e6]).
-
-    Both slopes are sums of terms of one sign: for large x it is −(1/2 + y q'(y)/q(y))/x, with no 1 − I1/I0
-    cancellation.
-    """
-    if x < 3.75:
-        t = x / 3.75
-        t = t * t
-        i0 = 1.0 + t * (3.5156229 + t * (3.0899424 + t * (1.2067492 + t * (0.2659732 + t * (0.0360768 + t * 0.0045813)))))
-        d_i0 = 3.5156229 + t * (
-            2.0 * 3.0899424 + t * (3.0 * 1.2067492 + t * (4.0 * 0.2659732 + t * (5.0 * 0.0360768 + t * (6.0 * 0.0045813))))
-        )
-        return i0 * wp.exp(-x), d_i0 * (x * (2.0 / (3.75 * 3.75))) / i0 - 1.0
-    y = 3.75 / x
-    poly = 0.39894228 + y * (
-        0.01328592
-        + y * (0.00225319 + y * (-0.00157565 + y * (0.00916281 + y * (-0.02057706 + y * (0.02635537 + y * (-0.01647633 + y * 0.00392377))))))
-    )
-    d_poly = 0.01328592 + y * (
-        2.0 * 0.00225319
-        + y
-        * (
-            3.0 * -0.00157565
-            + y * (4.0 * 0.00916281 + y * (5.0 * -0.02057706 + y * (6.0 * 0.02635537 + y * (7.0 * -0.01647633 + y * (8.0 * 0.00392377)))))
-        )
-    )
-    return poly / wp.sqrt(x), -(0.5 + y * d_poly / poly) * (y * (1.0 / 3.75))  # 1/x = y/3.75: one division fewer
 
 
 def longitudinal_norm(v):
@@ -79,14 +27,6 @@ def logistic_norm(s):
 def logistic_tail(s):
     """CDF(−π) = 1 / (1 + e^(π/s)) of the logistic of scale s, without overflow for small s."""
     return np.exp(-np.logaddexp(0.0, np.pi / s))
-
-
-@wp.func
-def one_minus_exp_neg(y: float):
-    """1 − e^(−y) for y ≥ 0 without the cancellation of the direct form at small y (rough lobes, v ≫ 1)."""
-    if y < 0.1:
-        return y * (1.0 - y * (0.5 - y * (1.0 / 6.0 - y * (1.0 / 24.0))))
-    return 1.0 - wp.exp(-y)
 
 
 @wp.func
@@ -111,15 +51,6 @@ def longitudinal_scattering(sin_i: float, cos_i: float, sin_o: float, cos_o: flo
     """
     e = cos_sum_minus_one(sin_i, cos_i, sin_o, cos_o)
     return bessel_i0e(cos_i * cos_o * inv_v) * wp.exp(e * inv_v) * norm
-
-
-@wp.func
-def log1p(x: float):
-    """ln(1 + x) to full relative precision for small x (Goldberg's trick: the rounding of 1 + x cancels)."""
-    y = 1.0 + x
-    if y == 1.0:
-        return x
-    return wp.log(y) * x / (y - 1.0)
 
 
 @wp.func

@@ -9,18 +9,15 @@ the derived coefficients (σ_a, per-lobe longitudinal variance, logistic scale, 
 
 from __future__ import annotations
 
+import inspect
 import math
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
 from .. import validate
-from ..controls import COLOUR_CONTROL_NAMES, CONTROL_NAMES, CONTROLS, controls_of, describe
-
-# Below this roughness the lobes are narrower than float32 angles can resolve, and at 0 the mappings give
-# v = s = 0 (a delta lobe no path tracer can sample). pbrt, Mitsuba and Cycles clamp the same way.
-BETA_FLOOR = 0.01
+from ..controls import BETA_FLOOR, COLOUR_CONTROL_NAMES, COLOUR_CONTROLS, CONTROL_NAMES, CONTROLS, controls_of, describe
 
 # d'Eon et al. 2011 absorption of the two melanins per unit fiber radius (docs/MODEL.md, "From artist controls").
 EUMELANIN_SIGMA_A = np.array([0.419, 0.697, 1.37])
@@ -36,10 +33,24 @@ def effective_beta(beta):
     return np.maximum(beta, BETA_FLOOR)
 
 
+# The talk's roughness mappings (docs/MODEL.md, "From artist controls"), as plain arithmetic so that they also take
+# complex steps (jacobian.py's derivatives). The exporters write them for renderers whose own floor differs
+# (export/materialx.py, export/cycles.py): the polynomials are here once, without the floor.
+
+
+def longitudinal_polynomial(beta):
+    """0.726 β + 0.812 β² + 3.7 β²⁰, whose square is the longitudinal variance v(β) (no floor)."""
+    return 0.726 * beta + 0.812 * beta**2 + 3.7 * beta**20
+
+
+def logistic_polynomial(beta):
+    """0.265 β + 1.194 β² + 5.372 β²², the logistic scale s(β) without the factor sqrt(π/8) (no floor)."""
+    return 0.265 * beta + 1.194 * beta**2 + 5.372 * beta**22
+
+
 def longitudinal_variance(beta_m):
     """v(β_m) = (0.726 β + 0.812 β² + 3.7 β²⁰)², the variance of the R... TRT base lobe (docs/MODEL.md)."""
-    b = effective_beta(beta_m)
-    return (0.726 * b + 0.812 * b**2 + 3.7 * b**20) ** 2
+    return longitudinal_polynomial(effective_beta(beta_m)) ** 2
 
 
 def lobe_variances(beta_m, r_roughness_scale=1.0):
@@ -50,8 +61,7 @@ def lobe_variances(beta_m, r_roughness_scale=1.0):
 
 def logistic_scale(beta_n):
     """s(β_n) = sqrt(π/8)(0.265 β + 1.194 β² + 5.372 β²²); the talk omits sqrt(π/8), all renderers keep it."""
-    b = effective_beta(beta_n)
-    return math.sqrt(math.pi / 8.0) * (0.265 * b + 1.194 * b**2 + 5.372 * b**22)
+    return math.sqrt(math.pi / 8.0) * logistic_polynomial(effective_beta(beta_n))
 
 
 # The albedo inversion σ_a = (ln c / P(β_n))², P(b) = Σ_k p_k b^k of degree 5: the coefficients p_0 ... p_5 that
@@ -71,7 +81,7 @@ def albedo_denominator(beta_n, coefficients):
 
 def albedo_polynomial(b, coefficients):
     """albedo_denominator without the floor: plain arithmetic (Horner), so it also takes torch tensors (the fit's
-    latents) and complex steps (bsdf_jacobian's derivatives)."""
+    latents) and complex steps (model.jacobian's derivatives)."""
     value = 0.0
     for p in reversed(coefficients):
         value = value * b + float(p)
@@ -86,9 +96,9 @@ def sigma_a_from_albedo(albedo, beta_n, coefficients):
 def check_albedo_inversion(coefficients, name="albedo_inversion"):
     """The coefficients p_0 ... p_5 as a tuple of floats, or a ValueError naming `name` if there are not six
     finite numbers or if P(β_n) is not positive over all of [0.01, 1]."""
-    values = np.atleast_1d(np.asarray(coefficients, dtype=object)).ravel()
+    values = np.atleast_1d(np.asarray(coefficients, dtype=object))
     count = ALBEDO_INVERSION_DEGREE + 1
-    if values.size != count:
+    if values.shape != (count,):  # a nested list is not flattened
         raise ValueError(
             f"{name} must be {count} numbers (p_0 ... p_{ALBEDO_INVERSION_DEGREE} of P(β_n) = Σ p_k β_n^k), "
             f"got {coefficients!r}"
@@ -118,31 +128,57 @@ def _real(name, value):
     return validate.real(name, value)
 
 
-def _rgb_control(name, value):
-    """An RGB control's value, each channel checked against the control's range."""
-    values = _rgb(name, value)
-    for c, v in zip("rgb", values):
-        CONTROLS[name].check(v, f"{name}[{c}]")
-    return values
-
-
-def _scalar_control(name, value):
-    value = _real(name, value)
-    CONTROLS[name].check(value)
-    return value
-
-
 def _rgb(name, value):
-    """An RGB triple from a number (grey) or a sequence of three numbers."""
-    values = np.atleast_1d(np.asarray(value, dtype=object)).ravel()
+    """An RGB triple from a number (grey) or a flat sequence of one or three numbers."""
+    values = np.asarray(value, dtype=object)
+    if values.ndim > 1 or values.size not in (1, 3):
+        raise ValueError(f"{name} must be one number or three (RGB), in a flat list, got {value!r}")
+    values = np.atleast_1d(values)
     if values.size == 1:
         values = np.repeat(values, 3)
-    if values.size != 3:
-        raise ValueError(f"{name} must be one number or three (RGB), got {value!r}")
     return tuple(_real(f"{name}[{c}]", v) for c, v in zip("rgb", values))
 
 
-@dataclass(frozen=True)
+def _checked(name, value):
+    """A control's value as HairParams keeps it (a float, or a tuple of three), checked against the table; below
+    a control's floor, a warning that the floor is rendered."""
+    control = CONTROLS[name]
+    if control.size == 3:
+        value = _rgb(name, value)
+        for c, v in zip("rgb", value):
+            control.check(v, f"{name}[{c}]")
+        return value
+    value = _real(name, value)
+    control.check(value)
+    if control.floor is not None and value < control.floor:
+        warnings.warn(
+            f"{name} = {value} is below {control.floor}, the narrowest lobe the model can sample; "
+            f"it is rendered as {control.floor}",
+            stacklevel=3,  # HairParams' caller
+        )
+    return value
+
+
+def _given_colour(controls: dict) -> str:
+    """The one colour input among the given controls, or a ValueError listing what was given."""
+    given = [colour_input for colour_input, names in COLOUR_CONTROLS.items()
+             if any(controls.get(name) is not None for name in names)]
+    if len(given) != 1:
+        found = ", ".join("/".join(COLOUR_CONTROLS[g]) for g in given) if given else "none"
+        *first, last = ("/".join(names) for names in COLOUR_CONTROLS.values())
+        allowed = f"{', '.join(first)}, or {last}"
+        raise ValueError(f"HairParams needs exactly one colour input: {allowed} (got {found})")
+    return given[0]
+
+
+def _fields() -> dict:
+    """HairParams' fields: one per control of the table, named as the control, then the albedo inversion."""
+    fields = {name: "tuple | None" if control.size == 3 else "float | None" for name, control in CONTROLS.items()}
+    fields[ALBEDO_INVERSION_KEY] = "tuple"
+    return fields
+
+
+@dataclass(frozen=True, init=False)
 class HairParams:
     """The artist controls of the Chiang et al. 2015 hair/fur model (the table: `warp_hair.controls`).
 
@@ -157,95 +193,47 @@ class HairParams:
 
     {table}
 
+    Each control is an attribute of the same name, holding the value as given (RGB as a tuple of three; the
+    colour inputs not given are None). The absorption the model uses, whatever the colour input, is
+    ``absorption`` (``sigma_a`` is the input).
+
     ``albedo_inversion`` is not a control but the calibration behind the albedo input: the coefficients
     p_0 ... p_5 of P(β_n) in σ_a = (ln c / P(β_n))², by default the talk's (TALK_ALBEDO_INVERSION); P must be
     positive over [0.01, 1]. `warp-hair calibrate` fits them for a given assembly and lighting.
     """
 
-    albedo: tuple | None = None
-    sigma_a_input: tuple | None = field(default=None, repr=False)
-    eumelanin: float | None = None
-    pheomelanin: float | None = None
-    beta_m: float = CONTROLS["beta_m"].default
-    beta_n: float = CONTROLS["beta_n"].default
-    alpha: float = CONTROLS["alpha"].default
-    eta: float = CONTROLS["eta"].default
-    r_roughness_scale: float = CONTROLS["r_roughness_scale"].default
-    albedo_inversion: tuple = TALK_ALBEDO_INVERSION
+    __annotations__ = _fields()
 
-    def __init__(
-        self,
-        *,
-        albedo=None,
-        sigma_a=None,
-        eumelanin=None,
-        pheomelanin=None,
-        beta_m=CONTROLS["beta_m"].default,
-        beta_n=CONTROLS["beta_n"].default,
-        alpha=CONTROLS["alpha"].default,
-        eta=CONTROLS["eta"].default,
-        r_roughness_scale=CONTROLS["r_roughness_scale"].default,
-        albedo_inversion=TALK_ALBEDO_INVERSION,
-    ):
-        given = [name for name, v in (("albedo", albedo), ("sigma_a", sigma_a)) if v is not None]
-        if eumelanin is not None or pheomelanin is not None:
-            given.append("eumelanin/pheomelanin")
-        if len(given) != 1:
-            found = ", ".join(given) if given else "none"
-            raise ValueError(
-                "HairParams needs exactly one colour input: albedo, sigma_a, or eumelanin/pheomelanin "
-                f"(got {found})"
-            )
-        set_ = object.__setattr__
-        if albedo is not None:
-            albedo = _rgb_control("albedo", albedo)
-        if sigma_a is not None:
-            sigma_a = _rgb_control("sigma_a", sigma_a)
-        if eumelanin is not None or pheomelanin is not None:
-            eumelanin = _real("eumelanin", CONTROLS["eumelanin"].default if eumelanin is None else eumelanin)
-            pheomelanin = _real("pheomelanin", CONTROLS["pheomelanin"].default if pheomelanin is None else pheomelanin)
-            CONTROLS["eumelanin"].check(eumelanin)
-            CONTROLS["pheomelanin"].check(pheomelanin)
-        beta_m, beta_n = _real("beta_m", beta_m), _real("beta_n", beta_n)
-        for name, b in (("beta_m", beta_m), ("beta_n", beta_n)):
-            CONTROLS[name].check(b)
-            if b < BETA_FLOOR:
-                warnings.warn(
-                    f"{name} = {b} is below {BETA_FLOOR}, the narrowest lobe the model can sample; "
-                    f"it is rendered as {BETA_FLOOR}",
-                    stacklevel=2,
-                )
-        alpha = _scalar_control("alpha", alpha)
-        eta = _scalar_control("eta", eta)
-        r_roughness_scale = _scalar_control("r_roughness_scale", r_roughness_scale)
-
-        set_(self, "albedo", albedo)
-        set_(self, "sigma_a_input", sigma_a)
-        set_(self, "eumelanin", eumelanin)
-        set_(self, "pheomelanin", pheomelanin)
-        set_(self, "beta_m", beta_m)
-        set_(self, "beta_n", beta_n)
-        set_(self, "alpha", alpha)
-        set_(self, "eta", eta)
-        set_(self, "r_roughness_scale", r_roughness_scale)
-        set_(self, "albedo_inversion", check_albedo_inversion(albedo_inversion))
+    def __init__(self, **controls):
+        unknown = sorted(set(controls) - set(CONTROL_NAMES) - {ALBEDO_INVERSION_KEY})
+        if unknown:
+            raise TypeError(f"HairParams got unknown control(s) {unknown}; allowed: {list(CONTROL_NAMES)}")
+        colour_input = _given_colour(controls)
+        for name, control in CONTROLS.items():
+            if control.colour_input is None:
+                value = _checked(name, controls.get(name, control.default))
+            elif control.colour_input == colour_input:
+                value = controls.get(name)
+                value = _checked(name, control.default if value is None else value)  # a melanin not given is 0
+            else:
+                value = None
+            object.__setattr__(self, name, value)
+        inversion = controls.get(ALBEDO_INVERSION_KEY, TALK_ALBEDO_INVERSION)
+        object.__setattr__(self, ALBEDO_INVERSION_KEY, check_albedo_inversion(inversion))
 
     @property
     def colour_input(self) -> str:
         """Which colour control the user gave: "albedo", "sigma_a" or "melanin"."""
-        if self.albedo is not None:
-            return "albedo"
-        if self.sigma_a_input is not None:
-            return "sigma_a"
-        return "melanin"
+        return _given_colour({name: getattr(self, name) for name in COLOUR_CONTROL_NAMES})
 
     @property
-    def sigma_a(self) -> np.ndarray:
-        """The absorption coefficient (RGB, per unit fiber radius) the model uses, whatever the colour input."""
+    def absorption(self) -> np.ndarray:
+        """σ_a, the absorption coefficient (RGB, per unit fiber radius) the model uses, whatever the colour input:
+        derived from the albedo or the melanins, or the ``sigma_a`` input itself."""
         if self.albedo is not None:
             return sigma_a_from_albedo(self.albedo, self.beta_n, self.albedo_inversion)
-        if self.sigma_a_input is not None:
-            return np.array(self.sigma_a_input, dtype=np.float64)
+        if self.sigma_a is not None:
+            return np.array(self.sigma_a, dtype=np.float64)
         return sigma_a_from_melanin(self.eumelanin, self.pheomelanin)
 
     @property
@@ -263,7 +251,7 @@ class HairParams:
         `to_table`)."""
         d = {}
         for name in controls_of(self.colour_input):
-            value = getattr(self, "sigma_a_input" if name == "sigma_a" else name)
+            value = getattr(self, name)
             d[name] = list(value) if CONTROLS[name].size == 3 else value
         return d
 
@@ -315,3 +303,9 @@ def _inversion_table(table, where) -> tuple:
 
 
 HairParams.__doc__ = HairParams.__doc__.replace("{table}", describe().replace("\n", "\n    "))
+# help() and editors show the keywords the table gives (the constructor takes them as **controls).
+HairParams.__signature__ = inspect.Signature(
+    [inspect.Parameter(name, inspect.Parameter.KEYWORD_ONLY, default=None if c.colour_input else c.default)
+     for name, c in CONTROLS.items()]
+    + [inspect.Parameter(ALBEDO_INVERSION_KEY, inspect.Parameter.KEYWORD_ONLY, default=TALK_ALBEDO_INVERSION)]
+)

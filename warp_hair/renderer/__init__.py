@@ -1,9 +1,10 @@
-"""The path tracer and its derivatives with respect to the hair controls.
+"""The path tracer and its derivatives with respect to the hair controls, in the order a newcomer reads them.
 
-- prepare.py: a scene made ready on a device (BVH, camera, lights, card), built once for many renders.
-- forward.py: `render`, and the pixel kernel that the forward and gradient passes share.
-- jacobian.py: `render_jacobian`, the per-pixel ∂image/∂θ from one pass; gradients.py: `render_grad`, its
-  contraction with an adjoint (docs/gradients.md explains the estimator).
+- render.py: `render`, the loop over pixels and their samples (pbrt's Render and EvaluatePixelSample) that the
+  image and its Jacobian share.
 - integrator.py: the path (`trace_path`, pbrt's Li) and next-event estimation over the lights (`sample_ld`).
+- prepare.py: a scene made ready on a device (BVH, camera, lights, card), built once for many renders.
+- gradients.py: `render_jacobian`, the per-pixel ∂image/∂θ from one pass, and `render_grad`, its contraction with
+  an adjoint (docs/gradients.md explains the estimator).
 - camera.py, envmap.py: camera rays and the environment light.
 """

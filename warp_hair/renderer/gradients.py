@@ -1,6 +1,13 @@
-"""Gradients of a rendered image's scalar loss with respect to the hair controls.
+"""Derivatives of a render with respect to the hair controls: per pixel, and of a scalar loss.
 
+    jac, image, stderr = render_jacobian(scene, spp=32, seed=1)   # jac (H, W, 3, 8): ∂image[y, x, c]/∂θ_k
     g = render_grad(scene, adjoint)     # {control: ∂L/∂control}, L = Σ_pixels Σ_c adjoint[y, x, c] image[y, x, c]
+
+`render_jacobian` launches the gradient variant of the renderer's pixel kernel (`render.make_pixel_kernel(True)`):
+the same paths as `render(scene, spp, seed)`, each with its (3, 8) Jacobian, so one pass gives the image, its
+standard errors and the whole Jacobian (memory: 24 floats per pixel, whatever the path depth). `render_grad`
+contracts it with an adjoint; the Gauss–Newton curvature of the fit (optimize/uncertainty.py) and the
+decorrelated image pairs of `warp_hair.torch.render_torch_pair` use it whole.
 
 For a loss ℓ(image), pass adjoint = ∂ℓ/∂image (for 0.5‖image − target‖², image − target; render that primal
 image with a different seed from the gradient pass, or the two estimates are correlated and the product biased).
@@ -11,8 +18,8 @@ colour input, ∂/∂β_n includes the chain through the albedo inversion (σ_a 
 The estimator is detached sampling (docs/gradients.md): each path is traced as `render` traces it, its
 directions, MIS weights and roulette probabilities held fixed, which is unbiased because the pdfs cancel. A
 contribution C is then a product of BSDF values over its vertices, so ∂C_c/∂θ = C_c Σ_vertices ∂ log S_c/∂θ,
-carried forward along the path with no tape (`render_jacobian` gives it per pixel; this module contracts it with
-the adjoint). Nothing of the geometry is differentiated, and the roughness floor (β = 0.01) is a clamp: ∂/∂β
+carried forward along the path with no tape (`render_jacobian` gives it per pixel; `render_grad` contracts it
+with the adjoint). Nothing of the geometry is differentiated, and the roughness floor (β = 0.01) is a clamp: ∂/∂β
 there is 0.
 """
 
@@ -21,9 +28,27 @@ from __future__ import annotations
 import numpy as np
 
 from ..controls import CONTROLS, named_theta
-from .prepare import PreparedScene, scene_of
-from .jacobian import render_jacobian
 from ..scene import Scene
+from .prepare import PreparedScene, scene_of
+from .render import render_pixels
+
+
+def render_jacobian(
+    scene: Scene | PreparedScene,
+    spp: int | None = None,
+    seed: int | None = None,
+    threads: int | None = None,
+    device: str | None = None,
+    pixels=None,
+):
+    """(jacobian (H, W, 3, 8) float32, image (H, W, 3), stderr (H, W, 3)) of `scene` at its own controls.
+
+    `scene` is a Scene or a PreparedScene (`prepare`, built once for many renders); spp and seed default to the
+    scene's [render] table; the image is `render(scene, spp, seed)`'s up to float rounding (the same paths).
+    `pixels`: only these flat pixel indices, as in `render`; the others are 0.
+    """
+    image, stderr, jacobian = render_pixels(scene, spp, seed, threads, device, True, pixels=pixels)
+    return jacobian, image, stderr
 
 
 def _check_adjoint(adjoint, shape) -> np.ndarray:
@@ -67,7 +92,7 @@ def render_grad(
 ):
     """{control: ∂L/∂control} for L = Σ adjoint ⊙ image, the image `render(scene, spp, seed)` would give.
 
-    `scene` may be prepared (`render.prepare`). adjoint: (H, W, 3), the image's shape, finite. spp and seed
+    `scene` may be prepared (`prepare.prepare`). adjoint: (H, W, 3), the image's shape, finite. spp and seed
     default to the scene's [render] table. With
     `return_image`, returns (gradients, image): the image of the same paths (equal to `render`'s up to float
     rounding).

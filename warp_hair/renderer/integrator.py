@@ -2,32 +2,37 @@
 
 At every fiber vertex the near-field BSDF is evaluated at the true offset h of the hit: the integral over h is
 left to the path tracer rather than folded into a far-field lobe. Lights: directional lights (deltas, reached by
-light sampling only), one environment (constant or an importance-sampled lat-long map; light and BSDF sampling
-combined by the power heuristic) and an optional diffuse backing card. Russian roulette after `rr_depth`
-bounces keeps long paths in light hair unbiased without paying for all of them.
+light sampling only) and one environment (constant or an importance-sampled lat-long map; light and BSDF
+sampling combined by the power heuristic). Surfaces: the fibers and an optional diffuse backing card. Russian
+roulette after `rr_depth` bounces keeps long paths in light hair unbiased without paying for all of them.
 
 The tracer is built as pbrt-v4 factors its path integrator: `trace_path` (pbrt's `Li`) walks the path, and
-`sample_ld` does next-event estimation over every kind of light; `make_trace_path(True)` compiles the gradient
-of the same walk in under `wp.static` branches (docs/gradients.md).
+`sample_ld` does next-event estimation over every kind of light. What the path meets at a vertex is a
+`material.Vertex`, used only through its interface (`bsdf_f`, `bsdf_sample`; pbrt's f, PDF and Sample_f): the
+tracer does not know whether it is on a fiber or on the card. `make_trace_path(True)` compiles the gradient of
+the same walk in under `wp.static` branches (docs/gradients.md).
 """
 
 import warp as wp
 
 from ..geometry.card import CardData, card_distance
-from ..geometry.intersect import FiberGeometry, FiberHit, fibers_occluded, intersect_fibers, shading_frame
-from ..model.hair_bsdf import HairCoefficients, LobeSetup, hair_sample, hair_value_pdf, lobe_setup
-from ..model.jacobian import (
-    CoefficientDerivatives,
-    LobeEvaluation,
-    LobeSetupGrad,
-    hair_value_jacobian,
-    hair_value_pdf_lobes,
-    lobe_setup_grad,
-    value_jacobian_mat,
-)
-from ..numerics import FLOAT32_MIN_NORMAL, INV_PI, NO_HIT, TWO_PI
+from ..geometry.intersect import FiberGeometry, fibers_occluded, intersect_fibers
+from ..model.hair_bsdf import HairCoefficients
+from ..model.jacobian import CoefficientDerivatives, LobeEvaluation, value_jacobian_mat
+from ..numerics import FLOAT32_MIN_NORMAL, NO_HIT, power_heuristic, rand2, to_local, to_world
 from .camera import CameraData
 from .envmap import EnvironmentData, env_pdf, env_radiance, env_sample
+from .material import (
+    Vertex,
+    bsdf_can_reach,
+    bsdf_f,
+    bsdf_f_grad,
+    bsdf_sample,
+    bsdf_setup_grad,
+    bsdf_value_jacobian,
+    depends_on_controls,
+    scattering_vertex,
+)
 
 # Forward only (the gradient tracer carries its derivatives forward itself, see `make_trace_path`); -O3 for the
 # renderer's hot loop.
@@ -55,12 +60,6 @@ class SceneData:
 
 
 @wp.func
-def power_heuristic(pdf_a: float, pdf_b: float):
-    a = pdf_a * pdf_a
-    return a / (a + pdf_b * pdf_b)
-
-
-@wp.func
 def occluded(scene: SceneData, origin: wp.vec3, direction: wp.vec3):
     """Whether a shadow ray toward a light at infinity is blocked (by a fiber or by the card)."""
     if card_distance(scene.card, origin, direction) < NO_HIT:
@@ -69,56 +68,12 @@ def occluded(scene: SceneData, origin: wp.vec3, direction: wp.vec3):
 
 
 @wp.func
-def light_visible(scene: SceneData, on_card: bool, position: wp.vec3, to_light: wp.vec3, w_light: wp.vec3):
-    """Whether a light sample (world direction to_light, local w_light) is unoccluded. Below the card's surface
-    its S is 0: no shadow ray is traced for those."""
-    if on_card and w_light[2] <= 0.0:
+def light_visible(scene: SceneData, v: Vertex, to_light: wp.vec3, w_light: wp.vec3):
+    """Whether a light sample (world direction to_light, local w_light) is unoccluded. Where the material's S
+    toward it is 0 anyway (below the card), no shadow ray is traced."""
+    if not bsdf_can_reach(v, w_light):
         return False
-    return not occluded(scene, position, to_light)
-
-
-@wp.func
-def to_local(w: wp.vec3, x: wp.vec3, y: wp.vec3, z: wp.vec3):
-    return wp.vec3(wp.dot(w, x), wp.dot(w, y), wp.dot(w, z))
-
-
-@wp.func
-def to_world(w: wp.vec3, x: wp.vec3, y: wp.vec3, z: wp.vec3):
-    return w[0] * x + w[1] * y + w[2] * z
-
-
-@wp.func
-def cosine_hemisphere(u: wp.vec2):
-    """A cosine-distributed direction about +z (Malley: project a uniform disk sample up)."""
-    r = wp.sqrt(u[0])
-    phi = TWO_PI * u[1]
-    return wp.vec3(r * wp.cos(phi), r * wp.sin(phi), wp.sqrt(wp.max(0.0, 1.0 - u[0])))
-
-
-@wp.func
-def card_frame_x(n: wp.vec3):
-    """Any unit vector ⊥ n (Duff et al. 2017)."""
-    sign = wp.where(n[2] >= 0.0, 1.0, -1.0)
-    a = -1.0 / (sign + n[2])
-    b = n[0] * n[1] * a
-    return wp.vec3(1.0 + sign * n[0] * n[0] * a, sign * b, -sign * n[0])
-
-
-@wp.func
-def rand2(rng: wp.uint32):
-    a = wp.randf(rng)
-    b = wp.randf(rng)
-    return wp.vec2(a, b), rng
-
-
-@wp.func
-def scatter_value_pdf(scene: SceneData, on_card: bool, setup: LobeSetup, wi: wp.vec3):
-    """(cosine-weighted value, solid-angle pdf) of the vertex's BSDF toward local direction wi."""
-    if on_card:
-        if wi[2] <= 0.0:
-            return wp.vec3(0.0), 0.0
-        return wi[2] * INV_PI * scene.card.albedo, wi[2] * INV_PI
-    return hair_value_pdf(setup, wi)
+    return not occluded(scene, v.position, to_light)
 
 
 @wp.func
@@ -161,28 +116,6 @@ def _named(f, name: str):
 
 
 @wp.func
-def shading_point(scene: SceneData, hit: FiberHit, t_card: float, o: wp.vec3, d: wp.vec3):
-    """(on_card, position, x, y, z, h): where the ray o + t d scatters, and the shading frame there. At a fiber,
-    x along it (turning smoothly along the strand), z its normal and h the offset across it (docs/MODEL.md,
-    "Shading frame"); at the card, z its normal turned toward the incoming ray, the position lifted off it."""
-    on_card = t_card < hit.t
-    x = hit.tangent
-    z = hit.normal
-    h = hit.h
-    if not on_card:
-        x, z, h = shading_frame(scene.fibers, hit, d)
-    position = hit.position
-    if on_card:
-        z = scene.card.normal
-        if wp.dot(z, d) > 0.0:
-            z = -z
-        x = card_frame_x(z)
-        position = o + t_card * d + 1.0e-5 * z
-    y = wp.cross(z, x)
-    return on_card, position, x, y, z, h
-
-
-@wp.func
 def escaped(scene: SceneData, throughput: wp.vec3, d: wp.vec3, prev_pdf: float, select_pdf: float):
     """The environment's contribution to a ray that leaves the scene, MIS-weighted against light sampling (a
     camera ray, prev_pdf = 0, takes it whole)."""
@@ -215,18 +148,6 @@ def light_radiance(scene: SceneData, k: int, direction: wp.vec3):
 
 
 @wp.func
-def sample_continuation(on_card: bool, setup: LobeSetup, rng: wp.uint32):
-    """(local direction, rng): the next direction of the path, drawn from the vertex's BSDF."""
-    wi = wp.vec3(0.0)
-    if on_card:
-        u2, rng = rand2(rng)
-        wi = cosine_hemisphere(u2)
-    else:
-        wi = hair_sample(setup, wp.vec3(wp.randf(rng), wp.randf(rng), wp.randf(rng)))
-    return wi, rng
-
-
-@wp.func
 def roulette(throughput: wp.vec3, rng: wp.uint32):
     """(alive, throughput, rng): the path survives with probability q = min(1, max_c throughput_c), and its
     throughput is divided by q if it does, which keeps the estimate unbiased."""
@@ -239,43 +160,25 @@ def roulette(throughput: wp.vec3, rng: wp.uint32):
     return alive, throughput, rng
 
 
-def make_scatter(differentiable: bool):
-    """`scatter(scene, on_card, setup, wi) -> (value, pdf, lobes)`: the vertex's cosine-weighted BSDF value and
-    solid-angle pdf toward local wi; with `differentiable`, at a fiber also the evaluation of its lobes that
-    `hair_value_jacobian` differentiates (the forward variant returns an empty one)."""
-
-    def scatter(scene: SceneData, on_card: bool, setup: LobeSetup, wi: wp.vec3):
-        if wp.static(differentiable):
-            if not on_card:
-                value, density, lobes = hair_value_pdf_lobes(setup, wi)
-                return value, density, lobes
-        value, density = scatter_value_pdf(scene, on_card, setup, wi)
-        return value, density, LobeEvaluation()
-
-    return _named(scatter, "scatter_grad" if differentiable else "scatter")
-
-
-def make_sample_ld(differentiable: bool, scatter):
+def make_sample_ld(differentiable: bool):
     """Next-event estimation at a vertex, over every kind of light (pbrt's SampleLd):
 
-    sample_ld(scene, on_card, position, x, y, z, setup, throughput, num_emitters, select_pdf, rng)
+    sample_ld(scene, v, throughput, num_emitters, select_pdf, rng)
         -> (lit, contribution, S toward the light, lobes toward the light, rng)
 
     One emitter is chosen uniformly (one shadow ray per vertex whatever the number of lights, as in Mitsuba),
     then a direction toward it. The sample is tested for occlusion before the BSDF is evaluated toward it: an
     occluded sample, often most of them inside an assembly, then costs no evaluation. A directional light is a
     delta that BSDF sampling cannot hit: its sample is not weighted. The environment's is combined with BSDF
-    sampling by the power heuristic (`escaped` takes the other side). `scatter` is `make_scatter(differentiable)`.
+    sampling by the power heuristic (`escaped` takes the other side). With `differentiable`, `lobes` is the
+    evaluation of the material toward the light that `bsdf_value_jacobian` differentiates.
     """
+
+    f_bsdf = bsdf_f_grad if differentiable else bsdf_f
 
     def sample_ld(
         scene: SceneData,
-        on_card: bool,
-        position: wp.vec3,
-        x: wp.vec3,
-        y: wp.vec3,
-        z: wp.vec3,
-        setup: LobeSetup,
+        v: Vertex,
         throughput: wp.vec3,
         num_emitters: int,
         select_pdf: float,
@@ -289,9 +192,9 @@ def make_sample_ld(differentiable: bool, scatter):
         value = wp.vec3(0.0)
         lobes = LobeEvaluation()
         if light_pdf > 0.0:
-            w_light = to_local(to_light, x, y, z)
-            if light_visible(scene, on_card, position, to_light, w_light):
-                value, pdf_bsdf, lobes = scatter(scene, on_card, setup, w_light)
+            w_light = to_local(to_light, v.x, v.y, v.z)
+            if light_visible(scene, v, to_light, w_light):
+                value, pdf_bsdf, lobes = f_bsdf(v, w_light)
                 if pdf_bsdf > 0.0:
                     lit = True
                     f = wp.cw_mul(throughput, wp.cw_mul(value, light_radiance(scene, k, to_light)))
@@ -308,25 +211,27 @@ def make_sample_ld(differentiable: bool, scatter):
 def make_trace_path(differentiable: bool):
     """The path tracer as a `wp.func` (pbrt's Li); with `differentiable` it also returns the path's ∂L/∂θ.
 
-    trace_path(scene, origin, direction, rng, derivs) -> (radiance, D, rng), `derivs` the material's
+    trace_path(scene, origin, direction, rng, derivs) -> (radiance, D, rng), `derivs` the hair's
     `model.jacobian.coefficient_derivatives` and D[c, k] = ∂L_c/∂θ_k, the (3, 8) Jacobian of the path's
     radiance. The forward variant ignores `derivs` and returns D = 0: the branches under wp.static are compiled
     out of it.
 
     The gradient (detached sampling; docs/gradients.md explains why it is unbiased): every contribution C of a
-    path is a product of BSDF values S_c over its fiber vertices divided by θ-independent factors (pdfs, MIS
+    path is a product of BSDF values S_c over its vertices divided by θ-independent factors (pdfs, MIS
     weights and roulette probabilities held fixed), so ∂C_c/∂θ_k = C_c Σ_vertices ∂ log S_c/∂θ_k. G[c, k]
     carries that sum over the vertices so far (at the directions the path continued in); each contribution
-    adds C_c (G[c, k] + ∂ log S_c(w_light)/∂θ_k at an NEE vertex on a fiber) to D[c, k]. Keeping the channels
-    apart gives the whole per-pixel Jacobian in one pass for what contracting them with an adjoint would cost;
-    memory is flat in the depth (no tape over the loop). The card does not depend on θ.
+    adds C_c (G[c, k] + ∂ log S_c(w_light)/∂θ_k at an NEE vertex that depends on θ) to D[c, k]. Keeping the
+    channels apart gives the whole per-pixel Jacobian in one pass for what contracting them with an adjoint would
+    cost; memory is flat in the depth (no tape over the loop). Vertices whose S does not depend on θ (the card)
+    add nothing to G.
 
-    ∂S/∂θ is in closed form (`model.jacobian`): at a fiber vertex `lobe_setup_grad` once (what depends on wo and
-    h), and `hair_value_jacobian` differentiates the very evaluation of the lobes that gave S and the pdf (so the
-    path is the forward renderer's): for the continuation, and toward the light only when the sample is lit.
+    ∂S/∂θ is in closed form (`model.jacobian`, through `material`): `bsdf_setup_grad` once per vertex (what
+    depends on wo and h), and `bsdf_value_jacobian` differentiates the very evaluation of the lobes that gave S
+    and the pdf (so the path is the forward renderer's): for the continuation, and toward the light only when
+    the sample is lit.
     """
-    scatter = make_scatter(differentiable)
-    sample_ld = make_sample_ld(differentiable, scatter)
+    f_bsdf = bsdf_f_grad if differentiable else bsdf_f
+    sample_ld = make_sample_ld(differentiable)
 
     def trace_path(
         scene: SceneData,
@@ -360,37 +265,29 @@ def make_trace_path(differentiable: bool):
             if depth >= scene.max_depth:
                 break
 
-            on_card, position, x, y, z, h = shading_point(scene, hit, t_card, o, d)
-            wo = to_local(-d, x, y, z)
-            setup = LobeSetup()
+            v = scattering_vertex(scene.fibers, scene.hair, scene.card, hit, t_card, o, d)
             if wp.static(differentiable):
-                d_setup = LobeSetupGrad()
-            if not on_card:
-                setup = lobe_setup(scene.hair, wo, h)
-                if wp.static(differentiable):
-                    d_setup = lobe_setup_grad(setup, wo, h)
+                dv = bsdf_setup_grad(v)
 
             if num_emitters > 0:
-                lit, nee, nee_value, lobes_light, rng = sample_ld(
-                    scene, on_card, position, x, y, z, setup, throughput, num_emitters, select_pdf, rng
-                )
+                lit, nee, nee_value, lobes_light, rng = sample_ld(scene, v, throughput, num_emitters, select_pdf, rng)
                 if lit:
                     radiance += nee
                     if wp.static(differentiable):
                         D += scaled_rows(nee, G)
-                        if not on_card:
+                        if depends_on_controls(v):
                             # C_c ∂ log S_c(w_light)/∂θ, only for lit light samples.
-                            J_light = hair_value_jacobian(setup, d_setup, derivs, lobes_light)
+                            J_light = bsdf_value_jacobian(v, dv, derivs, lobes_light)
                             D += scaled_rows(log_weights(nee, nee_value), J_light)
 
-            wi, rng = sample_continuation(on_card, setup, rng)
-            value, pdf, lobes = scatter(scene, on_card, setup, wi)
+            wi, rng = bsdf_sample(v, rng)
+            value, pdf, lobes = f_bsdf(v, wi)
             if pdf < FLOAT32_MIN_NORMAL:
                 break
             throughput = wp.cw_mul(throughput, value / pdf)
             prev_pdf = pdf
-            o = position
-            d = wp.normalize(to_world(wi, x, y, z))
+            o = v.position
+            d = wp.normalize(to_world(wi, v.x, v.y, v.z))
             depth += 1
 
             if depth >= scene.rr_depth:
@@ -399,8 +296,8 @@ def make_trace_path(differentiable: bool):
                     break
             if wp.static(differentiable):
                 # After roulette: a path it ends has no later contribution to carry the vertex's derivative to.
-                if not on_card:
-                    G = add_log_derivative(G, hair_value_jacobian(setup, d_setup, derivs, lobes), value)
+                if depends_on_controls(v):
+                    G = add_log_derivative(G, bsdf_value_jacobian(v, dv, derivs, lobes), value)
         return radiance, D, rng
 
     return _named(trace_path, "trace_path_grad" if differentiable else "trace_path")
@@ -408,22 +305,3 @@ def make_trace_path(differentiable: bool):
 
 trace_path = make_trace_path(False)
 trace_path_grad = make_trace_path(True)
-
-
-@wp.func
-def standard_error(total: wp.vec3, total_sq: wp.vec3, spp: int):
-    """Standard error of a pixel mean from the sum and the sum of squares of its own samples."""
-    n = float(spp)
-    mean = total / n
-    variance = (total_sq / n - wp.cw_mul(mean, mean)) * (n / wp.max(n - 1.0, 1.0))
-    return wp.vec3(
-        wp.sqrt(wp.max(variance[0], 0.0) / n), wp.sqrt(wp.max(variance[1], 0.0) / n), wp.sqrt(wp.max(variance[2], 0.0) / n)
-    )
-
-
-@wp.func
-def pixel_start(scene: SceneData, pixel: int, seed: int):
-    """(column, row, random stream) of a pixel. One stream per pixel: the image does not depend on how pixels are
-    split among threads, and the gradient pass with the same seed traces the same paths."""
-    width = scene.camera.width_px
-    return pixel % width, pixel / width, wp.rand_init(seed, pixel)

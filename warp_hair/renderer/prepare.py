@@ -25,6 +25,7 @@ from .camera import camera_data
 from .envmap import environment_data
 from .integrator import DirectionalLightData, SceneData
 
+
 class PreparedScene:
     """Everything a render kernel reads, built once per scene and device: the tubes and their BVH, the camera,
     the light tables, the card. `prepare(scene)` makes one; `render` and `render_jacobian` accept it in place of
@@ -76,7 +77,9 @@ class PreparedScene:
     def with_hair(self, hair: HairParams) -> "PreparedScene":
         """This prepared scene with other hair controls; the geometry, lights and camera are shared, not rebuilt."""
         if not isinstance(hair, HairParams):
-            raise TypeError(f"hair must be a HairParams (e.g. scene.hair.replace(albedo=...)), got {type(hair).__name__}")
+            raise TypeError(
+                f"hair must be a HairParams (e.g. scene.hair.replace(albedo=...)), got {type(hair).__name__}"
+            )
         other = copy.copy(self)
         other.scene = dataclasses.replace(self.scene, hair=hair)
         other.data = self._scene_data(hair_coefficients(hair))

@@ -9,8 +9,9 @@ Usage inside a kernel (`controls = hair_controls(params)` on the host):
     g = hair_value_pdf_vjp(controls, wo, wi, h, seed)  # Σ_r seed_r · J[r]: one row's cost (a seed of
                                                        # adjoint radiance weights needs no full Jacobian)
 A path tracer accumulates ∂ log S_c/∂θ_k as J[c, k] / S_c, with S_c from `hair_value_pdf` as before. The
-renderer's gradient tracer uses the closed form of `bsdf_jacobian` instead (one evaluation of the lobes for S
-and ∂S, no reverse pass); this module, Warp's reverse mode through the model as written, is its check.
+renderer's gradient tracer uses the closed form of `warp_hair.model.jacobian` instead (one evaluation of the
+lobes for S and ∂S, no reverse pass); this module, Warp's reverse mode through the model as written, is its
+check. It is test code (tests/test_bsdf_grad.py, test_bsdf_jacobian.py, test_controls.py) and not shipped.
 
 Call these two from a kernel, or from a `wp.func` that itself calls `wp.grad`. Warp 1.19 emits every function
 that calls `wp.grad` after all others (they call adjoints, which are emitted in between), so a plain
@@ -51,13 +52,14 @@ import math
 import numpy as np
 import warp as wp
 
-from ..controls import COLOUR_INPUTS, THETA_SIZE, column, named_theta, theta_vector
-from ..controls import SCALAR_CONTROLS as SCALAR_NAMES
-from ..model.bsdf import _check_params, _directions, _launch, _offsets
-from ..model.jacobian import controls_vec
-from ..model.hair_bsdf import HairCoefficients, hair_value_pdf, lobe_setup
-from ..numerics import PI
-from ..model.params import ALBEDO_INVERSION_DEGREE, BETA_FLOOR, EUMELANIN_SIGMA_A, PHEOMELANIN_SIGMA_A, HairParams
+from warp_hair.controls import COLOUR_INPUTS, THETA_SIZE, column, named_theta, theta_vector
+from warp_hair.controls import SCALAR_CONTROLS as SCALAR_NAMES
+from warp_hair.model.bsdf import check_directions, check_offsets, check_params, launch_batch
+from warp_hair.model.hair_bsdf import HairCoefficients, hair_value_pdf, lobe_setup
+from warp_hair.model.jacobian import controls_vec
+from warp_hair.model.params import (ALBEDO_INVERSION_DEGREE, BETA_FLOOR, EUMELANIN_SIGMA_A, PHEOMELANIN_SIGMA_A,
+                                    HairParams)
+from warp_hair.numerics import PI
 
 # wp.grad runs forward only: the kernels here need no backward pass of their own.
 wp.set_module_options({"enable_backward": False})
@@ -243,11 +245,11 @@ def _vjp_kernel(
 
 def _gradients(params, wo, wi, h, rows, threads, device) -> np.ndarray:
     """(N, len(rows), 8): the chosen rows of the Jacobian per item, after the checks of `bsdf.eval`."""
-    _check_params(params)  # the type check; the coefficients are rebuilt in the kernel from the controls
+    check_params(params)  # the type check; the coefficients are rebuilt in the kernel from the controls
     seeds = wp.array(np.eye(4, dtype=np.float32)[list(rows)], dtype=wp.vec4, device=device)
-    items = dict(wo=_directions("wo", wo), wi=_directions("wi", wi), h=_offsets(h))
+    items = dict(wo=check_directions("wo", wo), wi=check_directions("wi", wi), h=check_offsets(h))
     leading = [hair_controls(params), seeds]
-    return _launch(_vjp_kernel, leading, items, [((len(rows),), controls_vec)], threads, device)[0]
+    return launch_batch(_vjp_kernel, leading, items, [((len(rows),), controls_vec)], threads, device)[0]
 
 
 def _by_control(params: HairParams, g: np.ndarray) -> dict:

@@ -1,11 +1,13 @@
-"""Render a scene: the pixel loop of the path tracer, shared by the image and its Jacobian.
+"""Render a scene: the loop over pixels and their samples (pbrt's Render and EvaluatePixelSample), shared by the
+image and its Jacobian.
 
     image = render(scene, spp=64, seed=1)                # linear radiance (H, W, 3), row 0 at the top
 
-One kernel factory makes both passes: `render` launches its forward variant, `render_jacobian` its gradient
-variant, which traces the same paths (same seed, same random streams) and also sums each path's Jacobian. The
-image is split into ranges of pixels launched from a thread pool (a Warp CPU launch runs on one core); every
-pixel owns its random stream, so the image depends on the seed only, not on the threads.
+One kernel factory makes both passes: `render` launches its forward variant, `gradients.render_jacobian` its
+gradient variant, which traces the same paths (same seed, same random streams) and also sums each path's
+Jacobian. Each sample is a camera ray handed to the path tracer (`integrator.trace_path`, pbrt's Li). The image is
+split into ranges of pixels launched from a thread pool (a Warp CPU launch runs on one core); every pixel owns its
+random stream, so the image depends on the seed only, not on the threads.
 """
 
 from __future__ import annotations
@@ -14,10 +16,11 @@ import numpy as np
 import warp as wp
 
 from ..model.jacobian import CoefficientDerivatives, coefficient_derivatives, value_jacobian_mat
+from ..numerics import rand2
 from ..parallel import launch_ranges
 from ..scene import Scene
 from .camera import generate_ray
-from .integrator import SceneData, pixel_start, rand2, standard_error, trace_path, trace_path_grad
+from .integrator import SceneData, trace_path, trace_path_grad
 from .prepare import PreparedScene, prepare, sampling
 
 # Pixels per range handed to a thread: fiber pixels cost far more than background ones, and small ranges
@@ -32,13 +35,35 @@ def tile_pixels(spp: int) -> int:
     return max(1, TILE_PIXELS * TILE_SPP // max(spp, TILE_SPP))
 
 
-def make_render_kernel(differentiable: bool):
+@wp.func
+def pixel_start(scene: SceneData, pixel: int, seed: int):
+    """(column, row, random stream) of a pixel. One stream per pixel: the image does not depend on how pixels are
+    split among threads, and the gradient pass with the same seed traces the same paths."""
+    width = scene.camera.width_px
+    return pixel % width, pixel / width, wp.rand_init(seed, pixel)
+
+
+@wp.func
+def standard_error(total: wp.vec3, total_sq: wp.vec3, spp: int):
+    """Standard error of a pixel mean from the sum and the sum of squares of its own samples."""
+    n = float(spp)
+    mean = total / n
+    variance = (total_sq / n - wp.cw_mul(mean, mean)) * (n / wp.max(n - 1.0, 1.0))
+    return wp.vec3(
+        wp.sqrt(wp.max(variance[0], 0.0) / n),
+        wp.sqrt(wp.max(variance[1], 0.0) / n),
+        wp.sqrt(wp.max(variance[2], 0.0) / n),
+    )
+
+
+def make_pixel_kernel(differentiable: bool):
     """The pixel kernel: spp paths per pixel, their mean and its standard error; with `differentiable` also the
     mean of the paths' (3, 8) Jacobians. Both variants take the same arguments (the forward one ignores `derivs`
-    and `jacobian`), so that one launch serves both."""
+    and `jacobian`), so that one launch serves both. The loop body is pbrt's EvaluatePixelSample: a jittered
+    camera ray, traced."""
     trace = trace_path_grad if differentiable else trace_path
 
-    def render_pixels(
+    def evaluate_pixels(
         scene: SceneData,
         derivs: CoefficientDerivatives,
         spp: int,
@@ -72,15 +97,15 @@ def make_render_kernel(differentiable: bool):
 
     # A module of its own for each variant: rendering an image never compiles the gradient pass.
     return wp.kernel(
-        render_pixels,
-        name="render_jacobian_kernel" if differentiable else "render_kernel",
+        evaluate_pixels,
+        name="pixel_jacobian_kernel" if differentiable else "pixel_kernel",
         module="unique",
         module_options={"enable_backward": False, "optimization_level": 3},
     )
 
 
-render_kernel = make_render_kernel(False)
-render_jacobian_kernel = make_render_kernel(True)
+pixel_kernel = make_pixel_kernel(False)
+pixel_jacobian_kernel = make_pixel_kernel(True)
 
 
 def pixel_indices(pixels, resolution) -> np.ndarray | None:
@@ -91,15 +116,18 @@ def pixel_indices(pixels, resolution) -> np.ndarray | None:
         return None
     flat = np.asarray(pixels)
     if flat.ndim != 1 or not (flat.size == 0 or np.issubdtype(flat.dtype, np.integer)):
-        raise ValueError(f"pixels must be a 1-D array of integer pixel indices (row * width + column), got shape "
-                         f"{flat.shape} of {flat.dtype}")
+        raise ValueError(
+            f"pixels must be a 1-D array of integer pixel indices (row * width + column), got shape "
+            f"{flat.shape} of {flat.dtype}"
+        )
     if flat.size and (flat.min() < 0 or flat.max() >= n):
         raise ValueError(f"pixels must lie in [0, {n}) for a {width}x{height} image, got {flat.min()}..{flat.max()}")
     return flat.astype(np.int32)
 
 
-def trace_pixels(scene: Scene | PreparedScene, spp, seed, threads, device, differentiable: bool, progress=None,
-                 pixels=None):
+def render_pixels(
+    scene: Scene | PreparedScene, spp, seed, threads, device, differentiable: bool, progress=None, pixels=None
+):
     """(image (H, W, 3), stderr (H, W, 3), jacobian (H, W, 3, 8) or None): the launch of both passes, over
     `pixels` (flat indices; default all). Every pixel draws from its own random stream, so a pixel rendered
     alone has the value it has in the whole image; the pixels not rendered are 0."""
@@ -114,11 +142,11 @@ def trace_pixels(scene: Scene | PreparedScene, spp, seed, threads, device, diffe
     image = wp.zeros(n, dtype=wp.vec3, device=device)
     stderr = wp.zeros(n, dtype=wp.vec3, device=device)
     if differentiable:
-        kernel = render_jacobian_kernel
+        kernel = pixel_jacobian_kernel
         derivs = coefficient_derivatives(prepared.scene.hair)
         jacobian = wp.zeros(n, dtype=value_jacobian_mat, device=device)
     else:
-        kernel, derivs, jacobian = render_kernel, CoefficientDerivatives(), None
+        kernel, derivs, jacobian = pixel_kernel, CoefficientDerivatives(), None
     launch_ranges(
         kernel,
         count,
@@ -144,7 +172,7 @@ def render_metadata(scene: Scene, spp: int, seed: int) -> dict:
             "version": __version__,
             "scene": scene.source,
             "hair": scene.hair.to_table(),
-            "sigma_a": [float(c) for c in scene.hair.sigma_a],
+            "sigma_a": [float(c) for c in scene.hair.absorption],
             "spp": spp,
             "seed": seed,
         }
@@ -170,7 +198,7 @@ def render(
     the spread of its own samples. `pixels`: the flat indices (row · width + column) of the pixels to render,
     each as it comes out in the whole image; the others are 0 (a fit's mini-batches).
     """
-    image, stderr, _ = trace_pixels(scene, spp, seed, threads, device, False, progress, pixels)
+    image, stderr, _ = render_pixels(scene, spp, seed, threads, device, False, progress, pixels)
     if return_stderr:
         return image, stderr
     return image

@@ -1,0 +1,175 @@
+"""What a path meets at a scattering vertex: a material in its shading frame, behind one interface (pbrt's BSDF).
+
+    v = scattering_vertex(fibers, hair, card, hit, t_card, o, d)   # the nearer surface, its frame, wo (GetBSDF)
+    value, pdf, lobes = bsdf_f(v, wi)    # cosine-weighted S and solid-angle pdf toward local wi (f and PDF);
+                                         # bsdf_f_grad also evaluates the lobes for ∂S/∂θ
+    wi, rng = bsdf_sample(v, rng)        # a local direction drawn from the material (Sample_f)
+    bsdf_can_reach(v, wi)                # False where S is 0 whatever the controls: no shadow ray is traced
+
+Two materials, told apart by `Vertex.kind`: the hair BSDF (model/hair_bsdf.py) at a fiber, and the backing
+card's two-sided Lambertian (geometry/card.py), whose frame faces the incoming ray. The integrator calls only
+these functions, so `trace_path` does not know which material it has met; a Warp function dispatches on the
+kind, which keeps the kernels short and allocation-free.
+
+Derivatives (the gradient tracer, docs/gradients.md): only the hair depends on the controls θ.
+`depends_on_controls(v)` says whether a vertex's S does, `bsdf_setup_grad(v)` gives what of ∂S/∂θ depends on wo
+and h, and `bsdf_value_jacobian` the (3, 8) ∂S/∂θ toward the direction `bsdf_f_grad(v, wi)` was evaluated at.
+"""
+
+import warp as wp
+
+from ..geometry.card import CardData
+from ..geometry.intersect import FiberGeometry, FiberHit, shading_frame
+from ..model.hair_bsdf import HairCoefficients, LobeSetup, hair_sample, hair_value_pdf, lobe_setup
+from ..model.jacobian import (
+    CoefficientDerivatives,
+    LobeEvaluation,
+    LobeSetupGrad,
+    hair_value_jacobian,
+    hair_value_pdf_lobes,
+    lobe_setup_grad,
+)
+from ..numerics import INV_PI, TWO_PI, perpendicular, rand2, to_local
+
+# As the integrator: forward only, -O3.
+wp.set_module_options({"enable_backward": False, "optimization_level": 3})
+
+HAIR = wp.constant(0)
+CARD = wp.constant(1)
+
+
+@wp.struct
+class Vertex:
+    """A scattering vertex: the material there and its local frame (x, y, z)."""
+
+    kind: int  # HAIR or CARD
+    position: wp.vec3  # where the rays leaving the vertex start (lifted off the card)
+    x: wp.vec3  # along the fiber; any tangent of the card
+    y: wp.vec3
+    z: wp.vec3  # the fiber's normal; the card's normal on the side of the incoming ray
+    wo: wp.vec3  # local, toward where the path came from
+    h: float  # the offset across the fiber (hair only)
+    hair: LobeSetup  # what of the hair BSDF depends on wo and h (hair only)
+    albedo: wp.vec3  # the card's (card only)
+
+
+@wp.func
+def cosine_hemisphere(u: wp.vec2):
+    """A cosine-distributed direction about +z (Malley: project a uniform disk sample up)."""
+    r = wp.sqrt(u[0])
+    phi = TWO_PI * u[1]
+    return wp.vec3(r * wp.cos(phi), r * wp.sin(phi), wp.sqrt(wp.max(0.0, 1.0 - u[0])))
+
+
+@wp.func
+def diffuse_value_pdf(albedo: wp.vec3, wi: wp.vec3):
+    """(cosine-weighted value, solid-angle pdf) of a Lambertian reflector about +z: both cos θ_i / π, times the
+    albedo for the value; 0 below the surface."""
+    if wi[2] <= 0.0:
+        return wp.vec3(0.0), 0.0
+    return wi[2] * INV_PI * albedo, wi[2] * INV_PI
+
+
+@wp.func
+def scattering_vertex(
+    fibers: FiberGeometry, hair: HairCoefficients, card: CardData, hit: FiberHit, t_card: float, o: wp.vec3, d: wp.vec3
+):
+    """The vertex where the ray o + t d scatters: at the nearer of the fiber hit and the card (t_card). At a fiber,
+    x along it (turning smoothly along the strand), z its normal and h the offset across it (docs/MODEL.md,
+    "Shading frame"); at the card, z its normal turned toward the incoming ray, the position lifted off it."""
+    v = Vertex()
+    v.kind = HAIR
+    if t_card < hit.t:
+        v.kind = CARD
+    x = hit.tangent
+    z = hit.normal
+    h = hit.h
+    if v.kind == HAIR:
+        x, z, h = shading_frame(fibers, hit, d)
+    position = hit.position
+    if v.kind == CARD:
+        z = card.normal
+        if wp.dot(z, d) > 0.0:
+            z = -z
+        x = perpendicular(z)
+        position = o + t_card * d + 1.0e-5 * z
+    y = wp.cross(z, x)
+    v.position = position
+    v.x = x
+    v.y = y
+    v.z = z
+    v.wo = to_local(-d, x, y, z)
+    v.h = h
+    if v.kind == HAIR:
+        v.hair = lobe_setup(hair, v.wo, h)
+    else:
+        v.albedo = card.albedo
+    return v
+
+
+@wp.func
+def bsdf_value_pdf(v: Vertex, wi: wp.vec3):
+    """(cosine-weighted value, solid-angle pdf) of the vertex's material toward local direction wi."""
+    if v.kind == CARD:
+        return diffuse_value_pdf(v.albedo, wi)
+    return hair_value_pdf(v.hair, wi)
+
+
+@wp.func
+def bsdf_can_reach(v: Vertex, wi: wp.vec3):
+    """False where S toward local wi is 0 whatever the controls (below the card's surface): a light sample there
+    needs no shadow ray."""
+    if v.kind == CARD:
+        return wi[2] > 0.0
+    return True
+
+
+@wp.func
+def bsdf_sample(v: Vertex, rng: wp.uint32):
+    """(local direction, rng): a direction drawn from the vertex's material (2 uniforms at the card, 3 at a
+    fiber)."""
+    wi = wp.vec3(0.0)
+    if v.kind == CARD:
+        u2, rng = rand2(rng)
+        wi = cosine_hemisphere(u2)
+    else:
+        wi = hair_sample(v.hair, wp.vec3(wp.randf(rng), wp.randf(rng), wp.randf(rng)))
+    return wi, rng
+
+
+@wp.func
+def bsdf_f(v: Vertex, wi: wp.vec3):
+    """(value, pdf, lobes): `bsdf_value_pdf`, with an empty lobe evaluation (the forward tracer's variant)."""
+    value, density = bsdf_value_pdf(v, wi)
+    return value, density, LobeEvaluation()
+
+
+@wp.func
+def bsdf_f_grad(v: Vertex, wi: wp.vec3):
+    """(value, pdf, lobes): `bsdf_value_pdf` (the same floats), and at a fiber also the evaluation of its lobes
+    that `bsdf_value_jacobian` differentiates (the gradient tracer's variant)."""
+    if v.kind == HAIR:
+        value, density, lobes = hair_value_pdf_lobes(v.hair, wi)
+        return value, density, lobes
+    value, density = bsdf_value_pdf(v, wi)
+    return value, density, LobeEvaluation()
+
+
+@wp.func
+def depends_on_controls(v: Vertex):
+    """Whether the vertex's S depends on the hair controls θ (the card's does not)."""
+    return v.kind == HAIR
+
+
+@wp.func
+def bsdf_setup_grad(v: Vertex):
+    """What of ∂S/∂θ depends on wo and h only, once per vertex (empty where S does not depend on θ)."""
+    if v.kind == HAIR:
+        return lobe_setup_grad(v.hair, v.wo, v.h)
+    return LobeSetupGrad()
+
+
+@wp.func
+def bsdf_value_jacobian(v: Vertex, dv: LobeSetupGrad, derivs: CoefficientDerivatives, lobes: LobeEvaluation):
+    """∂S_c/∂θ_k (3, 8) toward the direction `lobes` was evaluated at, at a vertex that `depends_on_controls`."""
+    return hair_value_jacobian(v.hair, dv, derivs, lobes)
