@@ -24,6 +24,7 @@ from warp_hair import cli as render_cli
 from warp_hair.model.params import HairParams
 
 from .latents import DEFAULT_FIT, SPECS, as_values
+from .camera import GAIN_MODES, WHITE_BALANCE_MODES
 from .fit import FitSettings
 
 
@@ -96,6 +97,13 @@ def add_fit(subparsers) -> None:
                         help="relative brightness disagreement between the target's renderer and warp-hair, counted in "
                         "the uncertainties (>= 0; default 0 for warp-hair's own targets, 0.01 for another renderer's "
                         "or a target of unknown origin)")
+    parser.add_argument("--gains", choices=GAIN_MODES,
+                        help="the images' exposures to fit with the hair (optimize/camera.py): per-image, exif (one "
+                        "gain, EXIF's t*ISO/N^2 ratios), shared, none (default: target.toml's gains, else per-image "
+                        "or exif for PNG, JPEG and TIFF photos, none for EXR)")
+    parser.add_argument("--white-balance", choices=WHITE_BALANCE_MODES,
+                        help="fit a white balance (a gain per channel, green's 1) with the hair: fit, none (default: "
+                        "target.toml's white_balance, else fit for photos, none for EXR)")
     parser.add_argument("--export", metavar="RENDERERS",
                         help="also write the fitted look for these renderers beside params.json (comma-separated: "
                         "mitsuba, pbrt, cycles, materialx; files hair_<renderer>.*, as `warp-hair export` writes)")
@@ -116,7 +124,8 @@ def _batch(text: str) -> int | None:
 
 def run_fit(args: argparse.Namespace) -> None:
     from .fit import fit
-    from .report import format_table, true_values, write_outputs
+    from .camera import fitted as fitted_camera
+    from .report import camera_table, format_table, photo_summary, true_values, write_outputs
     from .target import load_target
 
     render_cli.check_sampling_args(args)
@@ -136,22 +145,45 @@ def run_fit(args: argparse.Namespace) -> None:
         raise ValueError(f"control(s) {both} are both fixed (--fix) and fitted (--fit); choose one")
     if fixed:
         _fix_controls(target, fixed)
+    _set_camera_unknowns(target, args)
     settings = FitSettings(controls=tuple(names), iters=args.iters, spp=args.spp, loss=args.loss, lr=args.lr,
                            seed=args.seed, patience=args.patience, init=parse_assignments(args.init, "--init"),
                            threads=args.threads, refine=args.refine, batch=args.batch,
                            model_error=args.model_error)
     sizes = ", ".join(f"{im.name} {im.image.shape[1]}x{im.image.shape[0]}" for im in target.images)
-    print(f"fitting {', '.join(names)} of {target.name} ({sizes})")
+    camera = "" if not fitted_camera(target) else (f", with the photos' gains ({target.gains}) and white balance "
+                                                   f"({target.white_balance})")
+    print(f"fitting {', '.join(names)} of {target.name} ({sizes}){camera}")
+    for line in photo_summary(target):
+        print(f"  {line}")
     result = fit(target, settings)
     if result.stop_reason == "interrupted":
         print("interrupted: saving the estimate so far (no uncertainties)")
     paths = write_outputs(args.output, result, target)
     paths += _export(args.output / "params.json", renderers)
     print(format_table(result, true_values(target, result.values), target.origin))
+    if result.camera is not None:
+        print(camera_table(result))
     print(f"{result.iterations} iterations ({result.stop_reason}), {result.seconds:.0f} s, final loss {result.loss:.4g}")
     for warning in result.warnings:
         print(f"{render_cli.PROG}: warning: {warning}", file=sys.stderr)
     print("wrote " + ", ".join(str(p) for p in paths))
+
+
+def _set_camera_unknowns(target, args) -> None:
+    """--gains / --white-balance override target.toml's (or the default the images give, target.py)."""
+    from .camera import relative_exposures
+
+    if args.gains is not None:
+        target.gains = args.gains
+    if args.white_balance is not None:
+        target.white_balance = args.white_balance
+    if target.gains == "exif":
+        missing = [im.image_path.name for im in target.images if im.photo is None or im.photo.relative_exposure is None]
+        if missing:
+            raise ValueError(f"--gains exif: {', '.join(missing)} has no EXIF exposure time, f-number and ISO; use "
+                             "--gains per-image")
+        relative_exposures(target)
 
 
 def _export(params_json: Path, renderers) -> list[Path]:
@@ -199,7 +231,8 @@ def add_targets(subparsers) -> None:
         "disagreement), the expected sigma of both (the model error as the fit counts it: 0 for warp-hair's own "
         "targets, 1% for others) and the largest correlation with another control. Identifiable when every "
         "control's expected sigma is below its acceptance bound (albedo 0.02, beta_m and beta_n 0.03); else exit "
-        "status 1, naming the control and what to add. Costs 8 renders of each image at 64 spp.",
+        "status 1, naming the control and what to add. For photos (whose gains and white balance are fitted, "
+        "optimize/camera.py) it also says which of those the images pin. Costs 8 renders of each image at 64 spp.",
     )
     check.add_argument("target", metavar="TARGET", help="a target directory, or the name of a shipped target")
     check.add_argument("--fit", default=",".join(DEFAULT_FIT), metavar="NAMES",
@@ -208,8 +241,75 @@ def add_targets(subparsers) -> None:
     check.add_argument("--model-error", type=float, metavar="E",
                        help="relative brightness disagreement to count (default as the fit: 0 for warp-hair's own "
                        "targets, 0.01 for others)")
+    _add_photo(actions)
     for sub in (listing, make, check):
         sub.set_defaults(run=run_targets)
+
+
+def _vector(text: str) -> tuple:
+    try:
+        values = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        values = ()
+    if len(values) != 3 or not all(map(lambda v: v == v and abs(v) != float("inf"), values)) or not any(values):
+        raise argparse.ArgumentTypeError(f"a direction is three numbers X,Y,Z, not all 0, got {text!r}")
+    return values
+
+
+def _add_photo(actions) -> None:
+    from warp_hair.photo import TRANSFERS
+
+    from .photo_target import RIGS
+
+    photo = actions.add_parser(
+        "photo", parents=[render_cli.common_flags(threads=False)],
+        help="make a target from photographs of a swatch or fur patch",
+        description="Write a target directory from photos: each decoded to linear and box-filtered to --resolution, "
+        "a scene per photo (the rig, the camera, its light), a mask of the clipped, crushed and background "
+        "pixels, and target.toml with the photos' gains and white balance to fit (optimize/photo_target.py). "
+        "Then: warp-hair fit OUT_DIR -o FIT_DIR.")
+    photo.add_argument("output", type=Path, metavar="OUT_DIR", help="the target directory to write")
+    photo.add_argument("--rig", choices=("draped", "flat", "fur"), default="draped",
+                       help="a swatch draped over a rod (default), a flat swatch on a card, a fur patch")
+    photo.add_argument("--image", action="append", required=True, metavar="PHOTO",
+                       help="a photo (PNG, JPEG, TIFF); repeat for each view")
+    photo.add_argument("--light", action="append", type=_vector, metavar="X,Y,Z",
+                       help="per --image, in order: the direction its directional light travels, in the rig's frame "
+                       "(x across, y along the fibers, z towards the camera)")
+    photo.add_argument("--hdri", metavar="EXR", help="a lat-long EXR taken where the swatch stood, for every view")
+    photo.add_argument("--transfer", choices=TRANSFERS, default="auto",
+                       help="the photos' transfer curve (default auto)")
+    photo.add_argument("--width", type=float, default=0.4,
+                       help="swatch width across the fibers (scene units, default 0.4)")
+    photo.add_argument("--length", type=float, default=0.5, help="swatch length along the fibers (default 0.5)")
+    photo.add_argument("--count", type=int, default=152, help="fibers (default 152)")
+    photo.add_argument("--layers", type=int, default=4, help="layers of fibers (default 4)")
+    photo.add_argument("--fiber-radius", type=float, default=0.004, help="fiber radius (default 0.004)")
+    photo.add_argument("--drape", type=float, default=0.25, help="the rod's radius, draped rig (default 0.25)")
+    photo.add_argument("--patch", type=float, default=0.3, help="fur patch size (default 0.3)")
+    photo.add_argument("--fur-length", type=float, default=0.1, help="fur length (default 0.1)")
+    photo.add_argument("--elevation", type=float, default=30.0, help="fur rig: camera's degrees above the patch (30)")
+    photo.add_argument("--distance", type=float, default=3.0, help="camera distance from the rig's centre (default 3)")
+    lens = photo.add_mutually_exclusive_group()
+    lens.add_argument("--ortho-width", type=float, help="an orthographic camera of this view width (scene units)")
+    lens.add_argument("--fov", type=float, help="perspective: horizontal field of view, degrees")
+    photo.add_argument("--sensor-width", type=float,
+                       help="perspective: sensor width in mm, with the photo's EXIF focal length")
+    photo.add_argument("--resolution", type=int, default=64, help="pixels across of the target's images (default 64)")
+    photo.add_argument("--card", type=float, metavar="REFLECTANCE",
+                       help="a grey card behind the swatch, of this reflectance (e.g. 0.18), rendered as its [card]")
+    photo.add_argument("--mask", nargs="+", metavar="auto|FILE",
+                       help="'auto': leave out the background (not with --card); or a mask per photo (white = counts)")
+    photo.set_defaults(run=run_photo)
+
+
+def run_photo(args: argparse.Namespace) -> int:
+    from .photo_target import make_photo_target
+
+    written = make_photo_target(args.output, args)
+    print(f"wrote {', '.join(p.name for p in written)} to {args.output}; fit it with "
+          f"`warp-hair fit {args.output} -o {args.output}_fit`")
+    return 0
 
 
 def run_targets(args: argparse.Namespace) -> int:

@@ -46,6 +46,7 @@ from warp_hair.renderer.prepare import prepare
 from warp_hair.renderer.render import render
 from warp_hair.torch import render_torch_pair, scene_with_controls
 
+from . import camera
 from .latents import DEFAULT_FIT, SPECS, as_values, hair_and_gain, parse_control_names
 from .linearize import Linearization, linearize
 from .losses import LOSSES, image_loss, loss_scale
@@ -114,6 +115,7 @@ class FitResult:
     warnings: list = field(default_factory=list)
     correlations: dict = field(default_factory=dict)  # "a/b" → correlation of the two estimates
     uncertainty_parts: dict | None = None  # the noise and model-error parts of `uncertainties` (uncertainty.py)
+    camera: dict | None = None  # a photo target's fitted gains and white balance with their σ (camera.report)
 
 
 @dataclass(frozen=True)
@@ -179,6 +181,9 @@ def check_settings(target: Target, settings: FitSettings) -> tuple:
             raise ValueError(f"refine: Gauss–Newton steps need a sum-of-squares loss ({', '.join(REFINABLE_LOSSES)}), "
                              f"not {settings.loss!r}; use refine=0 (--refine 0) with it")
     check_model_error(settings.model_error)
+    if camera.fitted(target) and "exposure" in names:
+        raise ValueError(f"{target.name}: its gains are fitted already (gains = {target.gains!r}, camera.py); "
+                         "exposure would be a second gain on every image: leave it out of the controls")
     unknown = sorted(set(settings.init) - set(names))
     if unknown:
         raise ValueError(f"init gives control(s) {unknown} that are not fitted (fitted: {list(names)}); the scene files set the others")
@@ -327,14 +332,21 @@ class FitRun:
         """The mean image loss over the target's images, each rendered as a decorrelated pair of spp/2 each, on a
         mini-batch of its blocks where it is larger than settings.batch."""
         hair, gain = hair_and_gain(values)
-        total = 0.0
+        pairs, used = [], []
         for k, image in enumerate(self.target.images):
             pixels, batch_mask = self.batches[k].draw(seeds[k])  # of counted pixels only: it implies the target's mask
-            mask = self.masks[k] if batch_mask is None else batch_mask
-            pair = render_torch_pair(self.scenes[k], hair, spp=max(1, spp // 2), seed=seeds[k],
-                                     threads=self.settings.threads, pixels=pixels)
+            used.append(self.masks[k] if batch_mask is None else batch_mask)
+            pairs.append(render_torch_pair(self.scenes[k], hair, spp=max(1, spp // 2), seed=seeds[k],
+                                           threads=self.settings.threads, pixels=pixels))
+        gains = [gain] * len(pairs)
+        if camera.fitted(self.target):  # a photo's exposures and white balance, solved for these renders
+            solved = camera.gains_for(self.target, pairs, self.targets, used, self.settings.loss, self.settings.pool,
+                                      self.scales).per_channel
+            gains = [torch.from_numpy(g) for g in solved]
+        total = 0.0
+        for k, pair in enumerate(pairs):
             for rendered in pair:
-                total = total + image_loss(rendered * gain, self.targets[k], self.settings.loss, mask,
+                total = total + image_loss(rendered * gains[k], self.targets[k], self.settings.loss, used[k],
                                            self.settings.pool, self.scales[k])
         return total / (2 * len(self.target.images))
 
@@ -447,7 +459,8 @@ class FitRun:
             # The linearisations of a large image rendered few samples a pixel: a picture of the fit that a person
             # compares with the target (comparison.png) wants the full samples.
             try:
-                images = _render_fitted(self.scenes, values, full_spp, self.final_seed, self.settings.threads)
+                images = _render_fitted(self.scenes, values, full_spp, self.final_seed, self.settings.threads,
+                                        None if lin.camera is None else lin.camera.gains.per_channel)
             except KeyboardInterrupt:
                 interrupted = True
         losses = [image_loss(torch.from_numpy(fitted), torch.from_numpy(image.image), self.settings.loss,
@@ -493,14 +506,27 @@ class FitRun:
             warnings=warnings,
             correlations={} if uncertainty is None else uncertainty.correlations,
             uncertainty_parts=None if uncertainty is None else uncertainty.parts,
+            camera=self.camera_report(evaluation, refinement),
         )
 
+    def camera_report(self, evaluation: Evaluation, refinement: Refinement | None) -> dict | None:
+        """A photo target's gains and white balance with their σ (camera.report), None for other targets."""
+        lin = evaluation.linearization
+        if lin.camera is None:
+            return None
+        mc = None if refinement is None else refinement.mc_covariance
+        hair_covariance = lin.statistical_covariance + (0 if mc is None else mc)
+        return camera.report(lin.camera, self.target, hair_covariance, lin.scatter,
+                             target_model_error(self.target, self.settings.model_error))
 
-def _render_fitted(scenes, values: dict, spp: int, seed: int, threads) -> list:
-    """Forward renders (H, W, 3) of the target's prepared scenes at the fitted controls, exposure applied."""
+
+def _render_fitted(scenes, values: dict, spp: int, seed: int, threads, gains=None) -> list:
+    """Forward renders (H, W, 3) of the target's prepared scenes at the fitted controls, exposure applied (or a
+    photo's gains, (n, 3))."""
     hair, gain = hair_and_gain(values)
     gain = float(gain)
-    return [gain * render(scene_with_controls(scene, hair), spp=spp, seed=seed + k, threads=threads)
+    return [(gain if gains is None else gains[k].astype(np.float32))
+            * render(scene_with_controls(scene, hair), spp=spp, seed=seed + k, threads=threads)
             for k, scene in enumerate(scenes)]
 
 

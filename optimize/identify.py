@@ -32,6 +32,7 @@ import numpy as np
 
 from warp_hair.renderer.prepare import prepare
 
+from . import camera
 from .latents import DEFAULT_FIT, SPECS, as_values, parse_control_names
 from .linearize import CHANNELS, crossed_curvature, linearize
 from .uncertainty import (
@@ -48,6 +49,7 @@ CHECK_SPP = 64  # per render: the fit's final linearisations' (fit.FINAL_SPP_FAC
 CHECK_LINEARISATIONS = 4  # their Jacobians pooled: H and A as steady as the refinement's
 SEED_STRIDE = 7919
 MANY_SAMPLES = 64  # a factor on a target's samples beyond which they are not offered as the remedy
+CAMERA_BOUND = 0.02  # a photo's gain or white balance is pinned when its expected relative σ is below 2%
 
 
 @dataclasses.dataclass
@@ -63,6 +65,7 @@ class Identifiability:
     correlation: list  # per component: (label of the other control's component most correlated, ρ) or None
     bounds: np.ndarray  # (p,) the acceptance bound, NaN where there is none
     problems: list  # what keeps a control from being identified, with what to add
+    camera: list = dataclasses.field(default_factory=list)  # a photo's unknowns: (label, value, relative σ)
 
     @property
     def sigma(self) -> np.ndarray:
@@ -86,6 +89,17 @@ class Identifiability:
         widths = [max(len(r[i]) for r in rows + [header]) for i in range(len(header))]
         lines = ["  ".join(cell.ljust(w) for cell, w in zip(row, widths)).rstrip() for row in [header] + rows]
         lines.insert(1, "  ".join("-" * w for w in widths))
+        return "\n".join(lines)
+
+    def camera_table(self) -> str:
+        """The photo's gains and white balance (camera.py): each pinned when its expected relative σ is below
+        CAMERA_BOUND."""
+        if not self.camera:
+            return ""
+        lines = [f"camera unknowns (fitted with the hair; pinned when the expected σ is below {100 * CAMERA_BOUND:g}%):"]
+        for label, value, sigma in self.camera:
+            verdict = "pinned" if sigma < CAMERA_BOUND else "not pinned: it trades off with the hair"
+            lines.append(f"  {label:<18} {value:.4f}  σ {100 * sigma:.2f}%  {verdict}")
         return "\n".join(lines)
 
     def summary(self) -> str:
@@ -140,7 +154,9 @@ def check_target(target, values: dict | None = None, controls=DEFAULT_FIT, spp: 
     p = total.shape[1]
 
     target_spp = [image.scene.render.spp if spp is None else spp for image in target.images]
-    gradient_cov = _target_gradient_covariance(lins, total / len(jacobians), [render_spp / n for n in target_spp])
+    factors = [render_spp / n for n in target_spp]
+    quantisation = _quantisation_variances(target, settings)
+    gradient_cov = _target_gradient_covariance(lins, total / len(jacobians), factors, quantisation)
     cov = h_inv @ gradient_cov @ h_inv
     noise = np.sqrt(np.maximum(np.diag(cov), 0.0))
     # `uncertainty.brightness_sensitivity` over every pass: each pass's render met with every other Jacobian.
@@ -163,10 +179,54 @@ def check_target(target, values: dict | None = None, controls=DEFAULT_FIT, spp: 
     result = Identifiability(target.name, target.origin, at, labels, target_spp, noise, shift, model_error,
                              correlation, bounds, [])
     result.problems = _problems(result, flat)
+    projection = lins[0].camera
+    if projection is not None:
+        # The gains' covariance: the target's noise on them, and the hair's carried over (camera.Projection).
+        normal_inv = np.linalg.pinv(projection.normal)
+        gradient_gg = _target_gradient_covariance(lins, projection.columns, factors, quantisation)
+        noise_gg = normal_inv @ gradient_gg @ normal_inv
+        follow = -normal_inv @ (projection.columns.T @ (w[:, None] * projection.jacobian))
+        cov_gg = noise_gg + follow @ (cov + np.outer(shift, shift) * (model_error / 0.01) ** 2) @ follow.T
+        is_gain = np.array([label.startswith("gain") for label in projection.labels], dtype=float)
+        cov_gg += model_error**2 * np.outer(is_gain, is_gain)
+        values = camera.label_values(projection, target)
+        result.camera = [(label, float(v), float(np.sqrt(max(cov_gg[k, k], 0.0))))
+                         for k, (label, v) in enumerate(zip(projection.labels, values))]
     return result
 
 
-def _target_gradient_covariance(lins, a, variance_factors) -> np.ndarray:
+def _quantisation_variances(target, settings) -> np.ndarray | None:
+    """(N,): the variance a photo's code values add to each weighted, pooled residual: a code is the value
+    rounded to 1/(2^bits − 1) of the range, an error uniform over one step (variance step²/12), times the
+    transfer curve's slope there. JPEG's compression error comes on top of that and is not counted here (the
+    fit's own σ, from its residuals' scatter, counts it). None when no image is a photo."""
+    from .linearize import loss_weights, pool_like_loss
+    from warp_hair.photo import srgb_decode
+
+    if all(image.photo is None for image in target.images):
+        return None
+    parts = []
+    for image in target.images:
+        reference, _ = pool_like_loss(image, image.image, None, settings.pool)
+        weight = loss_weights(reference, settings.loss)
+        photo = image.photo
+        if photo is None or photo.bits == 32:
+            parts.append(np.zeros(reference.size))
+            continue
+        step = 1.0 / (2**photo.bits - 1)
+        linear = image.image.astype(np.float64)
+        if photo.transfer == "linear":
+            slope = np.ones_like(linear)
+        else:  # the decoded value's change per code, by a finite step of the curve (sRGB or a power law)
+            encoded = np.clip(np.where(linear <= 0.0031308, 12.92 * linear, 1.055 * linear ** (1 / 2.4) - 0.055), 0, 1)
+            slope = (srgb_decode(np.minimum(encoded + step, 1.0)) - linear) / step
+        variance = (slope * step) ** 2 / 12.0
+        _, pooled = pool_like_loss(image, np.zeros_like(linear), variance, settings.pool)
+        parts.append(pooled * weight**2)
+    return np.concatenate(parts)
+
+
+def _target_gradient_covariance(lins, a, variance_factors, extra=None) -> np.ndarray:
     """(p, p): the covariance of Aᵀ W t from the target's noise, Σ over pooled pixels of aᵀ W C W a with C the
     pixel's 3×3 noise covariance. Each channel's variance is our render's, from each pixel's own samples
     (`Linearization.variances`, one pass at CHECK_SPP) times `variance_factors` (per image: our spp over the
@@ -174,7 +234,7 @@ def _target_gradient_covariance(lins, a, variance_factors) -> np.ndarray:
     half differences alone give a 3×3 covariance per pixel too, but from as many values as there are
     linearisations, and on highlight pixels, whose rare bright paths make the variance, these fall short of it
     in most draws (a check on a small target came out 0.19–0.24 for a σ of 0.235, with each pixel's own samples
-    0.216–0.224)."""
+    0.216–0.224). `extra` (N,): variances the target has besides its samples' (a photo's quantisation)."""
     variances = np.mean([lin.variances.mean(axis=0) for lin in lins], axis=0)
     halves = np.stack([0.5 * (lin.residuals[0] - lin.residuals[1]) for lin in lins])
     w, p = lins[0].loss_weights, a.shape[1]
@@ -186,7 +246,8 @@ def _target_gradient_covariance(lins, a, variance_factors) -> np.ndarray:
         scale = np.sqrt(np.diag(products))
         with np.errstate(invalid="ignore", divide="ignore"):
             correlation = np.where(np.outer(scale, scale) > 0, products / np.outer(scale, scale), np.eye(CHANNELS))
-        sd = np.sqrt(factor * variances[part]).reshape(-1, CHANNELS)
+        variance = factor * variances[part] + (0.0 if extra is None else extra[part])
+        sd = np.sqrt(variance).reshape(-1, CHANNELS)
         weighted = (w[part, None] * a[part]).reshape(-1, CHANNELS, p) * sd[:, :, None]
         covariance += np.einsum("bcp,cd,bdq->pq", weighted, correlation, weighted)
         start += count
@@ -236,7 +297,8 @@ def describe(result: Identifiability) -> str:
     head = (f"{result.target} ({by}; its noise taken at {spp} spp per image), checked at "
             + " ".join(f"{name}={_fmt(v)}" for name, v in result.values.items())
             + f"; model error {100 * result.model_error:g}%")
-    return f"{head}\n{result.table()}\n{result.summary()}"
+    camera = result.camera_table()
+    return f"{head}\n{result.table()}\n" + (f"{camera}\n" if camera else "") + result.summary()
 
 
 def _fmt(value) -> str:

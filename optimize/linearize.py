@@ -30,8 +30,9 @@ from warp_hair.renderer.gradients import render_jacobian
 from warp_hair.renderer.prepare import prepare
 from warp_hair.torch import default_grad_seed, scene_with_controls
 
+from . import camera
 from .latents import EXPOSURE, hair_and_gain
-from .losses import REL_EPSILON, block_mean
+from .losses import REL_EPSILON, block_mean, loss_scale
 
 CHANNELS = 3  # consecutive residuals of one pixel (or pooled block): R, G, B
 
@@ -52,6 +53,7 @@ class Linearization:
     earlier_jacobians: np.ndarray | None = None  # (n, N, p): of earlier, independent renders near `values`
     curvature: np.ndarray | None = None  # (p, p) Gauss–Newton matrix; default: `crossed_curvature` of all Jacobians
     scatter: float | None = None  # s² of `statistical_covariance`; default: this linearisation's `scatter_estimate`
+    camera: object | None = None  # a photo's gains, projected out of residuals and Jacobian (camera.Projection)
 
     def __post_init__(self):
         if self.residuals.shape[1] % CHANNELS:
@@ -172,38 +174,67 @@ def linearize(target, values: dict, settings, spp: int, seed: int, threads=None,
     repeated linearisations do not rebuild the BVH; by default each image's scene, prepared here once for both
     passes."""
     hair, gain = hair_and_gain(values)
-    gain = float(gain)
-    rs, vs, js = [[], []], [[], []], [[], []]
-    images, weights, ts = [], [], []
     scenes = [prepare(image.scene) for image in target.images] if scenes is None else scenes
+    renders = []  # per image, its two passes' (Jacobian, image, standard error)
     for k, image in enumerate(target.images):
         scene = scene_with_controls(scenes[k], hair)
+        renders.append([render_jacobian(scene, spp=spp, seed=pass_seed, threads=threads)
+                        for pass_seed in (seed + k, default_grad_seed(seed + k))])
+    gains = np.full((len(target.images), 3), float(gain))
+    solved = None
+    if camera.fitted(target):  # a photo's exposures and white balance, for these renders (camera.py)
+        pairs = [(p[0][1], p[1][1]) for p in renders]
+        masks = [None if image.mask is None else torch.from_numpy(image.mask) for image in target.images]
+        references = [torch.from_numpy(image.image) for image in target.images]
+        scales = [loss_scale(t, settings.loss, m, settings.pool) for t, m in zip(references, masks)]
+        solved = camera.gains_for(target, pairs, references, masks, settings.loss, settings.pool, scales)
+        gains = solved.per_channel
+    rs, vs, js = [[], []], [[], []], [[], []]
+    images, weights, ts = [], [], []
+    for k, image in enumerate(target.images):
         reference, _ = pool_like_loss(image, image.image, None, settings.pool)
         weight = loss_weights(reference, settings.loss)
         ts.append(reference * weight)
         pair = []
-        for half, pass_seed in enumerate((seed + k, default_grad_seed(seed + k))):
-            jac, raw, stderr = render_jacobian(scene, spp=spp, seed=pass_seed, threads=threads)
-            rendered = gain * raw
+        g = gains[k].astype(np.float32)
+        for half, (jac, raw, stderr) in enumerate(renders[k]):
+            rendered = g * raw
             # r = weight · (gain·I − T): ∂r/∂gain = weight · I, ∂r/∂θ = weight · gain · ∂I/∂θ.
-            columns = [raw[..., None] if name == EXPOSURE else gain * jac[..., COLUMNS[name]] for name in values]
+            columns = [raw[..., None] if name == EXPOSURE else g[:, None] * jac[..., COLUMNS[name]] for name in values]
             a, _ = pool_like_loss(image, np.concatenate(columns, axis=-1).astype(np.float64), None, settings.pool)
-            r, var = pool_like_loss(image, rendered - image.image, (gain * stderr) ** 2, settings.pool)
+            r, var = pool_like_loss(image, rendered - image.image, (g * stderr) ** 2, settings.pool)
             rs[half].append(r * weight)
             vs[half].append(var * weight**2)
             js[half].append(a * weight[:, None])
             pair.append(rendered)
         images.append(0.5 * (pair[0] + pair[1]))
         weights.append(np.full(reference.size, 1.0 / (reference.size * len(target.images))))
+    residuals = np.stack([np.concatenate(r) for r in rs])
+    jacobians = np.stack([np.concatenate(j) for j in js])
+    targets = np.concatenate(ts)
+    weights = np.concatenate(weights)
+    image_residuals = tuple(len(t) for t in ts)
+    projection = None
+    if solved is not None:
+        # The loss minimised over the gains (camera.py): what no change of the gains makes, of each part. The
+        # gains' columns are ∂r/∂log g = ω G I, which at the gains' optimum is the weighted target t up to the
+        # residual: taken from t, the projection is the same at every linearisation and free of our render
+        # noise (from the renders, it would tie the two passes' noise together and move with each step's).
+        projection = camera.Projection(solved, camera.columns(target, targets, image_residuals), weights,
+                                       jacobians.mean(axis=0), camera.labels(target))
+        residuals = np.stack([projection.apply(r) for r in residuals])
+        jacobians = np.stack([projection.apply(a) for a in jacobians])
+        targets = projection.apply(targets)
     return Linearization(
         values=dict(values),
-        residuals=np.stack([np.concatenate(r) for r in rs]),
+        residuals=residuals,
         variances=np.stack([np.concatenate(v) for v in vs]),
-        jacobians=np.stack([np.concatenate(j) for j in js]),
+        jacobians=jacobians,
         images=images,
-        loss_weights=np.concatenate(weights),
-        targets=np.concatenate(ts),
-        image_residuals=tuple(len(t) for t in ts),
+        loss_weights=weights,
+        targets=targets,
+        image_residuals=image_residuals,
+        camera=projection,
     )
 
 

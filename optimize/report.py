@@ -43,7 +43,7 @@ def fitted_look(result: FitResult, target: Target) -> HairParams:
     return HairParams(**controls)
 
 
-def write_params(path: Path, result: FitResult, truth: dict, look: HairParams) -> None:
+def write_params(path: Path, result: FitResult, truth: dict, look: HairParams, extra: dict | None = None) -> None:
     data = {
         "target": result.target,
         "fitted": result.values,
@@ -63,6 +63,7 @@ def write_params(path: Path, result: FitResult, truth: dict, look: HairParams) -
     if truth:
         data["true"] = truth
         data["error"] = errors(result, truth)
+    data.update(extra or {})
     Path(path).write_text(json.dumps(data, indent=2) + "\n", encoding="utf-8")
 
 
@@ -178,7 +179,59 @@ def write_outputs(out_dir, result: FitResult, target: Target) -> list[Path]:
     out_dir.mkdir(parents=True, exist_ok=True)
     truth = true_values(target, result.values)
     paths = [out_dir / "params.json", out_dir / "convergence.png", out_dir / "comparison.png"]
-    write_params(paths[0], result, truth, fitted_look(result, target))
+    extra = {}
+    if result.camera is not None:
+        extra["camera"] = result.camera
+    if any(image.photo is not None for image in target.images):
+        extra["photos"] = photo_records(target)
+    write_params(paths[0], result, truth, fitted_look(result, target), extra)
     plot_convergence(paths[1], result, truth)
     plot_comparison(paths[2], result, target)
     return paths
+
+
+def photo_records(target: Target) -> dict:
+    """Per photo image: how it was decoded and how many of its pixels the loss leaves out (params.json)."""
+    records = {}
+    for image in target.images:
+        photo = image.photo
+        if photo is None:
+            continue
+        records[image.name] = {
+            "file": photo.path.name, "format": photo.format, "bits": photo.bits, "transfer": photo.transfer,
+            "pixels": int(photo.clipped.size), "clipped": int(photo.clipped.sum()),
+            "crushed": int((photo.crushed & ~photo.clipped).sum()),
+            "counted": int(image.mask.sum()), "exif": photo.exif, "notes": photo.notes,
+        }
+    return records
+
+
+def photo_summary(target: Target) -> list[str]:
+    """One line per photo image: its decoding, and the pixels left out of the loss (what `warp-hair fit` prints)."""
+    lines = []
+    for name, r in photo_records(target).items():
+        exif = ", ".join(f"{k} {v:g}" for k, v in r["exif"].items())
+        lines.append(f"{r['file']}: {r['format']} {r['bits']}-bit, {r['transfer']} decoded to linear; "
+                     f"{r['clipped']} clipped and {r['crushed']} crushed pixels of {r['pixels']} left out of the "
+                     f"loss" + (f"; EXIF {exif}" if exif else "") + "".join(f"; {n}" for n in r["notes"]))
+    return lines
+
+
+def camera_table(result: FitResult, truth: dict | None = None) -> str:
+    """The fitted gains and white balance ± 1σ (and the true ones, `truth` as camera_truth.json holds them)."""
+    camera = result.camera
+    if camera is None:
+        return ""
+    truth = truth or {}
+    modes = camera["modes"]
+    lines = [f"camera (gains {modes['gains']}, white balance {modes['white_balance']}; the gains scale the render "
+             "to the photo, green's white balance is 1):"]
+    for name, (value, sigma) in camera["gains"].items():
+        true = truth.get("gains", {}).get(name)
+        versus = "" if true is None else f"  true {true:.4f}  error {100 * (value / true - 1):+.1f}%"
+        lines.append(f"  gain[{name}]  {value:.4f} ± {sigma:.4f}{versus}")
+    wb = camera["white_balance"]
+    true = truth.get("white_balance")
+    lines.append("  white_balance  " + _fmt(wb["value"], 4) + " ± " + _fmt(wb["sigma"], 4)
+                 + ("" if true is None else "  true " + _fmt(true, 4)))
+    return "\n".join(lines)

@@ -19,6 +19,18 @@ target.toml:
     scene = "scene_back.toml"
     image = "back.exr"
 
+Photographs: an image may be a PNG, JPEG or TIFF (8 or 16 bit, or float) besides EXR (`warp_hair.photo`): it
+is decoded to linear through its transfer function (per image, `transfer = "auto"` by default: the file's ICC
+profile, else sRGB; or "srgb", "linear"), and its clipped and crushed pixels are left out of the loss (taken out
+of the mask). A camera chose each photo's exposure and white balance, so they are fitted with the hair
+(optimize/camera.py), as target.toml says:
+
+    gains = "per-image"        # or "exif" (one gain, EXIF's t·ISO/N² ratios), "shared", "none"
+    white_balance = "fit"      # or "none"
+
+By default both are fitted when any image is display-referred (gains "exif" when every image has EXIF exposure,
+"per-image" otherwise) and neither for linear images (EXR); `warp-hair fit --gains/--white-balance` override.
+
 All images of a target show the same fibers with the same hair: their scenes' [fibers] and [hair] must agree.
 `make_target` renders the images from their scenes (at the spp and seed of each scene's [render] table) and
 writes truth.json from the [hair] table: what the shipped targets are made with (`warp-hair targets make`).
@@ -44,14 +56,18 @@ import numpy as np
 
 import targets as shipped
 from warp_hair.geometry.interpenetration import checked_interpenetration
+
+from .camera import GAIN_MODES, WHITE_BALANCE_MODES
 from warp_hair.io import read_exr, write_exr
 from warp_hair.model.params import HairParams
+from warp_hair.photo import TRANSFERS, Photo, read_photo
 from warp_hair.renderer.render import render, render_metadata
 from warp_hair.scene import Scene, load_scene
 
 TARGET_FILE = shipped.TARGET_FILE
 TRUTH_FILE = "truth.json"
-IMAGE_KEYS = {"scene", "image", "mask"}
+IMAGE_KEYS = {"scene", "image", "mask", "transfer"}
+SPEC_KEYS = {"images", "renderer", "gains", "white_balance"}
 # Who rendered a target's images: warp-hair itself, or a peer renderer (benchmarks/make_peer_targets.py).
 RENDERERS = ("warp-hair", "mitsuba", "cycles")
 # The shipped targets: the `targets` package's data, in a source checkout or an installed package.
@@ -66,6 +82,7 @@ class TargetImage:
     mask: np.ndarray | None  # (H, W) bool, True where the pixel counts
     image_path: Path
     metadata: dict = field(default_factory=dict)  # the EXR header's string attributes (`warp_hair.io.read_exr`)
+    photo: Photo | None = None  # a PNG, JPEG or TIFF's decoding: transfer, clipped and crushed pixels, EXIF
 
 
 @dataclass
@@ -75,6 +92,8 @@ class Target:
     images: list
     truth: HairParams | None
     renderer: str = "warp-hair"
+    gains: str = "none"  # the images' exposures the fit solves for (optimize/camera.py): per-image, exif, shared
+    white_balance: str = "none"  # "fit": a gain per channel, green's pinned
 
     @property
     def hair(self) -> HairParams:
@@ -135,9 +154,13 @@ def _read_spec(directory) -> dict:
         raise ValueError(f"{spec_path}: cannot read: {error}") from None
     except tomllib.TOMLDecodeError as error:
         raise ValueError(f"{spec_path}: TOML syntax error: {error}") from None
-    unknown = sorted(set(spec) - {"images", "renderer"})
+    unknown = sorted(set(spec) - SPEC_KEYS)
     if unknown:
-        raise ValueError(f"{spec_path}: unknown key(s) {unknown}; a target file has [[images]] tables and renderer")
+        raise ValueError(f"{spec_path}: unknown key(s) {unknown}; a target file has [[images]] tables, renderer, "
+                         "gains and white_balance")
+    for key, allowed in (("gains", GAIN_MODES), ("white_balance", WHITE_BALANCE_MODES)):
+        if key in spec and spec[key] not in allowed:
+            raise ValueError(f"{spec_path}: {key} = {spec[key]!r}; allowed: {list(allowed)}")
     if spec.get("renderer", "warp-hair") not in RENDERERS:
         raise ValueError(f"{spec_path}: renderer = {spec['renderer']!r}; allowed: {list(RENDERERS)}")
     entries = spec.get("images")
@@ -153,29 +176,70 @@ def _read_spec(directory) -> dict:
                 raise ValueError(f"{where}: needs {key} = \"<file name>\"")
         if "mask" in entry and not isinstance(entry["mask"], str):
             raise ValueError(f"{where}: mask must be a file name, got {entry['mask']!r}")
+        if "transfer" in entry and entry["transfer"] not in TRANSFERS:
+            raise ValueError(f"{where}: transfer = {entry['transfer']!r}; allowed: {list(TRANSFERS)}")
     return spec
 
 
 def load_target(directory) -> Target:
     """Read and check a target directory (see the module docstring); errors name the file and the problem."""
     directory = Path(directory)
-    entries = read_target_spec(directory)
+    spec = _read_spec(directory)
     images = []
-    for entry in entries:
+    for entry in spec["images"]:
         scene = load_scene(directory / entry["scene"])
         image_path = directory / entry["image"]
-        image, metadata = _read_target_image(image_path, scene)
+        image, metadata, photo = _read_target_image(image_path, scene, entry.get("transfer", "auto"))
         mask = None if "mask" not in entry else _read_mask(directory / entry["mask"], image.shape[:2])
-        images.append(TargetImage(Path(entry["image"]).stem, scene, image, mask, image_path, metadata))
+        if photo is not None:
+            mask = _photo_mask(photo, mask)
+        images.append(TargetImage(Path(entry["image"]).stem, scene, image, mask, image_path, metadata, photo))
     _check_consistent(images)
     truth = read_truth(directory / TRUTH_FILE)
-    return Target(directory.resolve().name, directory, images, truth, target_renderer(directory))
+    gains, white_balance = _camera_unknowns(directory / TARGET_FILE, spec, images)
+    return Target(directory.resolve().name, directory, images, truth, spec.get("renderer", "warp-hair"), gains,
+                  white_balance)
 
 
-def _read_target_image(path: Path, scene: Scene) -> tuple:
+def _photo_mask(photo, mask):
+    """The given mask (or every pixel) without the photo's clipped and crushed pixels; an error if none is left."""
+    keep = ~(photo.clipped | photo.crushed)
+    combined = keep if mask is None else (mask & keep)
+    if not combined.any():
+        raise ValueError(f"{photo.path}: every pixel{' the mask selects' if mask is not None else ''} is clipped "
+                         f"({int(photo.clipped.sum())}) or crushed to black ({int(photo.crushed.sum())}): nothing "
+                         "is left to fit; expose the photo so that the hair lies within the range")
+    return combined
+
+
+def _camera_unknowns(spec_path: Path, spec: dict, images) -> tuple:
+    """(gains, white_balance) for the fit (optimize/camera.py): target.toml's, else, where any image is
+    display-referred (a camera chose its exposure and white balance), both fitted: one gain and EXIF's ratios
+    when every image has EXIF exposure (t, N, ISO), a gain per image otherwise; for linear images (EXR), none."""
+    photos = [image.photo for image in images]
+    display = any(p is not None and p.display_referred for p in photos)
+    with_exif = all(p is not None and p.relative_exposure is not None for p in photos)
+    gains = spec.get("gains", ("exif" if with_exif else "per-image") if display else "none")
+    white_balance = spec.get("white_balance", "fit" if display else "none")
+    if gains == "exif" and not with_exif:
+        lacking = next(image for image, p in zip(images, photos) if p is None or p.relative_exposure is None)
+        raise ValueError(f"{spec_path}: gains = \"exif\" but {lacking.image_path.name} has no EXIF exposure time, "
+                         "f-number and ISO to relate its exposure to the others'; use gains = \"per-image\"")
+    return gains, white_balance
+
+
+def _read_target_image(path: Path, scene: Scene, transfer: str = "auto") -> tuple:
+    """(linear image, EXR metadata, Photo or None): an EXR as it is, a PNG, JPEG or TIFF decoded (warp_hair.photo)."""
     if not path.is_file():
         raise FileNotFoundError(f"{path}: target image not found")
-    image, metadata = read_exr(path)
+    photo = None
+    if path.suffix.lower() == ".exr":
+        if transfer not in ("auto", "linear"):
+            raise ValueError(f"{path}: an EXR holds linear values; transfer = {transfer!r} does not apply")
+        image, metadata = read_exr(path)
+    else:
+        photo = read_photo(path, transfer)
+        image, metadata = photo.image, {}
     width, height = scene.camera.resolution
     if image.shape[:2] != (height, width):
         raise ValueError(
@@ -189,7 +253,7 @@ def _read_target_image(path: Path, scene: Scene) -> tuple:
     if (image < 0).any():
         y, x, c = np.argwhere(image < 0)[0]
         raise ValueError(f"{path}: negative radiance {image[y, x, c]} at pixel (x={x}, y={y}); targets are linear radiance >= 0")
-    return image, metadata
+    return image, metadata, photo
 
 
 def _read_mask(path: Path, shape) -> np.ndarray:
@@ -249,6 +313,9 @@ def make_target(directory, threads=None, progress=None) -> list[Path]:
     entries = read_target_spec(directory)
     _check_writable_target(directory)
     renderer = target_renderer(directory)
+    if any(Path(entry["image"]).suffix.lower() != ".exr" for entry in entries):
+        raise ValueError(f"{directory}: its images are photos (or made to look like them), not renders to remake; "
+                         "the shipped photo-like targets are remade with `python benchmarks/make_photo_targets.py`")
     if renderer != "warp-hair":
         raise ValueError(f"{directory}: its images were rendered by {renderer}; re-render them with "
                          f"`python benchmarks/make_peer_targets.py {directory.name}` (from a source checkout, with "

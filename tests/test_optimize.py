@@ -449,7 +449,13 @@ def test_shipped_targets_are_complete():
     names = [d.name for d in shipped_targets()]
     own = ["auburn_curly", "black_straight", "blonde_straight", "brown_wavy", "chestnut_straight", "fur_patch"]
     peers = [f"{peer}_{look}" for peer in ("cycles", "mitsuba") for look in ("blonde_straight", "brown_straight", "dark_wavy")]
-    assert names == sorted(own + peers)
+    # The Cycles swatches as a camera saves them (benchmarks/make_photo_targets.py, issue 22).
+    photos = [f"photo_{look}_{kind}" for look in ("blonde_straight", "brown_straight", "dark_wavy") for kind in ("jpeg", "png")]
+    assert names == sorted(own + peers + photos)
+    for name in photos:
+        target = load_target(SHIPPED_TARGETS / name)
+        assert (target.renderer, target.gains, target.white_balance) == ("cycles", "per-image", "fit")
+        assert all(image.photo is not None and image.photo.bits == 8 for image in target.images)
     for name in peers:
         target = load_target(SHIPPED_TARGETS / name)
         assert target.renderer == name.split("_")[0]

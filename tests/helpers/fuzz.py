@@ -246,7 +246,8 @@ def _target_case(index, rng):
         data = {"target.toml": _toml(mutant)}
         what = f"target.toml: {what}"
     else:
-        name = rng.choice(["front.exr", "back.exr"])
+        # The target's images as target.toml lists them: EXR, or a photo-like target's PNG or JPEG.
+        name = rng.choice([entry["image"] for entry in tomllib.loads((source / "target.toml").read_text())["images"]])
         raw = (source / name).read_bytes()
         cut = rng.randrange(len(raw))
         data = {name + ".bytes": raw[:cut].hex()}

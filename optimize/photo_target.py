@@ -1,0 +1,216 @@
+"""A fit target from photographs, in one command: the rig's dimensions, the camera, the light, the photos.
+
+    warp-hair targets photo OUT_DIR --rig draped --image front.jpg --light 0.2,-0.3,-1 \\
+        --image back.jpg --light 0,-0.15,1 --width 0.4 --length 0.5 --count 152 --layers 4 --drape 0.25 \\
+        --distance 3 --sensor-width 23.5 --resolution 64
+    warp-hair fit OUT_DIR -o fit_out
+
+writes OUT_DIR/scene_<photo>.toml (camera, light, fibers, a starting [hair]), <photo>.exr (the photo decoded to
+linear and box-filtered down to the working resolution), <photo>_mask.png where pixels are left out, and
+target.toml with the photos' gains and white balance to fit (`optimize/camera.py`).
+
+The rig's frame is the generators' (warp_hair.geometry.generators): fibers run along +y (roots at −length/2),
+across x, the camera on +z looking at the origin (the top of the rod, for a draped swatch; the card's face, for
+a flat swatch; for a fur patch the camera looks down at the patch from `--elevation` degrees above its plane).
+A directional light's vector is the direction its light travels, in that frame: (0.2, −0.3, −1) comes from
+behind the camera, a little above and to the left; (0, −0.15, 1) from behind the swatch. An HDRI taken where the
+swatch stood replaces the directional lights (`--hdri`, a lat-long EXR).
+
+Rigs: `draped` a swatch laid over a rod of radius `--drape` (the highlight band a photo shows), `flat` a swatch
+on a card, `fur` a patch of fur (`--patch`, `--fur-length`, `--count`). The camera: orthographic (`--ortho-width`,
+the view's width in scene units), or perspective at `--distance` with `--fov`, or EXIF's focal length with
+`--sensor-width` (mm; the 35 mm equivalent focal length's 36 mm when EXIF gives that). A grey card behind the
+swatch (`--card REFLECTANCE`) is rendered as the scenes' [card]: its pixels pin the gains and white balance.
+
+Decisions: the photo is box-filtered to `--resolution` pixels across (aspect kept) in linear light; a block
+holding a clipped or crushed pixel is left out (the mask), as is the background when `--mask auto` (pixels
+within 5% of the border's median colour; not with a card, whose pixels carry the light's level and colour). EXIF
+that contradicts the flags (a `--fov` more than 2% from the one EXIF's focal length gives) is an error naming
+both; a light count that does not match the photos is an error.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+from PIL import Image
+
+from warp_hair.io import write_exr
+from warp_hair.photo import read_photo
+
+RIGS = ("draped", "flat", "fur")
+FOV_TOLERANCE = 0.02
+BACKGROUND_TOLERANCE = 0.05
+# The [render] spp written: a photo's noise (its sensor's, its codes') taken as a 1024-sample render's, as the
+# shipped peer targets are; the photo's quantisation is counted apart (identify.py).
+PHOTO_SPP = 1024
+START_HAIR = {"albedo": [0.5, 0.5, 0.5], "beta_m": 0.3, "beta_n": 0.3, "alpha": 2.0, "eta": 1.55}
+
+
+def horizontal_fov(focal_length: float, sensor_width: float) -> float:
+    """Degrees: 2 atan(sensor width / 2 f), the pinhole camera's horizontal field of view."""
+    return math.degrees(2 * math.atan(sensor_width / (2 * focal_length)))
+
+
+def camera_fov(photo, fov=None, sensor_width=None) -> float:
+    """The horizontal field of view: `fov`, or EXIF's focal length with `sensor_width` (or EXIF's 35 mm
+    equivalent over 36 mm); both given and disagreeing by more than FOV_TOLERANCE is an error."""
+    exif = photo.exif
+    from_exif = None
+    if sensor_width is not None and exif.get("focal_length"):
+        from_exif = horizontal_fov(exif["focal_length"], sensor_width)
+        source = f"EXIF focal length {exif['focal_length']:g} mm on a {sensor_width:g} mm sensor"
+    elif exif.get("focal_length_35mm"):
+        from_exif = horizontal_fov(exif["focal_length_35mm"], 36.0)
+        source = f"EXIF 35 mm equivalent focal length {exif['focal_length_35mm']:g} mm"
+    if fov is not None and from_exif is not None and abs(fov / from_exif - 1) > FOV_TOLERANCE:
+        raise ValueError(f"{photo.path}: --fov {fov:g}° contradicts the {source}, which gives {from_exif:.4g}°; "
+                         "drop one of them (a crop or a converter may have changed the photo's field of view)")
+    if fov is not None:
+        return float(fov)
+    if from_exif is None:
+        if sensor_width is not None:
+            raise ValueError(f"{photo.path}: --sensor-width given but the photo has no EXIF focal length; give --fov")
+        raise ValueError(f"{photo.path}: no field of view: give --fov, or --sensor-width with a photo whose EXIF has "
+                         "its focal length, or --ortho-width for an orthographic camera")
+    return from_exif
+
+
+def downsample(image: np.ndarray, bad: np.ndarray, width: int) -> tuple:
+    """Box-filter (H, W, 3) linear pixels to `width` across (aspect kept, edges cropped to whole blocks):
+    (image, blocks holding any `bad` pixel)."""
+    height_in, width_in = image.shape[:2]
+    if width > width_in:
+        raise ValueError(f"--resolution {width} exceeds the photo's width {width_in}")
+    factor = width_in // width
+    height = height_in // factor
+    crop = image[: height * factor, : width * factor]
+    blocks = crop.reshape(height, factor, width, factor, 3).mean(axis=(1, 3))
+    flags = bad[: height * factor, : width * factor].reshape(height, factor, width, factor).any(axis=(1, 3))
+    return blocks.astype(np.float32), flags
+
+
+def background_mask(image: np.ndarray) -> np.ndarray:
+    """True where the pixel differs from the border's median colour by more than BACKGROUND_TOLERANCE of the
+    image's 99th percentile (the hair), grown by one pixel."""
+    border = np.concatenate([image[0], image[-1], image[:, 0], image[:, -1]])
+    background = np.median(border, axis=0)
+    level = max(float(np.percentile(image, 99)), 1e-12)
+    hair = np.abs(image - background).max(axis=-1) > BACKGROUND_TOLERANCE * level
+    grown = hair.copy()
+    grown[1:] |= hair[:-1]
+    grown[:-1] |= hair[1:]
+    grown[:, 1:] |= hair[:, :-1]
+    grown[:, :-1] |= hair[:, 1:]
+    return grown
+
+
+def _fibers_table(rig: str, args) -> dict:
+    if rig == "fur":
+        return {"generator": "fur", "count": args.count, "patch": args.patch, "length": args.fur_length,
+                "root_radius": args.fiber_radius, "tip_radius": args.fiber_radius / 3, "seed": 1}
+    table = {"generator": "swatch", "count": args.count, "layers": args.layers, "length": args.length,
+             "width": args.width, "radius": args.fiber_radius, "segments": 128 if rig == "draped" else 8,
+             "jitter": 0.15, "seed": 1}
+    if rig == "draped":
+        table["drape"] = args.drape
+    return table
+
+
+def _camera_table(rig: str, args, photo, resolution) -> dict:
+    if rig == "fur":
+        elevation = math.radians(args.elevation)
+        direction = np.array([0.0, -math.cos(elevation), math.sin(elevation)])
+        up = [0.0, 0.0, 1.0]
+    else:
+        direction, up = np.array([0.0, 0.0, 1.0]), [0.0, 1.0, 0.0]
+    origin = (direction * args.distance).round(6).tolist()
+    table = {"origin": origin, "target": [0.0, 0.0, 0.0], "up": up, "resolution": list(resolution)}
+    if args.ortho_width is not None:
+        return {"type": "orthographic", **table, "width": args.ortho_width}
+    return {"type": "perspective", **table, "fov": round(camera_fov(photo, args.fov, args.sensor_width), 6)}
+
+
+def _toml(value) -> str:
+    if isinstance(value, str):
+        return json.dumps(value)
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(_toml(v) for v in value) + "]"
+    return repr(float(value)) if isinstance(value, float) else str(value)
+
+
+def _table(name: str, table: dict, array: bool = False) -> str:
+    head = f"[[{name}]]" if array else f"[{name}]"
+    return "\n".join([head] + [f"{key} = {_toml(value)}" for key, value in table.items()])
+
+
+def make_photo_target(out_dir, args) -> list[Path]:
+    """Write the target (see the module docstring) from the parsed `warp-hair targets photo` arguments."""
+    out_dir = Path(out_dir)
+    images = [Path(p) for p in args.image]
+    if args.rig not in RIGS:
+        raise ValueError(f"--rig {args.rig!r}; allowed: {list(RIGS)}")
+    if args.hdri is None and len(args.light or []) != len(images):
+        raise ValueError(f"{len(images)} photo(s) but {len(args.light or [])} --light direction(s): give one --light "
+                         "per --image, in the same order (or --hdri for all)")
+    if args.mask and len(args.mask) not in (1, len(images)) and args.mask != ["auto"]:
+        raise ValueError("--mask takes 'auto' or one mask file per --image")
+    names = [p.stem for p in images]
+    if len(set(names)) != len(names):
+        raise ValueError(f"two photos have the same name {names}: the target names its files after them")
+    out_dir.mkdir(parents=True, exist_ok=True)
+    written, entries = [], []
+    for k, path in enumerate(images):
+        photo = read_photo(path, args.transfer)
+        bad = photo.clipped | photo.crushed
+        image, flags = downsample(photo.image, bad, args.resolution)
+        keep = ~flags
+        if args.mask == ["auto"] and args.card is None:
+            keep &= background_mask(image)
+        elif args.mask and args.mask != ["auto"]:
+            given = np.asarray(Image.open(args.mask[k if len(args.mask) > 1 else 0]).convert("L")) > 127
+            given, _ = downsample(np.repeat(given[..., None].astype(np.float32), 3, -1), np.zeros(given.shape, bool),
+                                  args.resolution)
+            keep &= given[..., 0] > 0.5
+        if not keep.any():
+            raise ValueError(f"{path}: no pixel is left to fit once clipped, crushed and background pixels are out")
+        resolution = (image.shape[1], image.shape[0])
+        scene_name, exr_name = f"scene_{path.stem}.toml", f"{path.stem}.exr"
+        parts = [f"# Made by `warp-hair targets photo` from {path.name} ({photo.format} {photo.bits}-bit, "
+                 f"{photo.transfer} decoded, {int(photo.clipped.sum())} clipped and {int(photo.crushed.sum())} "
+                 "crushed pixels left out). [hair] is where a fit starts; the light's level is arbitrary: the fit "
+                 "solves each photo's gain and the white balance.",
+                 _table("camera", _camera_table(args.rig, args, photo, resolution))]
+        if args.hdri is not None:
+            parts.append(_table("lights", {"type": "environment", "file": str(Path(args.hdri).resolve())}, True))
+        else:
+            parts.append(_table("lights", {"type": "directional", "direction": list(args.light[k]),
+                                           "irradiance": [3.0, 3.0, 3.0]}, True))
+        parts += [_table("fibers", _fibers_table(args.rig, args)), _table("hair", START_HAIR)]
+        if args.card is not None:
+            parts.append(_table("card", {"albedo": [args.card] * 3}))
+        # A photo has no samples: its spp says how noisy `targets check` and the fit's refinement take it to be.
+        parts.append(_table("render", {"spp": PHOTO_SPP, "max_depth": 32, "seed": 1}))
+        (out_dir / scene_name).write_text("\n\n".join(parts) + "\n", encoding="utf-8")
+        write_exr(out_dir / exr_name, image, {"photo": {"file": path.name, "transfer": photo.transfer,
+                                                        "exif": photo.exif}})
+        entry = {"scene": scene_name, "image": exr_name}
+        written += [out_dir / scene_name, out_dir / exr_name]
+        if not keep.all():
+            mask_name = f"{path.stem}_mask.png"
+            Image.fromarray((keep * 255).astype(np.uint8), "L").save(out_dir / mask_name)
+            entry["mask"] = mask_name
+            written.append(out_dir / mask_name)
+        entries.append(entry)
+    lines = ["# Made by `warp-hair targets photo`: the photos decoded to linear EXR; their exposures and white balance "
+             "are fitted with the hair.", 'gains = "per-image"', 'white_balance = "fit"']
+    for entry in entries:
+        lines += ["", "[[images]]"] + [f"{key} = {_toml(value)}" for key, value in entry.items()]
+    (out_dir / "target.toml").write_text("\n".join(lines) + "\n", encoding="utf-8")
+    written.append(out_dir / "target.toml")
+    return written
