@@ -29,10 +29,9 @@ import time
 from pathlib import Path
 
 import numpy as np
-from tqdm import tqdm
-
 from cycles_peer import import_bpy, render_cycles
 from mitsuba_peer import SAMPLERS, import_mitsuba, mitsuba_scene, time_mitsuba
+from tqdm import tqdm
 
 from warp_hair.calibrate import (
     BLOCK_MAX_DEPTH,
@@ -59,10 +58,17 @@ def main() -> None:
     parser.add_argument("--layers", type=int, default=40)
     parser.add_argument("--threads", type=int)
     parser.add_argument("--calibrate", action="store_true", help="refit the inversion on the block instead")
-    parser.add_argument("--mitsuba", action="store_true",
-                        help="render the block in Mitsuba 3 too, its hair sampler as shipped and corrected")
-    parser.add_argument("--mitsuba-seeds", type=int, default=16,
-                        help="Mitsuba renders per value, averaged: its block renders are heavy-tailed (default 16)")
+    parser.add_argument(
+        "--mitsuba",
+        action="store_true",
+        help="render the block in Mitsuba 3 too, its hair sampler as shipped and corrected",
+    )
+    parser.add_argument(
+        "--mitsuba-seeds",
+        type=int,
+        default=16,
+        help="Mitsuba renders per value, averaged: its block renders are heavy-tailed (default 16)",
+    )
     parser.add_argument("--cycles", action="store_true", help="render the block in Blender Cycles too (4 seeds)")
     args = parser.parse_args()
     if args.calibrate:
@@ -75,17 +81,21 @@ def main() -> None:
     with tqdm(total=len(REQUESTED) * len(BETA_N), unit="render") as bar:
         for beta_n in BETA_N:
             for k, albedo in enumerate(REQUESTED):
-                scene = block_scene(HairParams(albedo=albedo, beta_n=beta_n), layers=args.layers,
-                                    max_depth=args.max_depth)
+                scene = block_scene(
+                    HairParams(albedo=albedo, beta_n=beta_n), layers=args.layers, max_depth=args.max_depth
+                )
                 mask = measured_pixels(scene)
-                measured, error = measure_albedo(scene, mask, white_radiance(scene), spp=args.spp, seed=k,
-                                                 threads=args.threads)
+                measured, error = measure_albedo(
+                    scene, mask, white_radiance(scene), spp=args.spp, seed=k, threads=args.threads
+                )
                 peers = [] if mitsuba is None else [mitsuba(scene, mask, sampler, k) for sampler in SAMPLERS]
                 peers += [] if cycles is None else [cycles(scene, mask, k)]
                 rows.append((beta_n, albedo, measured, error, MITSUBA[beta_n][k], mask.mean(), peers))
                 bar.update()
-    print(f"{args.layers} layers, 32x32 px, {args.spp} spp, max_depth {args.max_depth}: "
-          f"{time.perf_counter() - start_wall:.0f} s wall, {time.process_time() - start_cpu:.0f} s CPU")
+    print(
+        f"{args.layers} layers, 32x32 px, {args.spp} spp, max_depth {args.max_depth}: "
+        f"{time.perf_counter() - start_wall:.0f} s wall, {time.process_time() - start_cpu:.0f} s CPU"
+    )
     extra = ["Mitsuba as shipped", "Mitsuba, residual lobe corrected"] if mitsuba is not None else []
     extra += ["Cycles"] if cycles is not None else []
     print("| β_n | requested | warp-hair | Mitsuba 3 (issue 12) |" + "".join(f" {e} |" for e in extra))
@@ -105,8 +115,12 @@ def cycles_block_renderer(args, seeds=4):
 
     def render_block(scene, mask, seed):
         threads = args.threads or default_threads()
-        return seed_average(lambda s: render_cycles(bpy, scene, args.spp, threads=threads, seed=s), scene, mask,
-                            range(seed * seeds, (seed + 1) * seeds))
+        return seed_average(
+            lambda s: render_cycles(bpy, scene, args.spp, threads=threads, seed=s),
+            scene,
+            mask,
+            range(seed * seeds, (seed + 1) * seeds),
+        )
 
     return render_block
 
@@ -134,11 +148,16 @@ def mitsuba_block_renderer(args):
         if scene.fibers.num_strands not in files:
             files[scene.fibers.num_strands] = directory / f"block_{scene.fibers.num_strands}.txt"
             save_fibers(scene.fibers, files[scene.fibers.num_strands])
-        mi_scene = mitsuba_scene(mi, scene, args.spp, shape="linearcurve",
-                                 fibers_file=files[scene.fibers.num_strands], sampler=sampler)
+        mi_scene = mitsuba_scene(
+            mi, scene, args.spp, shape="linearcurve", fibers_file=files[scene.fibers.num_strands], sampler=sampler
+        )
         threads = args.threads or default_threads()
-        return seed_average(lambda s: time_mitsuba(mi, mi_scene, args.spp, s, threads, 1)[2], scene, mask,
-                            range(seed * args.mitsuba_seeds, (seed + 1) * args.mitsuba_seeds))
+        return seed_average(
+            lambda s: time_mitsuba(mi, mi_scene, args.spp, s, threads, 1)[2],
+            scene,
+            mask,
+            range(seed * args.mitsuba_seeds, (seed + 1) * args.mitsuba_seeds),
+        )
 
     return render_block
 
@@ -153,8 +172,10 @@ def run_calibration(args) -> None:
             bar.update(done - bar.n)
 
         result = calibrate(scene, spp=args.spp, threads=args.threads, progress=progress)
-    print(f"{args.layers} layers, 32x32 px, {args.spp} spp, max_depth {args.max_depth}: "
-          f"{time.perf_counter() - start_wall:.0f} s wall, {time.process_time() - start_cpu:.0f} s CPU")
+    print(
+        f"{args.layers} layers, 32x32 px, {args.spp} spp, max_depth {args.max_depth}: "
+        f"{time.perf_counter() - start_wall:.0f} s wall, {time.process_time() - start_cpu:.0f} s CPU"
+    )
     print(result.table())
     print(result.summary())
     print(f"the talk's: {', '.join(f'{p:.6g}' for p in TALK_ALBEDO_INVERSION)}")

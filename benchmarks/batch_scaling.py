@@ -32,8 +32,10 @@ from warp_hair.cli import exit_on_interrupt
 
 HERE = Path(__file__).resolve().parent
 SHORT = {"iters": 12, "spp": 8, "refine": 2}
-TINY_FIT = ("import targets; from optimize import fit, load_target; "
-            "fit(load_target(targets.path('black_straight')), iters=1, spp=1, refine=0, progress=False)")
+TINY_FIT = (
+    "import targets; from optimize import fit, load_target; "
+    "fit(load_target(targets.path('black_straight')), iters=1, spp=1, refine=0, progress=False)"
+)
 
 
 def manifest_copy(folder: Path, short: bool, only) -> Path:
@@ -67,8 +69,15 @@ def run(workers: int, short: bool, only) -> dict:
     wall = time.perf_counter() - started
     statuses = [store.read_status(manifest.output, job.name) for job in manifest.jobs]
     seconds = [s["seconds"] for s in statuses]
-    return {"workers": workers, "jobs": len(manifest.jobs), "failed": outcome.failed, "ray_start": started - start,
-            "wall": wall, "job_seconds": sum(seconds), "efficiency": sum(seconds) / workers / wall}
+    return {
+        "workers": workers,
+        "jobs": len(manifest.jobs),
+        "failed": outcome.failed,
+        "ray_start": started - start,
+        "wall": wall,
+        "job_seconds": sum(seconds),
+        "efficiency": sum(seconds) / workers / wall,
+    }
 
 
 def warmup() -> dict:
@@ -86,14 +95,20 @@ def warmup() -> dict:
 
 
 def table(results) -> str:
-    lines = ["| workers | jobs | Ray start (s) | wall (s) | jobs' own seconds (sum) | mean job (s) | efficiency |",
-             "| --- | --- | --- | --- | --- | --- | --- |"]
+    lines = [
+        "| workers | jobs | Ray start (s) | wall (s) | jobs' own seconds (sum) | mean job (s) | efficiency |",
+        "| --- | --- | --- | --- | --- | --- | --- |",
+    ]
     for r in results:
-        lines.append(f"| {r['workers']} | {r['jobs']} | {r['ray_start']:.1f} | {r['wall']:.1f} | "
-                     f"{r['job_seconds']:.1f} | {r['job_seconds'] / r['jobs']:.1f} | {r['efficiency']:.2f} |")
+        lines.append(
+            f"| {r['workers']} | {r['jobs']} | {r['ray_start']:.1f} | {r['wall']:.1f} | "
+            f"{r['job_seconds']:.1f} | {r['job_seconds'] / r['jobs']:.1f} | {r['efficiency']:.2f} |"
+        )
     if len(results) > 1:
-        lines.append(f"\nspeed-up {results[0]['workers']} -> {results[-1]['workers']} workers: "
-                     f"{results[0]['wall'] / results[-1]['wall']:.2f}x")
+        lines.append(
+            f"\nspeed-up {results[0]['workers']} -> {results[-1]['workers']} workers: "
+            f"{results[0]['wall'] / results[-1]['wall']:.2f}x"
+        )
     return "\n".join(lines)
 
 
@@ -102,15 +117,18 @@ def main() -> None:
     parser.add_argument("--workers", type=int, nargs="+", default=[1, 2])
     parser.add_argument("--short", action="store_true", help=f"short fits ({SHORT}) for a shared machine")
     parser.add_argument("--only", nargs="+", metavar="NAME", help="fit only these targets of the batch")
-    parser.add_argument("--warmup", action="store_true", help="also time a fresh process with a warm and a cold "
-                        "Warp kernel cache")
+    parser.add_argument(
+        "--warmup", action="store_true", help="also time a fresh process with a warm and a cold Warp kernel cache"
+    )
     args = parser.parse_args()
     results = [run(n, args.short, args.only) for n in args.workers]
     print(table(results))
     if args.warmup:
         w = warmup()
-        print(f"fresh process, tiny fit: warm kernel cache {w['warm']:.1f} s, empty cache {w['cold']:.1f} s "
-              f"(the compile; {w['cache_mb']:.1f} MB of kernels)")
+        print(
+            f"fresh process, tiny fit: warm kernel cache {w['warm']:.1f} s, empty cache {w['cold']:.1f} s "
+            f"(the compile; {w['cache_mb']:.1f} MB of kernels)"
+        )
     (HERE / "out" / "batch_scaling" / "results.json").write_text(json.dumps(results, indent=2))
 
 

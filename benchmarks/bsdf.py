@@ -22,8 +22,8 @@ import warp as wp
 
 import warp_hair
 from warp_hair import HairParams, bsdf
-from warp_hair.model.bsdf import _sample_kernel
 from warp_hair.cli import exit_on_interrupt
+from warp_hair.model.bsdf import _sample_kernel
 from warp_hair.model.hair_bsdf import hair_coefficients
 from warp_hair.parallel import default_threads, launch_ranges
 

@@ -37,7 +37,7 @@ def import_bpy():
     try:
         import bpy
     except ImportError as error:
-        print(f"Cycles comparison skipped: {error}. Enable it with `pip install \"bpy==4.5.*\"`.")
+        print(f'Cycles comparison skipped: {error}. Enable it with `pip install "bpy==4.5.*"`.')
         return None
     return bpy
 

@@ -30,8 +30,17 @@ def main() -> None:
     target = load_target(SHIPPED_TARGETS / args.target)
     wall, cpu = time.perf_counter(), time.process_time()
     result = fit(target, progress=False, iters=args.iters, refine=args.refine, uncertainty=False, threads=args.threads)
-    print(json.dumps({"optimize": optimize.__file__, "target": args.target, "wall": time.perf_counter() - wall,
-                      "cpu": time.process_time() - cpu, "values": result.values}))
+    print(
+        json.dumps(
+            {
+                "optimize": optimize.__file__,
+                "target": args.target,
+                "wall": time.perf_counter() - wall,
+                "cpu": time.process_time() - cpu,
+                "values": result.values,
+            }
+        )
+    )
 
 
 if __name__ == "__main__":

@@ -39,8 +39,9 @@ def main() -> None:
     args = parser.parse_args()
     given = [Path(n) for n in args.names if Path(n).is_dir()]
     # The photo-like targets have their own rule and table (benchmarks/photo_acceptance.py); named, they run here.
-    directories = given + [d for d in shipped_targets()
-                           if d.name in args.names or (not args.names and not d.name.startswith("photo_"))]
+    directories = given + [
+        d for d in shipped_targets() if d.name in args.names or (not args.names and not d.name.startswith("photo_"))
+    ]
     rows = []
     for directory in directories:
         target = load_target(directory)
@@ -53,8 +54,14 @@ def main() -> None:
         ok = a_err <= ALBEDO_BOUND and m_err <= BETA_BOUND and n_err <= BETA_BOUND
         # The largest error in units of the fit's own reported uncertainty: whether that uncertainty is honest.
         sigmas = result.uncertainties or {}
-        z = max((float(np.max(np.abs(np.subtract(result.values[k], truth[k])) / np.asarray(sigmas[k])))
-                 for k in ("albedo", "beta_m", "beta_n") if k in sigmas), default=float("nan"))
+        z = max(
+            (
+                float(np.max(np.abs(np.subtract(result.values[k], truth[k])) / np.asarray(sigmas[k])))
+                for k in ("albedo", "beta_m", "beta_n")
+                if k in sigmas
+            ),
+            default=float("nan"),
+        )
         rows.append(
             f"| {directory.name} | {target.renderer} "
             f"| {fmt(truth['albedo'])} / {truth['beta_m']:.2f} / {truth['beta_n']:.2f} "
@@ -65,8 +72,10 @@ def main() -> None:
         if result.stop_reason == "interrupted":  # the fit saved its estimate; the other targets are not started
             raise KeyboardInterrupt
     print()
-    print("| target | rendered by | true albedo / β_m / β_n | fitted albedo / β_m / β_n | max albedo error | β_m error "
-          "| β_n error | largest error / σ | within bounds | time |")
+    print(
+        "| target | rendered by | true albedo / β_m / β_n | fitted albedo / β_m / β_n | max albedo error | β_m error "
+        "| β_n error | largest error / σ | within bounds | time |"
+    )
     print("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |")
     print("\n".join(rows))
 

@@ -13,10 +13,10 @@ import argparse
 import copy
 import dataclasses
 import importlib
-import tomllib
 from pathlib import Path
 
 import numpy as np
+import tomllib
 
 from warp_hair.cli import exit_on_interrupt
 from warp_hair.geometry.assembly import FiberAssembly
@@ -45,9 +45,12 @@ def main() -> None:
     importlib.import_module("warp_hair.renderer.prepare").check_scene = lambda scene: None
     for shift in args.shifts:
         moved = copy.copy(scene)
-        moved.camera = dataclasses.replace(scene.camera, origin=np.add(scene.camera.origin, [shift, 0, 0]).tolist(),
-                                           target=np.add(scene.camera.target, [shift, 0, 0]).tolist())
-        moved.fibers = FiberAssembly(points + [shift, 0.0, 0.0], scene.fibers.radii, scene.fibers.strand_offsets)
+        moved.camera = dataclasses.replace(
+            scene.camera,
+            origin=np.add(scene.camera.origin, [shift, 0, 0]).tolist(),
+            target=np.add(scene.camera.target, [shift, 0, 0]).tolist(),
+        )
+        moved.fibers = FiberAssembly([*points, shift, 0.0, 0.0], scene.fibers.radii, scene.fibers.strand_offsets)
         extent = max(np.abs(moved.fibers.points).max(), *np.abs(moved.camera.origin))
         verdict = "refused" if extent > RESOLUTION_LIMIT * radius else "accepted"
         change = render(moved, spp=args.spp).mean() / reference - 1

@@ -23,7 +23,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
-from helpers.fuzz import PASSING, cases, run_all, table, warm_up  # noqa: E402
+from helpers.fuzz import PASSING, cases, run_all, table, warm_up
 
 
 def main() -> None:
@@ -44,8 +44,10 @@ def main() -> None:
     with tqdm(total=len(all_cases), unit="case") as bar:
         results = run_all(all_cases, args.workdir, args.memory_mib * 2**20, args.seconds, args.jobs, bar)
     shutil.rmtree(args.workdir, ignore_errors=True)
-    print(f"\n{len(results)} cases (seed {args.seed}) in {time.perf_counter() - start:.0f} s, "
-          f"each in a child limited to +{args.memory_mib} MiB and {args.seconds} CPU s\n")
+    print(
+        f"\n{len(results)} cases (seed {args.seed}) in {time.perf_counter() - start:.0f} s, "
+        f"each in a child limited to +{args.memory_mib} MiB and {args.seconds} CPU s\n"
+    )
     print(table(results))
     failures = [(c, r) for c, r in results if r[0] not in PASSING]
     for case, (outcome, detail) in failures[:50]:

@@ -27,6 +27,8 @@ import tempfile
 from pathlib import Path
 
 import numpy as np
+from cycles_peer import import_bpy, render_cycles
+from mitsuba_peer import import_mitsuba, mitsuba_scene, time_mitsuba
 
 import warp_hair as wh
 from warp_hair.geometry.assembly import FiberAssembly
@@ -34,9 +36,6 @@ from warp_hair.geometry.formats import save_fibers
 from warp_hair.parallel import default_threads
 from warp_hair.renderer.render import render
 from warp_hair.scene import scene_from_dict
-
-from cycles_peer import import_bpy, render_cycles
-from mitsuba_peer import import_mitsuba, mitsuba_scene, time_mitsuba
 
 RADIUS = 0.05
 HAIR = {"albedo": [0.55, 0.4, 0.25], "beta_m": 0.3, "beta_n": 0.35, "alpha": 0.0, "eta": 1.55}
@@ -47,8 +46,14 @@ QUADRATURE = 64
 
 def lone_fiber_scene(light_direction, columns, spp, bounces=1):
     data = {
-        "camera": {"type": "orthographic", "origin": [0.0, 0.0, 3.0], "target": [0.0, 0.0, 0.0],
-                   "up": [0.0, 1.0, 0.0], "width": 2.0 * RADIUS, "resolution": [columns, 4]},
+        "camera": {
+            "type": "orthographic",
+            "origin": [0.0, 0.0, 3.0],
+            "target": [0.0, 0.0, 0.0],
+            "up": [0.0, 1.0, 0.0],
+            "width": 2.0 * RADIUS,
+            "resolution": [columns, 4],
+        },
         "lights": [{"type": "directional", "direction": list(light_direction), "irradiance": [2.0, 2.0, 2.0]}],
         "fibers": {"generator": "swatch", "count": 1, "layers": 1},
         "hair": HAIR,
@@ -97,20 +102,26 @@ def main(argv=None):
             scene = lone_fiber_scene(direction, args.columns, args.spp, args.bounces)
             exact = quadrature(scene.hair, direction, args.columns)
             ours = render(scene).mean(axis=0)
-            line = (f"[{name}] exact mean {fmt(exact.mean(axis=0))}; warp-hair / exact {fmt(ours.mean(axis=0) / exact.mean(axis=0))}"
-                    f", worst column {np.max(np.abs(ours - exact)) / exact.max():.2%} of the peak")
+            line = (
+                f"[{name}] exact mean {fmt(exact.mean(axis=0))}; warp-hair / exact {fmt(ours.mean(axis=0) / exact.mean(axis=0))}"
+                f", worst column {np.max(np.abs(ours - exact)) / exact.max():.2%} of the peak"
+            )
             if mi is not None:
                 fibers_file = Path(tmp) / "fiber.txt"
                 save_fibers(scene.fibers, fibers_file)
                 mi_scene = mitsuba_scene(mi, scene, args.spp, shape="bsplinecurve", fibers_file=fibers_file)
                 _, _, theirs = time_mitsuba(mi, mi_scene, args.spp, 5, default_threads(), 1)
                 theirs = theirs.mean(axis=0)
-                line += (f"; Mitsuba / exact {fmt(theirs.mean(axis=0) / exact.mean(axis=0))}, worst column "
-                         f"{np.max(np.abs(theirs - exact)) / exact.max():.2%}")
+                line += (
+                    f"; Mitsuba / exact {fmt(theirs.mean(axis=0) / exact.mean(axis=0))}, worst column "
+                    f"{np.max(np.abs(theirs - exact)) / exact.max():.2%}"
+                )
             if bpy is not None:
                 theirs = render_cycles(bpy, scene, args.spp, threads=default_threads()).mean(axis=0)
-                line += (f"; Cycles / exact {fmt(theirs.mean(axis=0) / exact.mean(axis=0))}, worst column "
-                         f"{np.max(np.abs(theirs - exact)) / exact.max():.2%}")
+                line += (
+                    f"; Cycles / exact {fmt(theirs.mean(axis=0) / exact.mean(axis=0))}, worst column "
+                    f"{np.max(np.abs(theirs - exact)) / exact.max():.2%}"
+                )
             print(line)
 
 

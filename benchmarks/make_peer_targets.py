@@ -25,14 +25,14 @@ import tempfile
 import time
 from pathlib import Path
 
+from cycles_peer import import_bpy, render_cycles
+from mitsuba_peer import SAMPLERS, bspline_control_points, import_mitsuba, mitsuba_scene, time_mitsuba
+
 from optimize.target import SHIPPED_TARGETS, TRUTH_FILE, read_target_spec, target_renderer
 from warp_hair.geometry.formats import save_fibers
 from warp_hair.io import write_exr
 from warp_hair.parallel import default_threads
 from warp_hair.scene import load_scene
-
-from cycles_peer import import_bpy, render_cycles
-from mitsuba_peer import SAMPLERS, bspline_control_points, import_mitsuba, mitsuba_scene, time_mitsuba
 
 
 def peer_renderer(name, mitsuba_sampler="corrected"):
@@ -41,8 +41,9 @@ def peer_renderer(name, mitsuba_sampler="corrected"):
         bpy = import_bpy()
         if bpy is None:
             sys.exit(1)
-        return (lambda scene, threads: render_cycles(bpy, scene, scene.render.spp, threads=threads,
-                                                     seed=scene.render.seed)), f"Cycles {bpy.app.version_string}"
+        return (
+            lambda scene, threads: render_cycles(bpy, scene, scene.render.spp, threads=threads, seed=scene.render.seed)
+        ), f"Cycles {bpy.app.version_string}"
     mi = import_mitsuba()
     if mi is None:
         sys.exit(1)
@@ -53,8 +54,9 @@ def peer_renderer(name, mitsuba_sampler="corrected"):
         with tempfile.TemporaryDirectory() as tmp:
             fibers_file = Path(tmp) / "fibers.txt"
             save_fibers(bspline_control_points(scene.fibers), fibers_file)
-            mi_scene = mitsuba_scene(mi, scene, scene.render.spp, shape="bsplinecurve", fibers_file=fibers_file,
-                                     sampler=mitsuba_sampler)
+            mi_scene = mitsuba_scene(
+                mi, scene, scene.render.spp, shape="bsplinecurve", fibers_file=fibers_file, sampler=mitsuba_sampler
+            )
             return time_mitsuba(mi, mi_scene, scene.render.spp, scene.render.seed, threads, 1)[2]
 
     return render_mitsuba, f"Mitsuba {mi.__version__} ({mi.variant()}, bsplinecurve, {mitsuba_sampler} hair sampler)"
@@ -68,11 +70,17 @@ def make_peer_target(directory, threads, mitsuba_sampler="corrected"):
         scene = load_scene(directory / entry["scene"])
         start = time.perf_counter()
         image = render(scene, threads)
-        meta = {"renderer": version, "scene": entry["scene"], "spp": scene.render.spp, "seed": scene.render.seed,
-                "hair": scene.hair.to_dict()}
+        meta = {
+            "renderer": version,
+            "scene": entry["scene"],
+            "spp": scene.render.spp,
+            "seed": scene.render.seed,
+            "hair": scene.hair.to_dict(),
+        }
         write_exr(directory / entry["image"], image, {"warp_hair": meta})
-        print(f"{directory.name}/{entry['image']}: {version}, {scene.render.spp} spp, "
-              f"{time.perf_counter() - start:.0f} s")
+        print(
+            f"{directory.name}/{entry['image']}: {version}, {scene.render.spp} spp, {time.perf_counter() - start:.0f} s"
+        )
         hair = scene.hair
     (directory / TRUTH_FILE).write_text(json.dumps(hair.to_dict(), indent=2) + "\n", encoding="utf-8")
 
@@ -81,11 +89,16 @@ def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("names", nargs="*", help="target names (default: every shipped target a peer renders)")
     parser.add_argument("--threads", type=int, default=None)
-    parser.add_argument("--mitsuba-sampler", choices=SAMPLERS, default="corrected",
-                        help="Mitsuba's hair sampler as shipped, or with its residual lobe corrected (default)")
+    parser.add_argument(
+        "--mitsuba-sampler",
+        choices=SAMPLERS,
+        default="corrected",
+        help="Mitsuba's hair sampler as shipped, or with its residual lobe corrected (default)",
+    )
     args = parser.parse_args(argv)
-    names = args.names or sorted(p.name for p in SHIPPED_TARGETS.iterdir()
-                                 if (p / "target.toml").is_file() and target_renderer(p) != "warp-hair")
+    names = args.names or sorted(
+        p.name for p in SHIPPED_TARGETS.iterdir() if (p / "target.toml").is_file() and target_renderer(p) != "warp-hair"
+    )
     for name in names:
         make_peer_target(SHIPPED_TARGETS / name, args.threads or default_threads(), args.mitsuba_sampler)
 

@@ -49,10 +49,12 @@ def make(name: str, out_root: Path, kind: str) -> Path:
     white_balance = np.array(SOURCES[name])
     directory = out_root / f"photo_{name.removeprefix('cycles_')}_{kind}"
     directory.mkdir(parents=True, exist_ok=True)
-    lines = [f"# {name} as a camera saves it (benchmarks/make_photo_targets.py): auto-exposed views, white balance "
-             f"{tuple(white_balance)}, " + ("linear EXR, unclipped." if kind == "exr" else
-                                             f"clipped, sRGB, 8-bit {kind.upper()}."),
-             'renderer = "cycles"']
+    lines = [
+        f"# {name} as a camera saves it (benchmarks/make_photo_targets.py): auto-exposed views, white balance "
+        f"{tuple(white_balance)}, "
+        + ("linear EXR, unclipped." if kind == "exr" else f"clipped, sRGB, 8-bit {kind.upper()}."),
+        'renderer = "cycles"',
+    ]
     if kind == "exr":
         lines += ['gains = "per-image"', 'white_balance = "fit"']  # linear files default to none
     gains = {}

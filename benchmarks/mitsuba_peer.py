@@ -46,8 +46,10 @@ def import_mitsuba():
 
         mi.set_variant("llvm_ad_rgb")
     except ImportError as error:
-        print(f"Mitsuba comparison skipped: {error}. Enable it with `pip install mitsuba` (and libLLVM: "
-              "apt-get install libllvm19, or DRJIT_LIBLLVM_PATH=/path/to/libLLVM.so).")
+        print(
+            f"Mitsuba comparison skipped: {error}. Enable it with `pip install mitsuba` (and libLLVM: "
+            "apt-get install libllvm19, or DRJIT_LIBLLVM_PATH=/path/to/libLLVM.so)."
+        )
         return None
     return mi
 
@@ -74,8 +76,13 @@ def mitsuba_scene(mi, scene, spp, shape="linearcurve", fibers_file=None, sampler
         sensor = {"type": "orthographic", "to_world": to_world @ T().scale([0.5 * cam.width, 0.5 * cam.width, 1])}
     else:
         sensor = {"type": "perspective", "to_world": to_world, "fov": cam.fov, "fov_axis": "x"}
-    sensor["film"] = {"type": "hdrfilm", "width": width, "height": height, "rfilter": {"type": "box"},
-                      "pixel_format": "rgb"}
+    sensor["film"] = {
+        "type": "hdrfilm",
+        "width": width,
+        "height": height,
+        "rfilter": {"type": "box"},
+        "pixel_format": "rgb",
+    }
     sensor["sampler"] = {"type": "independent", "sample_count": spp}
 
     fibers_file = fibers_file or scene.source["fibers"].get("file")  # absolute: the loader resolved it
@@ -101,8 +108,11 @@ def mitsuba_scene(mi, scene, spp, shape="linearcurve", fibers_file=None, sampler
     for k, light in enumerate(scene.lights):
         if isinstance(light, DirectionalLight):
             # Both take the direction the light travels, and the irradiance on a surface facing the light.
-            result[f"light{k}"] = {"type": "directional", "direction": list(light.direction),
-                                   "irradiance": {"type": "rgb", "value": list(light.irradiance)}}
+            result[f"light{k}"] = {
+                "type": "directional",
+                "direction": list(light.direction),
+                "irradiance": {"type": "rgb", "value": list(light.irradiance)},
+            }
         elif isinstance(light, EnvironmentLight) and light.image is None:
             result[f"light{k}"] = {"type": "constant", "radiance": {"type": "rgb", "value": list(light.radiance)}}
         else:

@@ -19,13 +19,12 @@ from __future__ import annotations
 import argparse
 
 import numpy as np
+from mitsuba_peer import corrected_hair, import_mitsuba
 
 import warp_hair as wh
 from warp_hair.export.mitsuba import bsdf_dict
 
-from mitsuba_peer import corrected_hair, import_mitsuba
-
-LOOK = dict(sigma_a=[0.05, 0.08, 0.15], beta_m=0.3, beta_n=0.35, alpha=0.0)
+LOOK = {"sigma_a": [0.05, 0.08, 0.15], "beta_m": 0.3, "beta_n": 0.35, "alpha": 0.0}
 CASES = [(0.0, 0.0), (20.0, 0.5), (40.0, 0.9), (60.0, 0.95), (75.0, -0.98)]
 GRID = 1200  # quadrature cells along sin θ and along φ
 
@@ -49,7 +48,7 @@ def grid(along):
     zz, pp = np.meshgrid(z, phi, indexing="ij")
     c = np.sqrt(1.0 - zz**2)
     across = [c * np.cos(pp), c * np.sin(pp)]
-    axes = across[:along] + [zz] + across[along:]
+    axes = [*across[:along], zz, *across[along:]]
     return np.stack([a.ravel() for a in axes], axis=-1), 4.0 * np.pi / GRID**2
 
 
@@ -92,8 +91,10 @@ def main(argv=None):
         return x.T if x.shape[0] == 3 else x
 
     print(f"look {LOOK}; channel means; ± one standard error over {n} samples")
-    print("| θ (deg) | h | P(residual) | Mitsuba samples with sin θ = 0 | ∫S dω quadrature | Mitsuba | corrected | "
-          "warp-hair | ∫S sin²θ dω quadrature | Mitsuba | corrected | warp-hair |")
+    print(
+        "| θ (deg) | h | P(residual) | Mitsuba samples with sin θ = 0 | ∫S dω quadrature | Mitsuba | corrected | "
+        "warp-hair | ∫S sin²θ dω quadrature | Mitsuba | corrected | warp-hair |"
+    )
     print("| " + " | ".join(["---"] * 12) + " |")
     for theta, h in CASES:
         wi = mitsuba_wi(theta, h)

@@ -26,13 +26,13 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-import make_photo_targets  # noqa: E402
+import make_photo_targets
 
-import targets  # noqa: E402
-from optimize.fit import fit  # noqa: E402
-from optimize.identify import BOUNDS, check_target  # noqa: E402
-from optimize.report import true_values, write_outputs  # noqa: E402
-from optimize.target import load_target  # noqa: E402
+import targets
+from optimize.fit import fit
+from optimize.identify import BOUNDS, check_target
+from optimize.report import true_values, write_outputs
+from optimize.target import load_target
 
 HERE = Path(__file__).resolve().parent
 KINDS = ("png", "jpeg", "exr")
@@ -63,9 +63,13 @@ def _flat(values: dict) -> list:
 def run_check(name: str, directory: Path, out: Path) -> None:
     target = load_target(directory)
     result = check_target(target)
-    record = {"labels": result.labels, "sigma": result.sigma.tolist(), "bounds": result.bounds.tolist(),
-              "pinned": [bool(s < b) for s, b in zip(result.sigma, result.bounds)],
-              "camera": result.camera}
+    record = {
+        "labels": result.labels,
+        "sigma": result.sigma.tolist(),
+        "bounds": result.bounds.tolist(),
+        "pinned": [bool(s < b) for s, b in zip(result.sigma, result.bounds)],
+        "camera": result.camera,
+    }
     (out / f"{name}.check.json").write_text(json.dumps(record, indent=2) + "\n", encoding="utf-8")
     print(name, record)
 
@@ -75,18 +79,26 @@ def run_fit(name: str, directory: Path, out: Path) -> None:
     result = fit(target)
     write_outputs(out / "fits" / name, result, target)
     truth = true_values(target, result.values)
-    record = {"values": _flat(result.values), "truth": _flat(truth), "sigma": _flat(result.uncertainties),
-              "camera": result.camera, "camera_truth": json.loads((directory / "camera_truth.json").read_text()),
-              "seconds": result.seconds, "warnings": result.warnings,
-              "left_out": [int((~image.mask).sum()) if image.mask is not None else 0 for image in target.images]}
+    record = {
+        "values": _flat(result.values),
+        "truth": _flat(truth),
+        "sigma": _flat(result.uncertainties),
+        "camera": result.camera,
+        "camera_truth": json.loads((directory / "camera_truth.json").read_text()),
+        "seconds": result.seconds,
+        "warnings": result.warnings,
+        "left_out": [int((~image.mask).sum()) if image.mask is not None else 0 for image in target.images],
+    }
     (out / f"{name}.fit.json").write_text(json.dumps(record, indent=2) + "\n", encoding="utf-8")
     print(name, record)
 
 
 def table(out: Path, names) -> str:
-    rows = ["| target | pinned (check) | fitted albedo / β_m / β_n ± σ | error albedo / β_m / β_n | "
-            "within bound or 2σ | largest error / σ | gains error | white balance error | left out | time |",
-            "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+    rows = [
+        "| target | pinned (check) | fitted albedo / β_m / β_n ± σ | error albedo / β_m / β_n | "
+        "within bound or 2σ | largest error / σ | gains error | white balance error | left out | time |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |",
+    ]
     for name in names:
         fit_file, check_file = out / f"{name}.fit.json", out / f"{name}.check.json"
         if not fit_file.is_file():
@@ -116,13 +128,16 @@ def table(out: Path, names) -> str:
             f"| {'yes' if ok.all() else 'no: ' + ', '.join(l for l, o in zip(labels, ok) if not o)} "
             f"| {np.max(np.abs(error) / sigma):.1f} "
             f"| {gain_err[0]:+.1f}%, {gain_err[1]:+.1f}% | {wb_err[0]:+.1f}%, {wb_err[2]:+.1f}% "
-            f"| {sum(f['left_out'])} | {f['seconds']:.0f} s |")
+            f"| {sum(f['left_out'])} | {f['seconds']:.0f} s |"
+        )
     return "\n".join(rows)
 
 
 def check_table(out: Path, names) -> str:
-    rows = ["| target | albedo r, g, b | β_m | β_n | not pinned | gains (front, back) | white balance (r, b) |",
-            "| --- | --- | --- | --- | --- | --- | --- |"]
+    rows = [
+        "| target | albedo r, g, b | β_m | β_n | not pinned | gains (front, back) | white balance (r, b) |",
+        "| --- | --- | --- | --- | --- | --- | --- |",
+    ]
     for name in names:
         path = out / f"{name}.check.json"
         if not path.is_file():
@@ -131,10 +146,12 @@ def check_table(out: Path, names) -> str:
         sigma, pinned = c["sigma"], c["pinned"]
         camera = {label: s for label, _, s in c["camera"]}
         unpinned = [label for label, p in zip(c["labels"], pinned) if not p]
-        rows.append(f"| {name} | {sigma[0]:.4f}, {sigma[1]:.4f}, {sigma[2]:.4f} | {sigma[3]:.4f} | {sigma[4]:.4f} "
-                    f"| {', '.join(unpinned) or 'none'} "
-                    f"| {100 * camera['gain[front]']:.1f}%, {100 * camera['gain[back]']:.1f}% "
-                    f"| {100 * camera['white_balance[r]']:.2f}%, {100 * camera['white_balance[b]']:.2f}% |")
+        rows.append(
+            f"| {name} | {sigma[0]:.4f}, {sigma[1]:.4f}, {sigma[2]:.4f} | {sigma[3]:.4f} | {sigma[4]:.4f} "
+            f"| {', '.join(unpinned) or 'none'} "
+            f"| {100 * camera['gain[front]']:.1f}%, {100 * camera['gain[back]']:.1f}% "
+            f"| {100 * camera['white_balance[r]']:.2f}%, {100 * camera['white_balance[b]']:.2f}% |"
+        )
     return "\n".join(rows)
 
 

@@ -32,19 +32,17 @@ from pathlib import Path
 import numpy as np
 import warp as wp
 
-from warp_hair.geometry.bvh import build_bvh
+from warp_hair.geometry.bvh import TRAVERSAL_COST, build_bvh
+from warp_hair.geometry.intersect import intersect_fibers
+from warp_hair.geometry.rays import intersect, occluded
+from warp_hair.geometry.tubes import MAX_LEAF, _segment_boxes, _segment_frames
+from warp_hair.model.hair_bsdf import hair_sample, hair_value_pdf, lobe_setup
+from warp_hair.numerics import NO_HIT, rand2, to_local, to_world
+from warp_hair.parallel import default_threads
 from warp_hair.renderer.camera import generate_ray
 from warp_hair.renderer.envmap import env_sample
-from warp_hair.model.hair_bsdf import hair_sample, hair_value_pdf, lobe_setup
-from warp_hair.numerics import rand2, to_local, to_world
-from warp_hair.renderer.integrator import SceneData
-from warp_hair.geometry.bvh import TRAVERSAL_COST
-from warp_hair.geometry.intersect import intersect_fibers
-from warp_hair.geometry.tubes import MAX_LEAF, _segment_boxes, _segment_frames
-from warp_hair.numerics import NO_HIT
-from warp_hair.geometry.rays import intersect, occluded
-from warp_hair.parallel import default_threads
 from warp_hair.renderer.gradients import render_jacobian
+from warp_hair.renderer.integrator import SceneData
 from warp_hair.renderer.prepare import prepare
 from warp_hair.renderer.render import pixel_start, render
 from warp_hair.scene import load_scene
@@ -83,8 +81,11 @@ def preparation(scene) -> list:
     rows.append(("BVH build", c.wall, c.cpu))
     with Clock() as c:
         prepare(scene)
-    rest = ("rest (tube arrays in leaf order, lights, camera, card)",
-            c.wall - sum(r[1] for r in rows), c.cpu - sum(r[2] for r in rows))
+    rest = (
+        "rest (tube arrays in leaf order, lights, camera, card)",
+        c.wall - sum(r[1] for r in rows),
+        c.cpu - sum(r[2] for r in rows),
+    )
     rows.append(rest)
     rows.append(("whole prepare()", c.wall, c.cpu))
     return rows
@@ -196,9 +197,12 @@ def mitsuba_ray_rates(scene, rays) -> dict:
     mi_scene = mitsuba_scene(mi, scene, 1)
     out = {}
     for kind, (o, d) in rays.items():
+
         def trace(o, d):
-            ray = mi.Ray3f(mi.Point3f(*(o[:, k].astype(np.float32) for k in range(3))),
-                           mi.Vector3f(*(d[:, k].astype(np.float32) for k in range(3))))
+            ray = mi.Ray3f(
+                mi.Point3f(*(o[:, k].astype(np.float32) for k in range(3))),
+                mi.Vector3f(*(d[:, k].astype(np.float32) for k in range(3))),
+            )
             dr.eval(ray)
             with Clock() as c:
                 result = mi_scene.ray_test(ray) if kind == "shadow" else mi_scene.ray_intersect_preliminary(ray).t
@@ -264,8 +268,10 @@ def main() -> None:
         for step, wall, cpu in preparation(scene):
             print(f"| {step} | {wall:.4f} | {cpu:.4f} |")
 
-    print(f"\n## A fit iteration of {args.target} at spp {args.fit_spp} (two passes of {max(1, args.fit_spp // 2)} "
-          f"per image)\n\n| what | wall s | CPU s |\n|---|---:|---:|")
+    print(
+        f"\n## A fit iteration of {args.target} at spp {args.fit_spp} (two passes of {max(1, args.fit_spp // 2)} "
+        f"per image)\n\n| what | wall s | CPU s |\n|---|---:|---:|"
+    )
     for label, (wall, cpu) in fit_iteration(TARGETS / args.target, args.fit_spp, threads).items():
         print(f"| {label} | {wall:.3f} | {cpu:.3f} |")
 
@@ -274,30 +280,40 @@ def main() -> None:
     with Clock() as c:
         render(prepared, spp=args.spp, threads=threads)
     w, h = swatch.camera.resolution
-    print(f"\n## Standard swatch {w}×{h}, {args.spp} spp, depth {swatch.render.max_depth}: render {c.wall:.2f} s wall, "
-          f"{c.cpu:.2f} s CPU\n\n| rays | count | µs per ray, one core | rays/s per core | CPU s in the render | share |"
-          "\n|---|---:|---:|---:|---:|---:|")
+    print(
+        f"\n## Standard swatch {w}×{h}, {args.spp} spp, depth {swatch.render.max_depth}: render {c.wall:.2f} s wall, "
+        f"{c.cpu:.2f} s CPU\n\n| rays | count | µs per ray, one core | rays/s per core | CPU s in the render | share |"
+        "\n|---|---:|---:|---:|---:|---:|"
+    )
     rays = recorded_rays(prepared, args.record_spp)
     rows = ray_rates(prepared, rays, args.record_spp, args.spp)
     traversal = 0.0
     for kind, count, per_ray in rows:
         seconds = count * per_ray
         traversal += seconds
-        print(f"| {kind} | {count:.3g} | {per_ray * 1e6:.2f} | {1 / per_ray:.3g} | {seconds:.2f} | {seconds / c.cpu:.0%} |")
+        print(
+            f"| {kind} | {count:.3g} | {per_ray * 1e6:.2f} | {1 / per_ray:.3g} | {seconds:.2f} | {seconds / c.cpu:.0%} |"
+        )
     rest = c.cpu - traversal
     print(f"| shading, sampling, the loop (the rest) | | | | {rest:.2f} | {rest / c.cpu:.0%} |")
     if args.mitsuba:
         theirs = mitsuba_ray_rates(swatch, rays)
         if theirs:
-            print("\n## The same rays traced by Mitsuba 3 (Embree, one thread)\n\n| rays | warp-hair µs per ray | "
-                  "Mitsuba µs per ray | ratio | CPU s in our render | at Mitsuba's rate |\n|---|---:|---:|---:|---:|---:|")
+            print(
+                "\n## The same rays traced by Mitsuba 3 (Embree, one thread)\n\n| rays | warp-hair µs per ray | "
+                "Mitsuba µs per ray | ratio | CPU s in our render | at Mitsuba's rate |\n|---|---:|---:|---:|---:|---:|"
+            )
             at_theirs = 0.0
             for kind, count, per_ray in rows:
                 at_theirs += count * theirs[kind]
-                print(f"| {kind} | {per_ray * 1e6:.2f} | {theirs[kind] * 1e6:.2f} | {per_ray / theirs[kind]:.2f} | "
-                      f"{count * per_ray:.2f} | {count * theirs[kind]:.2f} |")
-            print(f"\nOur render at Mitsuba's ray rates: {at_theirs + rest:.2f} s CPU instead of {c.cpu:.2f} s "
-                  f"(traversal {traversal:.2f} → {at_theirs:.2f} s, the rest {rest:.2f} s unchanged).")
+                print(
+                    f"| {kind} | {per_ray * 1e6:.2f} | {theirs[kind] * 1e6:.2f} | {per_ray / theirs[kind]:.2f} | "
+                    f"{count * per_ray:.2f} | {count * theirs[kind]:.2f} |"
+                )
+            print(
+                f"\nOur render at Mitsuba's ray rates: {at_theirs + rest:.2f} s CPU instead of {c.cpu:.2f} s "
+                f"(traversal {traversal:.2f} → {at_theirs:.2f} s, the rest {rest:.2f} s unchanged)."
+            )
 
 
 if __name__ == "__main__":

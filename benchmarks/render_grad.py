@@ -84,8 +84,10 @@ def paired_gradient_evaluation(scene, target, spp, threads, run=0):
     """The same loss's gradient from two independent gradient passes of spp/2 each (what `optimize.fit` does):
     each pass gives its image and per-pixel Jacobian, and each image's adjoint meets the other's Jacobian. The
     loss is the mean of the two images' losses; the samples traced are spp per pixel, as in the forward render."""
-    passes = [render_jacobian(scene, spp=max(1, spp // 2), seed=seed + 10 * run, threads=threads)
-              for seed in (SEED_PRIMAL, SEED_GRAD)]
+    passes = [
+        render_jacobian(scene, spp=max(1, spp // 2), seed=seed + 10 * run, threads=threads)
+        for seed in (SEED_PRIMAL, SEED_GRAD)
+    ]
     adjoints = [image.astype(np.float64) - target for _, image, _ in passes]
     g = 0.5 * contract_crossed(adjoints, [jacobian for jacobian, _, _ in passes])
     return 0.25 * float(sum(np.sum(a**2) for a in adjoints)), named_gradients(scene.hair, g)
@@ -111,13 +113,16 @@ def fastest_with_spread(repeat, fn, *args):
     if repeat < 2:
         return best, None
     grads = [run[2][1] for run in runs]
-    return best, {name: np.std([np.asarray(g[name], dtype=np.float64) for g in grads], axis=0, ddof=1)
-                  for name in grads[0]}
+    return best, {
+        name: np.std([np.asarray(g[name], dtype=np.float64) for g in grads], axis=0, ddof=1) for name in grads[0]
+    }
 
 
 def format_gradients(grads):
-    return ", ".join(f"{k} {np.array2string(np.asarray(v), precision=4) if np.ndim(v) else format(float(v), '.4g')}"
-                     for k, v in grads.items())
+    return ", ".join(
+        f"{k} {np.array2string(np.asarray(v), precision=4) if np.ndim(v) else format(float(v), '.4g')}"
+        for k, v in grads.items()
+    )
 
 
 def warm_up(scene, threads):
@@ -141,7 +146,9 @@ def memory_child(depth, spp, threads):
 def peak_memory(depth, spp, threads):
     out = subprocess.run(
         [sys.executable, __file__, "--_memory-child", str(depth), "--spp", str(spp), "--threads", str(threads)],
-        check=True, capture_output=True, text=True,
+        check=True,
+        capture_output=True,
+        text=True,
     )
     return json.loads(out.stdout.strip().splitlines()[-1])
 
@@ -154,8 +161,9 @@ def mitsuba_gradient(mi, scene, spp, threads, repeat):
     mi_scene = mitsuba_scene(mi, scene, spp)
     # Same translation as render_swatch.py (mitsuba_peer), but the prb integrator (path replay backpropagation): its backward
     # pass re-traces the paths, so forward+backward is a primal plus an adjoint pass, like ours.
-    integrator = mi.load_dict({"type": "prb", "max_depth": scene.render.max_depth + 1,
-                               "rr_depth": scene.render.rr_depth})
+    integrator = mi.load_dict(
+        {"type": "prb", "max_depth": scene.render.max_depth + 1, "rr_depth": scene.render.rr_depth}
+    )
     params = mi.traverse(mi_scene)
     keys, skipped = [], []
     for name in MITSUBA_KEYS:
@@ -185,9 +193,13 @@ def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--spp", type=int, default=64)
     parser.add_argument("--threads", type=int, default=None, help="default: every core this process may use")
-    parser.add_argument("--memory-spp", type=int, default=8,
-                        help="spp of the memory subprocesses: memory holds per-pixel buffers only, so it does not "
-                             "grow with spp, and fewer keep the two extra gradient evaluations short")
+    parser.add_argument(
+        "--memory-spp",
+        type=int,
+        default=8,
+        help="spp of the memory subprocesses: memory holds per-pixel buffers only, so it does not "
+        "grow with spp, and fewer keep the two extra gradient evaluations short",
+    )
     parser.add_argument("--repeat", type=int, default=1, help="time each measurement this many times, keep the fastest")
     parser.add_argument("--_memory-child", type=int, default=None, help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
@@ -198,36 +210,48 @@ def main(argv=None):
 
     scene = load()
     width, height = scene.camera.resolution
-    print(f"{SCENE.name}: {width}x{height}, {args.spp} spp, max depth {scene.render.max_depth}, "
-          f"{scene.fibers.num_strands} fibers; loss 0.5|image - 0.9 x primal|^2")
-    print(f"machine: {os.cpu_count()} cores; threads used: {threads} (wall-clock; other jobs on the machine "
-          "slow these down)")
+    print(
+        f"{SCENE.name}: {width}x{height}, {args.spp} spp, max depth {scene.render.max_depth}, "
+        f"{scene.fibers.num_strands} fibers; loss 0.5|image - 0.9 x primal|^2"
+    )
+    print(
+        f"machine: {os.cpu_count()} cores; threads used: {threads} (wall-clock; other jobs on the machine "
+        "slow these down)"
+    )
 
     warm_up(scene, threads)
     target = synthetic_target(scene, args.spp, threads)
     forward, forward_cpu, _ = fastest(args.repeat, render, scene, args.spp, SEED_PRIMAL, threads)
     (gradient, gradient_cpu, (loss, grads)), spread = fastest_with_spread(
-        args.repeat, gradient_evaluation, scene, target, args.spp, threads)
+        args.repeat, gradient_evaluation, scene, target, args.spp, threads
+    )
     (paired, paired_cpu, (paired_loss, paired_grads)), paired_spread = fastest_with_spread(
-        args.repeat, paired_gradient_evaluation, scene, target, args.spp, threads)
+        args.repeat, paired_gradient_evaluation, scene, target, args.spp, threads
+    )
     print(f"warp-hair forward render: {forward:.2f} s (CPU {forward_cpu:.2f} s)")
-    print(f"warp-hair gradient evaluation (primal + render_grad, all controls at once): {gradient:.2f} s "
-          f"= {gradient / forward:.2f} x forward (render_grad alone ~ {gradient / forward - 1:.2f} x); "
-          f"CPU {gradient_cpu:.2f} s = {gradient_cpu / forward_cpu:.2f} x")
+    print(
+        f"warp-hair gradient evaluation (primal + render_grad, all controls at once): {gradient:.2f} s "
+        f"= {gradient / forward:.2f} x forward (render_grad alone ~ {gradient / forward - 1:.2f} x); "
+        f"CPU {gradient_cpu:.2f} s = {gradient_cpu / forward_cpu:.2f} x"
+    )
     print(f"  loss {loss:.4f}; gradients: {format_gradients(grads)}")
     if spread is not None:
         print(f"  std over {args.repeat} runs with other seeds: {format_gradients(spread)}")
-    print(f"warp-hair paired gradient evaluation (two render_jacobian passes of spp/2, crossed; what the fit uses): "
-          f"{paired:.2f} s = {paired / forward:.2f} x forward; CPU {paired_cpu:.2f} s = {paired_cpu / forward_cpu:.2f} x")
+    print(
+        f"warp-hair paired gradient evaluation (two render_jacobian passes of spp/2, crossed; what the fit uses): "
+        f"{paired:.2f} s = {paired / forward:.2f} x forward; CPU {paired_cpu:.2f} s = {paired_cpu / forward_cpu:.2f} x"
+    )
     print(f"  loss {paired_loss:.4f}; gradients: {format_gradients(paired_grads)}")
     if paired_spread is not None:
         print(f"  std over {args.repeat} runs with other seeds: {format_gradients(paired_spread)}")
 
     for depth in MEMORY_DEPTHS:
         m = peak_memory(depth, args.memory_spp, threads)
-        print(f"peak memory, gradient evaluation at max_depth {depth}: {m['peak_mib']:.0f} MiB "
-              f"(subprocess ru_maxrss at {args.memory_spp} spp; {m['before_mib']:.0f} MiB after a depth-1 warm-up, "
-              "before the evaluation)")
+        print(
+            f"peak memory, gradient evaluation at max_depth {depth}: {m['peak_mib']:.0f} MiB "
+            f"(subprocess ru_maxrss at {args.memory_spp} spp; {m['before_mib']:.0f} MiB after a depth-1 warm-up, "
+            "before the evaluation)"
+        )
 
     mi = import_mitsuba()
     if mi is None:
@@ -237,13 +261,17 @@ def main(argv=None):
     except Exception as error:  # report and carry on: the comparison is optional
         print(f"Mitsuba gradient skipped: {type(error).__name__}: {error}")
         return
-    print(f"Mitsuba {mi.__version__} ({mi.variant()}, prb, max_depth {scene.render.max_depth + 1}) forward+backward: "
-          f"{mi_seconds:.2f} s (CPU {mi_cpu:.2f} s); loss {mi_loss:.4f}; differentiated: " + ", ".join(
-              f"{k.split('.', 2)[-1]} {np.array2string(v.ravel(), precision=4)}" for k, v in mi_grads.items()))
+    print(
+        f"Mitsuba {mi.__version__} ({mi.variant()}, prb, max_depth {scene.render.max_depth + 1}) forward+backward: "
+        f"{mi_seconds:.2f} s (CPU {mi_cpu:.2f} s); loss {mi_loss:.4f}; differentiated: "
+        + ", ".join(f"{k.split('.', 2)[-1]} {np.array2string(v.ravel(), precision=4)}" for k, v in mi_grads.items())
+    )
     if skipped:
         print(f"  not differentiable in Mitsuba: {', '.join(skipped)}")
-    print(f"time ratio warp-hair / Mitsuba (gradient evaluation): {gradient / mi_seconds:.2f} "
-          f"(CPU {gradient_cpu / mi_cpu:.2f}); paired: {paired / mi_seconds:.2f} (CPU {paired_cpu / mi_cpu:.2f})")
+    print(
+        f"time ratio warp-hair / Mitsuba (gradient evaluation): {gradient / mi_seconds:.2f} "
+        f"(CPU {gradient_cpu / mi_cpu:.2f}); paired: {paired / mi_seconds:.2f} (CPU {paired_cpu / mi_cpu:.2f})"
+    )
 
 
 if __name__ == "__main__":

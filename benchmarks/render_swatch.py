@@ -21,14 +21,13 @@ import time
 from pathlib import Path
 
 import numpy as np
+from mitsuba_peer import import_mitsuba, mitsuba_scene, time_mitsuba
 
 from warp_hair.cli import exit_on_interrupt
 from warp_hair.io import write_exr, write_png
 from warp_hair.parallel import default_threads
 from warp_hair.renderer.render import render
 from warp_hair.scene import load_scene
-
-from mitsuba_peer import import_mitsuba, mitsuba_scene, time_mitsuba
 
 HERE = Path(__file__).resolve().parent
 SCENE = HERE / "standard_swatch.toml"
@@ -67,7 +66,8 @@ def reversed_tangents(mi, mi_scene, fibers):
     angles = np.linspace(0.0, 2.0 * np.pi, 16, endpoint=False)[:, None, None]
     toward = -(np.cos(angles) * u + np.sin(angles) * v).reshape(-1, 3)  # (16·S, 3)
     origins = np.tile(0.5 * (p0 + p1), (16, 1)) - toward
-    vec = lambda a: mi.Vector3f(*(np.ascontiguousarray(a[:, k], dtype=np.float32) for k in range(3)))
+    def vec(a):
+        return mi.Vector3f(*(np.ascontiguousarray(a[:, k], dtype=np.float32) for k in range(3)))
     si = mi_scene.ray_intersect(mi.Ray3f(mi.Point3f(vec(origins)), vec(toward)))
     # Mitsuba numbers the segments of all strands in order; strand k's first one follows k earlier strands.
     target = np.tile(first - np.arange(len(first)), 16)
@@ -86,8 +86,10 @@ def compare(ours, theirs):
     mean_ours, mean_theirs = ours.mean(axis=(0, 1)), theirs.mean(axis=(0, 1))
     relative = mean_ours / mean_theirs - 1.0
     block_rms = np.sqrt(np.mean((blocks(ours) / blocks(theirs) - 1.0) ** 2))
-    print(f"mean RGB: warp-hair {fmt(mean_ours)}, Mitsuba {fmt(mean_theirs)}; "
-          f"relative difference (ours/Mitsuba - 1) {fmt(relative, '+.2%')}")
+    print(
+        f"mean RGB: warp-hair {fmt(mean_ours)}, Mitsuba {fmt(mean_theirs)}; "
+        f"relative difference (ours/Mitsuba - 1) {fmt(relative, '+.2%')}"
+    )
     print(f"RMS relative difference of {BLOCK}x{BLOCK}-pixel block means: {block_rms:.2%}")
     return bool(np.all(np.abs(relative) <= AGREEMENT_TOLERANCE))
 
@@ -127,32 +129,47 @@ def main(argv=None):
         scene.hair = scene.hair.replace(alpha=0.0)
     width, height = scene.camera.resolution
     paths = width * height * args.spp
-    print(f"{SCENE.name}: {width}x{height}, {args.spp} spp, max depth {scene.render.max_depth}, "
-          f"{scene.fibers.num_strands} fibers, alpha {scene.hair.alpha:g} deg")
-    print(f"machine: {os.cpu_count()} cores; threads used: {threads} (timings are wall-clock; other jobs on the "
-          "machine slow them down)")
+    print(
+        f"{SCENE.name}: {width}x{height}, {args.spp} spp, max depth {scene.render.max_depth}, "
+        f"{scene.fibers.num_strands} fibers, alpha {scene.hair.alpha:g} deg"
+    )
+    print(
+        f"machine: {os.cpu_count()} cores; threads used: {threads} (timings are wall-clock; other jobs on the "
+        "machine slow them down)"
+    )
 
     warmup, seconds, ours = time_ours(scene, args.spp, threads, args.repeat)
-    print(f"warp-hair: warm-up (1 spp, kernel compile/load) {warmup:.2f} s; render {seconds:.2f} s "
-          f"(best of {args.repeat}) = {paths / seconds / 1e6:.3f} M camera paths/s")
+    print(
+        f"warp-hair: warm-up (1 spp, kernel compile/load) {warmup:.2f} s; render {seconds:.2f} s "
+        f"(best of {args.repeat}) = {paths / seconds / 1e6:.3f} M camera paths/s"
+    )
 
     theirs = None
     mi = import_mitsuba()
     if mi is not None:
         mi_scene = mitsuba_scene(mi, scene, args.spp)
         mi_warmup, mi_seconds, theirs = time_mitsuba(mi, mi_scene, args.spp, scene.render.seed, threads, args.repeat)
-        print(f"Mitsuba {mi.__version__} ({mi.variant()}, path max_depth {scene.render.max_depth + 1}): warm-up "
-              f"(1 spp, JIT compile) {mi_warmup:.2f} s; render {mi_seconds:.2f} s (best of {args.repeat}) = "
-              f"{paths / mi_seconds / 1e6:.3f} M camera paths/s")
+        print(
+            f"Mitsuba {mi.__version__} ({mi.variant()}, path max_depth {scene.render.max_depth + 1}): warm-up "
+            f"(1 spp, JIT compile) {mi_warmup:.2f} s; render {mi_seconds:.2f} s (best of {args.repeat}) = "
+            f"{paths / mi_seconds / 1e6:.3f} M camera paths/s"
+        )
         print(f"time ratio warp-hair / Mitsuba: {seconds / mi_seconds:.2f}")
         agree = compare(ours, theirs)
         reversed_share = reversed_tangents(mi, mi_scene, scene.fibers)
-        print(f"Mitsuba's linearcurve shading frame runs tip to root (or off the fiber) on {reversed_share:.0%} "
-              "of probe hits" + (": its hair BSDF tilts the cuticle the wrong way there" if reversed_share else ""))
+        print(
+            f"Mitsuba's linearcurve shading frame runs tip to root (or off the fiber) on {reversed_share:.0%} "
+            "of probe hits" + (": its hair BSDF tilts the cuticle the wrong way there" if reversed_share else "")
+        )
         if not agree:
-            print(f"WARNING: the image means differ by more than {AGREEMENT_TOLERANCE:.0%}."
-                  + (" The reversed frames can explain it while alpha != 0; --no-tilt compares without tilt."
-                     if reversed_share and scene.hair.alpha != 0 else ""))
+            print(
+                f"WARNING: the image means differ by more than {AGREEMENT_TOLERANCE:.0%}."
+                + (
+                    " The reversed frames can explain it while alpha != 0; --no-tilt compares without tilt."
+                    if reversed_share and scene.hair.alpha != 0
+                    else ""
+                )
+            )
 
     print(f"images in {args.out}: {write_images(args.out, ours, theirs)}")
 

@@ -90,17 +90,37 @@ def draped_swatch(segments: int):
     # the same volume (about 0.4 × 0.5 × 0.04) ever more finely.
     layers = max(2, round(math.sqrt(strands / 10)))
     spacing = SWATCH_WIDTH / (strands / layers)
-    return scene_from_dict({
-        "camera": {"type": "orthographic", "origin": [0.0, 0.0, 3.0], "target": [0.0, 0.0, 0.0],
-                   "up": [0.0, 1.0, 0.0], "width": 0.5, "resolution": [BASE["resolution"]] * 2},
-        "lights": [{"type": "directional", "direction": [0.2, -0.3, -1.0], "irradiance": [3.0, 3.0, 3.0]},
-                   {"type": "environment", "radiance": [0.3, 0.3, 0.3]}],
-        "fibers": {"generator": "wavy", "count": strands, "layers": layers, "length": 0.5, "drape": 0.25,
-                   "width": SWATCH_WIDTH, "radius": spacing / 3, "amplitude": 0.01, "wavelength": 0.15,
-                   "segments": SEGMENTS_PER_STRAND, "seed": 12},
-        "hair": {"albedo": [0.45, 0.28, 0.15], "beta_m": 0.3, "beta_n": 0.4},
-        "render": {"spp": BASE["spp"], "max_depth": BASE["depth"], "seed": 1},
-    })
+    return scene_from_dict(
+        {
+            "camera": {
+                "type": "orthographic",
+                "origin": [0.0, 0.0, 3.0],
+                "target": [0.0, 0.0, 0.0],
+                "up": [0.0, 1.0, 0.0],
+                "width": 0.5,
+                "resolution": [BASE["resolution"]] * 2,
+            },
+            "lights": [
+                {"type": "directional", "direction": [0.2, -0.3, -1.0], "irradiance": [3.0, 3.0, 3.0]},
+                {"type": "environment", "radiance": [0.3, 0.3, 0.3]},
+            ],
+            "fibers": {
+                "generator": "wavy",
+                "count": strands,
+                "layers": layers,
+                "length": 0.5,
+                "drape": 0.25,
+                "width": SWATCH_WIDTH,
+                "radius": spacing / 3,
+                "amplitude": 0.01,
+                "wavelength": 0.15,
+                "segments": SEGMENTS_PER_STRAND,
+                "seed": 12,
+            },
+            "hair": {"albedo": [0.45, 0.28, 0.15], "beta_m": 0.3, "beta_n": 0.4},
+            "render": {"spp": BASE["spp"], "max_depth": BASE["depth"], "seed": 1},
+        }
+    )
 
 
 def sah_cost(nodes: np.ndarray) -> float:
@@ -134,9 +154,16 @@ def segments_case(segments: int, threads, numpy_build: bool) -> dict:
     g = prepared.bvh.geometry
     nbytes = sum(a.capacity for a in (g.nodes, g.tubes, g.segment, g.strand))
     _, wall, cpu = timed(lambda: render(prepared, spp=BASE["spp"], threads=threads))
-    out = {"segments": g.num_segments, "prepare_wall": prep_wall, "prepare_cpu": prep_cpu, "bvh_bytes": nbytes,
-           "sah": sah_cost(g.nodes.numpy()), "render_wall": wall, "render_cpu": cpu,
-           "peak_rss": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024}
+    out = {
+        "segments": g.num_segments,
+        "prepare_wall": prep_wall,
+        "prepare_cpu": prep_cpu,
+        "bvh_bytes": nbytes,
+        "sah": sah_cost(g.nodes.numpy()),
+        "render_wall": wall,
+        "render_cpu": cpu,
+        "peak_rss": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024,
+    }
     if numpy_build:
         out.update(build_times(scene, threads))
     return out
@@ -172,8 +199,12 @@ def tables(swatch_rows, segment_rows, threads) -> str:
     base = ", ".join(f"{k} {v}" for k, v in BASE.items())
     lines = [f"Threads: {threads}. Wall and CPU seconds (all threads); the machine may have been shared.", ""]
     for name in SWEEPS:
-        lines += [f"### Standard swatch, {name} varied (else {base})", "",
-                  f"| {name} | wall s | CPU s | CPU µs per sample |", "|---:|---:|---:|---:|"]
+        lines += [
+            f"### Standard swatch, {name} varied (else {base})",
+            "",
+            f"| {name} | wall s | CPU s | CPU µs per sample |",
+            "|---:|---:|---:|---:|",
+        ]
         for param, value, wall, cpu in swatch_rows:
             if param == name:
                 settings = {**BASE, name: value}
@@ -182,14 +213,20 @@ def tables(swatch_rows, segment_rows, threads) -> str:
         lines.append("")
     numpy_build = segment_rows and "build_numpy_cpu" in segment_rows[0]
     extra = " BVH build CPU µs/segment: Warp, NumPy |" if numpy_build else ""
-    lines += [f"### Draped wavy swatch, segments varied ({BASE['resolution']}×{BASE['resolution']}, {BASE['spp']} spp, "
-              f"depth {BASE['depth']})", "",
-              "| segments | prepare wall s | prepare CPU µs/segment | BVH bytes/segment | SAH | peak RSS MiB | "
-              "render wall s | render CPU s |" + extra, "|---:" * (8 + bool(numpy_build)) + "|"]
+    lines += [
+        f"### Draped wavy swatch, segments varied ({BASE['resolution']}×{BASE['resolution']}, {BASE['spp']} spp, "
+        f"depth {BASE['depth']})",
+        "",
+        "| segments | prepare wall s | prepare CPU µs/segment | BVH bytes/segment | SAH | peak RSS MiB | "
+        "render wall s | render CPU s |" + extra,
+        "|---:" * (8 + bool(numpy_build)) + "|",
+    ]
     for r in segment_rows:
         m = r["segments"]
-        line = (f"| {m} | {r['prepare_wall']:.3f} | {r['prepare_cpu'] / m * 1e6:.2f} | {r['bvh_bytes'] / m:.0f} | "
-                f"{r['sah']:.1f} | {r['peak_rss'] / 2**20:.0f} | {r['render_wall']:.3f} | {r['render_cpu']:.3f} |")
+        line = (
+            f"| {m} | {r['prepare_wall']:.3f} | {r['prepare_cpu'] / m * 1e6:.2f} | {r['bvh_bytes'] / m:.0f} | "
+            f"{r['sah']:.1f} | {r['peak_rss'] / 2**20:.0f} | {r['render_wall']:.3f} | {r['render_cpu']:.3f} |"
+        )
         if numpy_build:
             line += f" {r['build_warp_cpu'] / m * 1e6:.2f}, {r['build_numpy_cpu'] / m * 1e6:.2f} |"
         lines.append(line)
@@ -232,8 +269,11 @@ def main() -> None:
     parser.add_argument("--threads", type=int, default=None)
     parser.add_argument("--quick", action="store_true", help="segments up to 10⁵ only")
     parser.add_argument("--out", type=Path, default=HERE.parent / "docs")
-    parser.add_argument("--numpy-build", action="store_true",
-                        help="also time the NumPy reference BVH build (tests/helpers/reference_bvh.py; slow at 10⁶ segments)")
+    parser.add_argument(
+        "--numpy-build",
+        action="store_true",
+        help="also time the NumPy reference BVH build (tests/helpers/reference_bvh.py; slow at 10⁶ segments)",
+    )
     parser.add_argument("--segments-case", type=int, help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.segments_case:
@@ -247,7 +287,9 @@ def main() -> None:
     text = tables(swatch_rows, segment_rows, threads)
     print(text)
     args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / "scaling.md").write_text("# Forward render scaling\n\nMade by `python benchmarks/scaling.py`.\n\n" + text)
+    (args.out / "scaling.md").write_text(
+        "# Forward render scaling\n\nMade by `python benchmarks/scaling.py`.\n\n" + text
+    )
     plot(swatch_rows, segment_rows, args.out / "scaling.png")
     print(f"wrote {args.out / 'scaling.md'} and {args.out / 'scaling.png'}")
 

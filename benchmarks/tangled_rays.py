@@ -18,18 +18,17 @@ import argparse
 
 import numpy as np
 import warp as wp
+from vs_peers import TANGLED_HAIR, TARGET_LIGHTINGS, interpenetrating_swatch, scene_data
 
 from warp_hair.geometry.curves import catmull_rom
-from warp_hair.geometry.intersect import FiberGeometry, intersect_fibers, intersect_fibers_exits, shading_frame
 from warp_hair.geometry.interpenetration import points_inside_other_strands
+from warp_hair.geometry.intersect import FiberGeometry, intersect_fibers, intersect_fibers_exits, shading_frame
 from warp_hair.geometry.tubes import FiberBVH
 from warp_hair.model.hair_bsdf import HairCoefficients, hair_coefficients, hair_sample, lobe_setup
 from warp_hair.model.params import HairParams
 from warp_hair.numerics import NO_HIT
 from warp_hair.renderer.camera import CameraData, camera_data, generate_ray
 from warp_hair.scene import scene_from_dict
-
-from vs_peers import TANGLED_HAIR, TARGET_LIGHTINGS, interpenetrating_swatch, scene_data
 
 
 @wp.kernel
@@ -83,8 +82,11 @@ def main(argv=None):
         position = wp.zeros((args.paths, args.depth), dtype=wp.vec3)
         strand = wp.full((args.paths, args.depth), -1, dtype=wp.int32)
         leaving = wp.zeros((args.paths, args.depth), dtype=wp.int32)
-        wp.launch(walk, dim=args.paths, inputs=[bvh.geometry, hair, camera_data(scene.camera), 7, exits, position,
-                                                strand, leaving])
+        wp.launch(
+            walk,
+            dim=args.paths,
+            inputs=[bvh.geometry, hair, camera_data(scene.camera), 7, exits, position, strand, leaving],
+        )
         position, strand, leaving = position.numpy(), strand.numpy(), leaving.numpy().astype(bool)
         valid = strand >= 0
         inside = np.zeros_like(valid)

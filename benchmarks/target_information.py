@@ -52,8 +52,11 @@ def with_views(source: Path, views, directory: Path, threads) -> Path:
         data["lights"] = tomlkit.item(VIEWS[view])
         (directory / f"scene_{view}.toml").write_text(tomlkit.dumps(data), encoding="utf-8")
         scene = load_scene(directory / f"scene_{view}.toml")
-        write_exr(directory / f"{view}.exr", render(scene, spp=VIEW_SPP, seed=7, threads=threads),
-                  render_metadata(scene, VIEW_SPP, 7))
+        write_exr(
+            directory / f"{view}.exr",
+            render(scene, spp=VIEW_SPP, seed=7, threads=threads),
+            render_metadata(scene, VIEW_SPP, 7),
+        )
         spec["images"].append({"scene": f"scene_{view}.toml", "image": f"{view}.exr"})
     (directory / TARGET_FILE).write_text(tomlkit.dumps(spec), encoding="utf-8")
     return directory
@@ -66,12 +69,18 @@ def row(name, views, result) -> str:
         takes = "no number of samples"
     else:
         factor = result.noise[k] ** 2 / (ALBEDO_BOUND**2 - model**2)
-        takes = "as it is" if factor <= 1 else f"{factor:.2g}× the samples ({int(np.ceil(factor * max(result.target_spp)))} spp)"
+        takes = (
+            "as it is"
+            if factor <= 1
+            else f"{factor:.2g}× the samples ({int(np.ceil(factor * max(result.target_spp)))} spp)"
+        )
     betas = " / ".join(f"{result.shift[result.labels.index(b)]:+.4f}" for b in ("beta_m", "beta_n"))
     fitted = "+ exposure" if "exposure" in result.values else "albedo, β_m, β_n"
-    return (f"| {name} | {', '.join(['front', 'back'] + list(views))} | {fitted} | {max(result.target_spp)} "
-            f"| {result.noise[k]:.4f} | {result.shift[k]:+.4f} | {betas} | {result.sigma[k]:.4f} | {takes} "
-            f"| {'yes' if result.identifiable else 'no'} |")
+    return (
+        f"| {name} | {', '.join(['front', 'back', *list(views)])} | {fitted} | {max(result.target_spp)} "
+        f"| {result.noise[k]:.4f} | {result.shift[k]:+.4f} | {betas} | {result.sigma[k]:.4f} | {takes} "
+        f"| {'yes' if result.identifiable else 'no'} |"
+    )
 
 
 def main() -> None:
@@ -95,8 +104,10 @@ def main() -> None:
                     rows.append(row(name, views, check_target(target, controls=controls, threads=args.threads)))
                     print(rows[-1], flush=True)
     print()
-    print("| target | views | fitted | spp | σ noise, albedo[r] | shift per 1% brighter, albedo[r] | β_m / β_n "
-          "| σ expected, albedo[r] | to meet 0.02 | identifiable |")
+    print(
+        "| target | views | fitted | spp | σ noise, albedo[r] | shift per 1% brighter, albedo[r] | β_m / β_n "
+        "| σ expected, albedo[r] | to meet 0.02 | identifiable |"
+    )
     print("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |")
     print("\n".join(rows))
 

@@ -66,6 +66,8 @@ import time
 from pathlib import Path
 
 import numpy as np
+from cycles_peer import import_bpy, render_cycles
+from mitsuba_peer import SAMPLERS, bspline_control_points, import_mitsuba, mitsuba_scene, time_mitsuba
 
 from warp_hair.geometry.curves import catmull_rom
 from warp_hair.geometry.formats import save_fibers
@@ -75,9 +77,6 @@ from warp_hair.io import write_exr, write_png
 from warp_hair.parallel import default_threads
 from warp_hair.renderer.render import render
 from warp_hair.scene import scene_from_dict
-
-from cycles_peer import import_bpy, render_cycles
-from mitsuba_peer import SAMPLERS, bspline_control_points, import_mitsuba, mitsuba_scene, time_mitsuba
 
 HERE = Path(__file__).resolve().parent
 BLOCK = 8
@@ -95,8 +94,20 @@ TARGET_LIGHTINGS = {"front": [0.2, -0.3, -1.0], "back": [0.0, -0.15, 1.0]}
 
 
 def interpenetrating_swatch():
-    return wavy(count=152, layers=4, length=0.5, radius=0.004, width=0.4, amplitude=0.006, wavelength=0.08,
-                phase_jitter=1.0, segments=96, drape=0.25, jitter=0.15, seed=23)
+    return wavy(
+        count=152,
+        layers=4,
+        length=0.5,
+        radius=0.004,
+        width=0.4,
+        amplitude=0.006,
+        wavelength=0.08,
+        phase_jitter=1.0,
+        segments=96,
+        drape=0.25,
+        jitter=0.15,
+        seed=23,
+    )
 
 
 def draped_swatch(segments):
@@ -105,8 +116,14 @@ def draped_swatch(segments):
 
 def scene_data(resolution, light_direction, spp, tangents="smooth", max_depth=100, albedo=None):
     return {
-        "camera": {"type": "orthographic", "origin": [0.0, 0.0, 3.0], "target": [0.0, 0.0, -0.05],
-                   "up": [0.0, 1.0, 0.0], "width": 0.36, "resolution": [resolution, resolution]},
+        "camera": {
+            "type": "orthographic",
+            "origin": [0.0, 0.0, 3.0],
+            "target": [0.0, 0.0, -0.05],
+            "up": [0.0, 1.0, 0.0],
+            "width": 0.36,
+            "resolution": [resolution, resolution],
+        },
         "lights": [
             {"type": "directional", "direction": light_direction, "irradiance": [3.0, 3.0, 3.0]},
             {"type": "environment", "radiance": [0.05, 0.05, 0.05]},
@@ -180,11 +197,14 @@ def interpenetrating_check(args, threads):
     fibers = interpenetrating_swatch()
     curve = catmull_rom(fibers)
     report = interpenetration(fibers)
-    print(f"interpenetrating swatch: {fibers.num_strands} strands x 96 segments, {args.resolution}^2 px, "
-          f"{args.spp} spp")
+    print(
+        f"interpenetrating swatch: {fibers.num_strands} strands x 96 segments, {args.resolution}^2 px, {args.spp} spp"
+    )
     print(f"check: {report.message()}")
-    print(f"fibers' surface inside another strand's tube: {surface_inside_others(fibers):.1%} "
-          f"(the Catmull-Rom curve: {surface_inside_others(curve):.1%})")
+    print(
+        f"fibers' surface inside another strand's tube: {surface_inside_others(fibers):.1%} "
+        f"(the Catmull-Rom curve: {surface_inside_others(curve):.1%})"
+    )
     mi = import_mitsuba()
     bpy = import_bpy()
     rows = []
@@ -210,8 +230,9 @@ def interpenetrating_check(args, threads):
             scene.fibers = fibers  # the peers draw their own curves through the vertices
             peers = {}
             if mi is not None:
-                mi_scene = mitsuba_scene(mi, scene, args.spp, shape="bsplinecurve", fibers_file=fibers_file,
-                                         sampler="corrected")
+                mi_scene = mitsuba_scene(
+                    mi, scene, args.spp, shape="bsplinecurve", fibers_file=fibers_file, sampler="corrected"
+                )
                 start = time.perf_counter()
                 peers[f"Mitsuba {mi.__version__}"] = time_mitsuba(mi, mi_scene, args.spp, 0, threads, 1)[2]
                 print(f"[{lighting}] Mitsuba bsplinecurve, corrected sampler: {time.perf_counter() - start:.1f} s")
@@ -229,11 +250,15 @@ def interpenetrating_check(args, threads):
                 for ours_name, ours in images.items():
                     ratio = ours.mean(axis=(0, 1)) / mean_theirs
                     rmse = block_rmse(ours, theirs)
-                    print(f"[{lighting}] {ours_name} / {peer}: means {fmt(ours.mean(axis=(0, 1)))} / "
-                          f"{fmt(mean_theirs)} "
-                          f"= {fmt(ratio)}; block RMSE {rmse:.2%} (noise level {noise:.2%})")
-                    rows.append(f"| {lighting} | {ours_name.split()[1]} | {peer} | {fmt(ratio, '.3f')} | {rmse:.1%} | "
-                                f"{noise:.1%} |")
+                    print(
+                        f"[{lighting}] {ours_name} / {peer}: means {fmt(ours.mean(axis=(0, 1)))} / "
+                        f"{fmt(mean_theirs)} "
+                        f"= {fmt(ratio)}; block RMSE {rmse:.2%} (noise level {noise:.2%})"
+                    )
+                    rows.append(
+                        f"| {lighting} | {ours_name.split()[1]} | {peer} | {fmt(ratio, '.3f')} | {rmse:.1%} | "
+                        f"{noise:.1%} |"
+                    )
     print("\n| light | warp-hair rule | peer | mean ratio (R, G, B) | block RMSE | noise |")
     print("| --- | --- | --- | --- | --- | --- |")
     print("\n".join(rows))
@@ -260,20 +285,30 @@ def main(argv=None):
     parser.add_argument("--segments", type=int, default=24, help="segments per strand (default 24)")
     parser.add_argument("--max-depth", type=int, default=100, help="scattering vertices a path may have")
     parser.add_argument("--lightings", default="front,back", help="comma-separated: front, back")
-    parser.add_argument("--albedo", type=float, nargs=3, metavar=("R", "G", "B"),
-                        help=f"the hair's albedo (default {HAIR['albedo']}, light brown)")
+    parser.add_argument(
+        "--albedo",
+        type=float,
+        nargs=3,
+        metavar=("R", "G", "B"),
+        help=f"the hair's albedo (default {HAIR['albedo']}, light brown)",
+    )
     parser.add_argument("--threads", type=int, default=None)
     parser.add_argument("--alpha", type=float, help="check the tilt's sign at this alpha (degrees) against Cycles")
-    parser.add_argument("--interpenetrating", action="store_true",
-                        help="issue 23's swatch whose strands pass through each other, under both rules")
+    parser.add_argument(
+        "--interpenetrating",
+        action="store_true",
+        help="issue 23's swatch whose strands pass through each other, under both rules",
+    )
     parser.add_argument("--out", type=Path, default=HERE / "out" / "vs_peers")
     args = parser.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
     if args.interpenetrating:
         return interpenetrating_check(args, args.threads or default_threads())
     fibers = draped_swatch(args.segments)
-    print(f"draped swatch: {fibers.num_strands} fibers x {args.segments} segments, {args.resolution}^2 px, "
-          f"{args.spp} spp, max depth {args.max_depth}, alpha 0")
+    print(
+        f"draped swatch: {fibers.num_strands} fibers x {args.segments} segments, {args.resolution}^2 px, "
+        f"{args.spp} spp, max depth {args.max_depth}, alpha 0"
+    )
     threads = args.threads or default_threads()
     if args.alpha is not None:
         return tilt_check(args, fibers, threads)
@@ -286,24 +321,35 @@ def main(argv=None):
             direction = LIGHTINGS[lighting]
             images = {}
             for shape in ("smooth", "segment", "catmull-rom"):  # the polyline's two tangents, or the curve
-                scene = scene_from_dict(scene_data(args.resolution, direction, args.spp,
-                                                   "segment" if shape == "segment" else "smooth", args.max_depth,
-                                                   args.albedo))
+                scene = scene_from_dict(
+                    scene_data(
+                        args.resolution,
+                        direction,
+                        args.spp,
+                        "segment" if shape == "segment" else "smooth",
+                        args.max_depth,
+                        args.albedo,
+                    )
+                )
                 scene.fibers = catmull_rom(fibers) if shape == "catmull-rom" else fibers
                 start = time.perf_counter()
                 images[shape] = render(scene, threads=threads)
                 print(f"[{lighting}] warp-hair ({shape}): {time.perf_counter() - start:.1f} s")
             scene.fibers = fibers
-            noise_scene = dataclasses.replace(scene, render=dataclasses.replace(scene.render, seed=1,
-                                                                                tangents="smooth"))
+            noise_scene = dataclasses.replace(
+                scene, render=dataclasses.replace(scene.render, seed=1, tangents="smooth")
+            )
             noise = block_rmse(render(noise_scene, threads=threads), images["smooth"])
             write_exr(args.out / f"warp_hair_{lighting}.exr", images["smooth"])
             print(f"[{lighting}] noise level (two warp-hair seeds): block RMSE {noise:.2%}")
-            print(f"[{lighting}] smooth vs segment tangents: block RMSE {block_rmse(images['segment'], images['smooth']):.2%}")
+            print(
+                f"[{lighting}] smooth vs segment tangents: block RMSE {block_rmse(images['segment'], images['smooth']):.2%}"
+            )
             peers = {}
             for sampler in SAMPLERS if mi is not None else ():
-                mi_scene = mitsuba_scene(mi, scene, args.spp, shape="bsplinecurve", fibers_file=fibers_file,
-                                         sampler=sampler)
+                mi_scene = mitsuba_scene(
+                    mi, scene, args.spp, shape="bsplinecurve", fibers_file=fibers_file, sampler=sampler
+                )
                 start = time.perf_counter()
                 peers[f"Mitsuba_{sampler} {mi.__version__}"] = time_mitsuba(mi, mi_scene, args.spp, 0, threads, 1)[2]
                 print(f"[{lighting}] Mitsuba bsplinecurve, {sampler} sampler: {time.perf_counter() - start:.1f} s")
@@ -317,9 +363,11 @@ def main(argv=None):
                 mean_theirs = theirs.mean(axis=(0, 1))
                 for shape, ours in images.items():
                     ratio = ours.mean(axis=(0, 1)) / mean_theirs
-                    print(f"[{lighting}] warp-hair ({shape}) / {peer}: means {fmt(ours.mean(axis=(0, 1)))} / "
-                          f"{fmt(mean_theirs)} = {fmt(ratio)}; block RMSE {block_rmse(ours, theirs):.2%} "
-                          f"(noise level {noise:.2%})")
+                    print(
+                        f"[{lighting}] warp-hair ({shape}) / {peer}: means {fmt(ours.mean(axis=(0, 1)))} / "
+                        f"{fmt(mean_theirs)} = {fmt(ratio)}; block RMSE {block_rmse(ours, theirs):.2%} "
+                        f"(noise level {noise:.2%})"
+                    )
                 exposure = 0.8 / float(np.percentile(theirs, 99.5))  # the peer's brightest pixels near white
                 panels = [exposure * images["smooth"], exposure * images["catmull-rom"], exposure * theirs]
                 for ours in (images["smooth"], images["catmull-rom"]):

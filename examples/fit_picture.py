@@ -35,11 +35,19 @@ def main():
     print(format_table(result, true_values(target, result.values)))
     print(f"{result.iterations} Adam iterations ({result.stop_reason}), {result.seconds:.0f} s")
     look, gain = fitted_look(result, target), result.values.get("exposure", 1.0)
-    result = dataclasses.replace(result, images=[
-        gain * render(prepare(image.scene).with_hair(look), spp=image.scene.render.spp, seed=image.scene.render.seed + 1,
-                      threads=args.threads)
-        for image in target.images
-    ])
+    result = dataclasses.replace(
+        result,
+        images=[
+            gain
+            * render(
+                prepare(image.scene).with_hair(look),
+                spp=image.scene.render.spp,
+                seed=image.scene.render.seed + 1,
+                threads=args.threads,
+            )
+            for image in target.images
+        ],
+    )
     args.output.parent.mkdir(parents=True, exist_ok=True)
     plot_comparison(args.output, result, target)
     print(f"wrote {args.output}")

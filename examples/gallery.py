@@ -25,17 +25,48 @@ import warp_hair as wh
 ROOT = Path(__file__).resolve().parent.parent
 
 # The swatches: 240 slightly wavy fibers in 4 layers, draped over a rod of radius 0.5 and seen from the front.
-SWATCH = {"generator": "wavy", "count": 240, "layers": 4, "length": 1.3, "radius": 0.004, "width": 0.42,
-          "amplitude": 0.004, "wavelength": 0.33, "phase_jitter": 0.1, "drape": 0.5, "seed": 3}
-SWATCH_CAMERA = {"type": "perspective", "origin": [0.0, 0.05, 2.6], "target": [0.0, 0.0, -0.15],
-                 "up": [0.0, 1.0, 0.0], "fov": 16.0}
+SWATCH = {
+    "generator": "wavy",
+    "count": 240,
+    "layers": 4,
+    "length": 1.3,
+    "radius": 0.004,
+    "width": 0.42,
+    "amplitude": 0.004,
+    "wavelength": 0.33,
+    "phase_jitter": 0.1,
+    "drape": 0.5,
+    "seed": 3,
+}
+SWATCH_CAMERA = {
+    "type": "perspective",
+    "origin": [0.0, 0.05, 2.6],
+    "target": [0.0, 0.0, -0.15],
+    "up": [0.0, 1.0, 0.0],
+    "fov": 16.0,
+}
 # The sun high behind the viewer's right shoulder (the way its light travels; +y is up).
 SWATCH_SUN = {"direction": [-0.25, -0.45, -0.86], "irradiance": [3.2, 3.0, 2.7]}
 # The fur: a patch seen from low at its side, the tips against the backdrop and its front edge below the frame.
-FUR = {"generator": "fur", "count": 6000, "patch": [0.5, 0.6], "length": 0.22, "root_radius": 0.003,
-       "tip_radius": 0.0005, "lean": 30.0, "bend": 25.0, "segments": 8, "seed": 4}
-FUR_CAMERA = {"type": "perspective", "origin": [0.0, -1.6, 0.45], "target": [0.0, 0.0, 0.13],
-              "up": [0.0, 0.0, 1.0], "fov": 10.0}
+FUR = {
+    "generator": "fur",
+    "count": 6000,
+    "patch": [0.5, 0.6],
+    "length": 0.22,
+    "root_radius": 0.003,
+    "tip_radius": 0.0005,
+    "lean": 30.0,
+    "bend": 25.0,
+    "segments": 8,
+    "seed": 4,
+}
+FUR_CAMERA = {
+    "type": "perspective",
+    "origin": [0.0, -1.6, 0.45],
+    "target": [0.0, 0.0, 0.13],
+    "up": [0.0, 0.0, 1.0],
+    "fov": 10.0,
+}
 FUR_SUN = {"direction": [-0.3, 0.55, -0.78], "irradiance": [3.2, 3.0, 2.7]}  # +z is up here
 # A dark backdrop behind each panel, so the highlights stand out; the sky still lights the fibers.
 CARD = {"albedo": [0.03, 0.03, 0.03], "distance": 0.05}
@@ -45,8 +76,13 @@ PANELS = [  # (name, [fibers], [hair], camera, sun)
     ("blonde", SWATCH, {"eumelanin": 0.25, "pheomelanin": 0.25, **TILT}, SWATCH_CAMERA, SWATCH_SUN),
     ("brown", SWATCH, {"eumelanin": 1.2, "pheomelanin": 0.35, **TILT}, SWATCH_CAMERA, SWATCH_SUN),
     ("black", SWATCH, {"eumelanin": 8.0, **TILT}, SWATCH_CAMERA, SWATCH_SUN),
-    ("fur", FUR, {"albedo": [0.35, 0.17, 0.07], "beta_m": 0.3, "beta_n": 0.45, "alpha": 3.0,
-                  "r_roughness_scale": 2.0}, FUR_CAMERA, FUR_SUN),
+    (
+        "fur",
+        FUR,
+        {"albedo": [0.35, 0.17, 0.07], "beta_m": 0.3, "beta_n": 0.45, "alpha": 3.0, "r_roughness_scale": 2.0},
+        FUR_CAMERA,
+        FUR_SUN,
+    ),
 ]
 
 
@@ -56,21 +92,23 @@ def sky(height=64, width=128):
     elevation = np.pi / 2 - theta
     up = np.clip(np.sin(elevation), 0.0, 1.0)[:, None]
     zenith, horizon, ground = np.array([0.25, 0.45, 0.95]), np.array([1.0, 0.95, 0.85]), np.array([0.18, 0.15, 0.12])
-    above = horizon + (zenith - horizon) * up ** 0.5
+    above = horizon + (zenith - horizon) * up**0.5
     rows = np.where((elevation > 0)[:, None], above, ground)
     return np.broadcast_to(rows[:, None, :], (height, width, 3)).astype(np.float32) * np.float32(0.5)
 
 
 def scene(fibers, hair, camera, sun, sky_file, resolution, spp):
     """The scene file's tables as a dict: what `warp-hair render` would read from TOML."""
-    return wh.scene_from_dict({
-        "camera": {**camera, "resolution": list(resolution)},
-        "lights": [{"type": "directional", **sun}, {"type": "environment", "file": str(sky_file)}],
-        "fibers": fibers,
-        "hair": hair,
-        "card": CARD,
-        "render": {"spp": spp, "max_depth": 32, "seed": 0},
-    })
+    return wh.scene_from_dict(
+        {
+            "camera": {**camera, "resolution": list(resolution)},
+            "lights": [{"type": "directional", **sun}, {"type": "environment", "file": str(sky_file)}],
+            "fibers": fibers,
+            "hair": hair,
+            "card": CARD,
+            "render": {"spp": spp, "max_depth": 32, "seed": 0},
+        }
+    )
 
 
 def tone_map(image, exposure):

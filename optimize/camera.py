@@ -134,12 +134,12 @@ def columns(target, m: np.ndarray, image_residuals) -> np.ndarray:
     a gain its image's (or every image's), w_c its channel's. linearize.py passes the weighted target, which m
     equals at the gains' optimum up to the residual, and which our render noise does not move."""
     n_res = len(m)
-    starts = np.cumsum((0,) + tuple(image_residuals))
+    starts = np.cumsum((0, *tuple(image_residuals)))
     cols = []
     if target.gains == "per-image":
         for k in range(len(image_residuals)):
             col = np.zeros(n_res)
-            col[starts[k]:starts[k + 1]] = m[starts[k]:starts[k + 1]]
+            col[starts[k] : starts[k + 1]] = m[starts[k] : starts[k + 1]]
             cols.append(col)
     elif target.gains in ("exif", "shared"):
         cols.append(m.copy())
@@ -157,8 +157,11 @@ def labels(target) -> list:
     elif target.gains in ("exif", "shared"):
         names.append("gain")
     if target.white_balance == "fit":
-        names += ["white_balance[r]", "white_balance[b]"] if target.gains != "none" else \
-            [f"white_balance[{c}]" for c in "rgb"]
+        names += (
+            ["white_balance[r]", "white_balance[b]"]
+            if target.gains != "none"
+            else [f"white_balance[{c}]" for c in "rgb"]
+        )
     return names
 
 
@@ -167,7 +170,7 @@ def label_values(projection, target) -> list:
     names = [image.name for image in target.images]
     values = []
     for label in projection.labels:
-        inside = label[label.find("[") + 1:-1] if "[" in label else None
+        inside = label[label.find("[") + 1 : -1] if "[" in label else None
         if label.startswith("gain"):
             values.append(float(projection.gains.g[names.index(inside) if inside else 0]))
         else:
@@ -208,8 +211,7 @@ class Projection:
         return cov + model_error**2 * np.outer(is_gain, is_gain)
 
 
-def report(projection: Projection, target, hair_covariance: np.ndarray, scatter: float,
-           model_error: float) -> dict:
+def report(projection: Projection, target, hair_covariance: np.ndarray, scatter: float, model_error: float) -> dict:
     """{"gains": {image name: [value, σ]}, "white_balance": {"value": [r, g, b], "sigma": [...]}, "modes": ...},
     σ from the log-gains' covariance (σ of a gain = gain · σ of its log)."""
     cov = projection.covariance(hair_covariance, scatter, model_error)
@@ -220,5 +222,8 @@ def report(projection: Projection, target, hair_covariance: np.ndarray, scatter:
         s = sigma.get(f"gain[{image.name}]", sigma.get("gain", 0.0))
         gains[image.name] = [float(g[k]), float(g[k] * s)]
     wb_sigma = [float(w[c] * sigma.get(f"white_balance[{'rgb'[c]}]", 0.0)) for c in range(3)]
-    return {"modes": {"gains": target.gains, "white_balance": target.white_balance}, "gains": gains,
-            "white_balance": {"value": [float(v) for v in w], "sigma": wb_sigma}}
+    return {
+        "modes": {"gains": target.gains, "white_balance": target.white_balance},
+        "gains": gains,
+        "white_balance": {"value": [float(v) for v in w], "sigma": wb_sigma},
+    }

@@ -23,9 +23,9 @@ from pathlib import Path
 from warp_hair import cli as render_cli
 from warp_hair.model.params import HairParams
 
-from .latents import DEFAULT_FIT, SPECS, as_values
 from .camera import GAIN_MODES, WHITE_BALANCE_MODES
 from .fit import FitSettings
+from .latents import DEFAULT_FIT, SPECS, as_values
 
 
 def resolve_target(name_or_path: str) -> Path:
@@ -37,8 +37,9 @@ def resolve_target(name_or_path: str) -> Path:
         return path
     if name_or_path in targets.names():
         return targets.path(name_or_path)
-    raise FileNotFoundError(f"{name_or_path}: no such target directory, nor a shipped target "
-                            f"(shipped: {', '.join(targets.names())})")
+    raise FileNotFoundError(
+        f"{name_or_path}: no such target directory, nor a shipped target (shipped: {', '.join(targets.names())})"
+    )
 
 
 def parse_assignments(items, option: str) -> dict:
@@ -48,13 +49,17 @@ def parse_assignments(items, option: str) -> dict:
         name, sep, text = item.partition("=")
         name = name.strip()
         if not sep or not name or not text:
-            raise ValueError(f"{option} takes NAME=VALUE (e.g. {option} beta_m=0.4 or {option} albedo=0.6,0.4,0.2), got {item!r}")
+            raise ValueError(
+                f"{option} takes NAME=VALUE (e.g. {option} beta_m=0.4 or {option} albedo=0.6,0.4,0.2), got {item!r}"
+            )
         if name not in SPECS:
             raise ValueError(f"{option}: unknown control {name!r}; allowed: {list(SPECS)}")
         try:
             numbers = [float(v) for v in text.split(",")]
         except ValueError:
-            raise ValueError(f"{option} {name}: {text!r} is not a number or a comma-separated list of numbers") from None
+            raise ValueError(
+                f"{option} {name}: {text!r} is not a number or a comma-separated list of numbers"
+            ) from None
         values[name] = as_values(name, numbers)
     return values
 
@@ -63,9 +68,14 @@ def add_fit(subparsers) -> None:
     defaults = FitSettings()
     parser = subparsers.add_parser(
         "fit",
-        parents=[render_cli.common_flags(
-            spp=f"samples per pixel at the end of the schedule (default {defaults.spp}; it starts at spp/4)",
-            spp_default=defaults.spp, seed="seed of the fit's random streams (default 0)", seed_default=defaults.seed)],
+        parents=[
+            render_cli.common_flags(
+                spp=f"samples per pixel at the end of the schedule (default {defaults.spp}; it starts at spp/4)",
+                spp_default=defaults.spp,
+                seed="seed of the fit's random streams (default 0)",
+                seed_default=defaults.seed,
+            )
+        ],
         help="fit hair controls to a target's images",
         description="Fit hair controls to the images of a target by gradient descent on path-traced renders "
         "(Adam over unconstrained latents, fresh seeds every iteration, growing spp, cosine learning-rate decay), "
@@ -73,40 +83,87 @@ def add_fit(subparsers) -> None:
         "Writes params.json, convergence.png and comparison.png to OUT_DIR and prints fitted vs true controls "
         "when the target has truth.json. Ctrl-C stops early and saves the estimate so far.",
     )
-    parser.add_argument("target", metavar="TARGET", help="a target directory, or the name of a shipped target (targets/)")
+    parser.add_argument(
+        "target", metavar="TARGET", help="a target directory, or the name of a shipped target (targets/)"
+    )
     parser.add_argument("-o", "--output", required=True, type=Path, metavar="OUT_DIR", help="directory for the results")
-    parser.add_argument("--fit", default=",".join(DEFAULT_FIT), metavar="NAMES",
-                        help=f"comma-separated controls to fit (default {','.join(DEFAULT_FIT)}); any of "
-                        f"{', '.join(SPECS)}")
-    parser.add_argument("--iters", type=int, default=defaults.iters, metavar="N", help=f"most iterations (default {defaults.iters})")
+    parser.add_argument(
+        "--fit",
+        default=",".join(DEFAULT_FIT),
+        metavar="NAMES",
+        help=f"comma-separated controls to fit (default {','.join(DEFAULT_FIT)}); any of {', '.join(SPECS)}",
+    )
+    parser.add_argument(
+        "--iters", type=int, default=defaults.iters, metavar="N", help=f"most iterations (default {defaults.iters})"
+    )
     parser.add_argument("--loss", default=defaults.loss, choices=("l2", "rel_l2", "l1"), help="image loss (default l2)")
-    parser.add_argument("--lr", type=float, default=defaults.lr, metavar="LR", help=f"Adam's initial learning rate on the latents (default {defaults.lr})")
-    parser.add_argument("--init", nargs="+", metavar="NAME=V", help="start values of fitted controls (default: albedo 0.5 grey, "
-                        "beta_m = beta_n = 0.5, the others their usual values)")
-    parser.add_argument("--fix", nargs="+", metavar="NAME=V", help="set controls that are not fitted, overriding the scene files")
-    parser.add_argument("--patience", type=int, default=defaults.patience, metavar="P",
-                        help=f"stop after P iterations without improvement at the final spp (default {defaults.patience})")
-    parser.add_argument("--refine", type=int, metavar="K",
-                        help="Gauss-Newton steps after Adam (default 8, or more for a target rendered at more samples "
-                        "per pixel than 8 steps average; 0 with --loss l1, which is not a sum of squares)")
-    parser.add_argument("--batch", type=_batch, default=defaults.batch, metavar="N|all",
-                        help=f"pixels of an image per render (default {defaults.batch}): a larger image's Adam "
-                        "iterations render random blocks adding up to N of its pixels, its Gauss-Newton steps all of "
-                        "them at proportionally fewer samples; 'all' renders every pixel at the full samples")
-    parser.add_argument("--model-error", type=float, metavar="E",
-                        help="relative brightness disagreement between the target's renderer and warp-hair, counted in "
-                        "the uncertainties (>= 0; default 0 for warp-hair's own targets, 0.01 for another renderer's "
-                        "or a target of unknown origin)")
-    parser.add_argument("--gains", choices=GAIN_MODES,
-                        help="the images' exposures to fit with the hair (optimize/camera.py): per-image, exif (one "
-                        "gain, EXIF's t*ISO/N^2 ratios), shared, none (default: target.toml's gains, else per-image "
-                        "or exif for PNG, JPEG and TIFF photos, none for EXR)")
-    parser.add_argument("--white-balance", choices=WHITE_BALANCE_MODES,
-                        help="fit a white balance (a gain per channel, green's 1) with the hair: fit, none (default: "
-                        "target.toml's white_balance, else fit for photos, none for EXR)")
-    parser.add_argument("--export", metavar="RENDERERS",
-                        help="also write the fitted look for these renderers beside params.json (comma-separated: "
-                        "mitsuba, pbrt, cycles, materialx; files hair_<renderer>.*, as `warp-hair export` writes)")
+    parser.add_argument(
+        "--lr",
+        type=float,
+        default=defaults.lr,
+        metavar="LR",
+        help=f"Adam's initial learning rate on the latents (default {defaults.lr})",
+    )
+    parser.add_argument(
+        "--init",
+        nargs="+",
+        metavar="NAME=V",
+        help="start values of fitted controls (default: albedo 0.5 grey, "
+        "beta_m = beta_n = 0.5, the others their usual values)",
+    )
+    parser.add_argument(
+        "--fix", nargs="+", metavar="NAME=V", help="set controls that are not fitted, overriding the scene files"
+    )
+    parser.add_argument(
+        "--patience",
+        type=int,
+        default=defaults.patience,
+        metavar="P",
+        help=f"stop after P iterations without improvement at the final spp (default {defaults.patience})",
+    )
+    parser.add_argument(
+        "--refine",
+        type=int,
+        metavar="K",
+        help="Gauss-Newton steps after Adam (default 8, or more for a target rendered at more samples "
+        "per pixel than 8 steps average; 0 with --loss l1, which is not a sum of squares)",
+    )
+    parser.add_argument(
+        "--batch",
+        type=_batch,
+        default=defaults.batch,
+        metavar="N|all",
+        help=f"pixels of an image per render (default {defaults.batch}): a larger image's Adam "
+        "iterations render random blocks adding up to N of its pixels, its Gauss-Newton steps all of "
+        "them at proportionally fewer samples; 'all' renders every pixel at the full samples",
+    )
+    parser.add_argument(
+        "--model-error",
+        type=float,
+        metavar="E",
+        help="relative brightness disagreement between the target's renderer and warp-hair, counted in "
+        "the uncertainties (>= 0; default 0 for warp-hair's own targets, 0.01 for another renderer's "
+        "or a target of unknown origin)",
+    )
+    parser.add_argument(
+        "--gains",
+        choices=GAIN_MODES,
+        help="the images' exposures to fit with the hair (optimize/camera.py): per-image, exif (one "
+        "gain, EXIF's t*ISO/N^2 ratios), shared, none (default: target.toml's gains, else per-image "
+        "or exif for PNG, JPEG and TIFF photos, none for EXR)",
+    )
+    parser.add_argument(
+        "--white-balance",
+        choices=WHITE_BALANCE_MODES,
+        help="fit a white balance (a gain per channel, green's 1) with the hair: fit, none (default: "
+        "target.toml's white_balance, else fit for photos, none for EXR)",
+    )
+    parser.add_argument(
+        "--export",
+        metavar="RENDERERS",
+        help="also write the fitted look for these renderers beside params.json (comma-separated: "
+        "mitsuba, pbrt, cycles, materialx; files hair_<renderer>.*, as `warp-hair export` writes)",
+    )
     parser.set_defaults(run=run_fit)
 
 
@@ -123,8 +180,8 @@ def _batch(text: str) -> int | None:
 
 
 def run_fit(args: argparse.Namespace) -> None:
-    from .fit import fit
     from .camera import fitted as fitted_camera
+    from .fit import fit
     from .report import camera_table, format_table, photo_summary, true_values, write_outputs
     from .target import load_target
 
@@ -146,13 +203,26 @@ def run_fit(args: argparse.Namespace) -> None:
     if fixed:
         _fix_controls(target, fixed)
     _set_camera_unknowns(target, args)
-    settings = FitSettings(controls=tuple(names), iters=args.iters, spp=args.spp, loss=args.loss, lr=args.lr,
-                           seed=args.seed, patience=args.patience, init=parse_assignments(args.init, "--init"),
-                           threads=args.threads, refine=args.refine, batch=args.batch,
-                           model_error=args.model_error)
+    settings = FitSettings(
+        controls=tuple(names),
+        iters=args.iters,
+        spp=args.spp,
+        loss=args.loss,
+        lr=args.lr,
+        seed=args.seed,
+        patience=args.patience,
+        init=parse_assignments(args.init, "--init"),
+        threads=args.threads,
+        refine=args.refine,
+        batch=args.batch,
+        model_error=args.model_error,
+    )
     sizes = ", ".join(f"{im.name} {im.image.shape[1]}x{im.image.shape[0]}" for im in target.images)
-    camera = "" if not fitted_camera(target) else (f", with the photos' gains ({target.gains}) and white balance "
-                                                   f"({target.white_balance})")
+    camera = (
+        ""
+        if not fitted_camera(target)
+        else (f", with the photos' gains ({target.gains}) and white balance ({target.white_balance})")
+    )
     print(f"fitting {', '.join(names)} of {target.name} ({sizes}){camera}")
     for line in photo_summary(target):
         print(f"  {line}")
@@ -164,7 +234,9 @@ def run_fit(args: argparse.Namespace) -> None:
     print(format_table(result, true_values(target, result.values), target.origin))
     if result.camera is not None:
         print(camera_table(result))
-    print(f"{result.iterations} iterations ({result.stop_reason}), {result.seconds:.0f} s, final loss {result.loss:.4g}")
+    print(
+        f"{result.iterations} iterations ({result.stop_reason}), {result.seconds:.0f} s, final loss {result.loss:.4g}"
+    )
     for warning in result.warnings:
         print(f"{render_cli.PROG}: warning: {warning}", file=sys.stderr)
     print("wrote " + ", ".join(str(p) for p in paths))
@@ -181,8 +253,9 @@ def _set_camera_unknowns(target, args) -> None:
     if target.gains == "exif":
         missing = [im.image_path.name for im in target.images if im.photo is None or im.photo.relative_exposure is None]
         if missing:
-            raise ValueError(f"--gains exif: {', '.join(missing)} has no EXIF exposure time, f-number and ISO; use "
-                             "--gains per-image")
+            raise ValueError(
+                f"--gains exif: {', '.join(missing)} has no EXIF exposure time, f-number and ISO; use --gains per-image"
+            )
         relative_exposures(target)
 
 
@@ -213,17 +286,25 @@ def add_targets(subparsers) -> None:
     )
     actions = parser.add_subparsers(dest="action", required=True, metavar="ACTION")
     names_help = "shipped target names or target directories (default: all shipped)"
-    listing = actions.add_parser("list", parents=[render_cli.common_flags(threads=False)],
-                                 help="the shipped targets, their truth and who rendered them")
+    listing = actions.add_parser(
+        "list",
+        parents=[render_cli.common_flags(threads=False)],
+        help="the shipped targets, their truth and who rendered them",
+    )
     listing.add_argument("names", nargs="*", metavar="NAME", help=names_help)
-    make = actions.add_parser("make", parents=[render_cli.common_flags()],
-                              help="re-render warp-hair's targets from their scene files")
+    make = actions.add_parser(
+        "make", parents=[render_cli.common_flags()], help="re-render warp-hair's targets from their scene files"
+    )
     make.add_argument("names", nargs="*", metavar="NAME", help=names_help)
     check = actions.add_parser(
         "check",
-        parents=[render_cli.common_flags(
-            spp="samples per pixel the target's noise is taken at (default: its scenes' [render] spp, what it "
-            "was rendered with); to see what more samples would give", spp_default=None)],
+        parents=[
+            render_cli.common_flags(
+                spp="samples per pixel the target's noise is taken at (default: its scenes' [render] spp, what it "
+                "was rendered with); to see what more samples would give",
+                spp_default=None,
+            )
+        ],
         help="whether a target's images identify its controls",
         description="Linearise the fit's loss at the target's true controls (truth.json, or --at) and print, per "
         "fitted control, the 1-sigma the target's own noise leaves (its Fisher information: our render's noise "
@@ -235,12 +316,20 @@ def add_targets(subparsers) -> None:
         "optimize/camera.py) it also says which of those the images pin. Costs 8 renders of each image at 64 spp.",
     )
     check.add_argument("target", metavar="TARGET", help="a target directory, or the name of a shipped target")
-    check.add_argument("--fit", default=",".join(DEFAULT_FIT), metavar="NAMES",
-                       help=f"the controls a fit would fit (default {','.join(DEFAULT_FIT)})")
+    check.add_argument(
+        "--fit",
+        default=",".join(DEFAULT_FIT),
+        metavar="NAMES",
+        help=f"the controls a fit would fit (default {','.join(DEFAULT_FIT)})",
+    )
     check.add_argument("--at", nargs="+", metavar="NAME=V", help="check at these values instead of truth.json's")
-    check.add_argument("--model-error", type=float, metavar="E",
-                       help="relative brightness disagreement to count (default as the fit: 0 for warp-hair's own "
-                       "targets, 0.01 for others)")
+    check.add_argument(
+        "--model-error",
+        type=float,
+        metavar="E",
+        help="relative brightness disagreement to count (default as the fit: 0 for warp-hair's own "
+        "targets, 0.01 for others)",
+    )
     _add_photo(actions)
     for sub in (listing, make, check):
         sub.set_defaults(run=run_targets)
@@ -251,7 +340,7 @@ def _vector(text: str) -> tuple:
         values = tuple(float(v) for v in text.split(","))
     except ValueError:
         values = ()
-    if len(values) != 3 or not all(map(lambda v: v == v and abs(v) != float("inf"), values)) or not any(values):
+    if len(values) != 3 or not all(v == v and abs(v) != float("inf") for v in values) or not any(values):
         raise argparse.ArgumentTypeError(f"a direction is three numbers X,Y,Z, not all 0, got {text!r}")
     return values
 
@@ -259,28 +348,45 @@ def _vector(text: str) -> tuple:
 def _add_photo(actions) -> None:
     from warp_hair.photo import TRANSFERS
 
-    from .photo_target import RIGS
 
     photo = actions.add_parser(
-        "photo", parents=[render_cli.common_flags(threads=False)],
+        "photo",
+        parents=[render_cli.common_flags(threads=False)],
         help="make a target from photographs of a swatch or fur patch",
         description="Write a target directory from photos: each decoded to linear and box-filtered to --resolution, "
         "a scene per photo (the rig, the camera, its light), a mask of the clipped, crushed and background "
         "pixels, and target.toml with the photos' gains and white balance to fit (optimize/photo_target.py). "
-        "Then: warp-hair fit OUT_DIR -o FIT_DIR.")
+        "Then: warp-hair fit OUT_DIR -o FIT_DIR.",
+    )
     photo.add_argument("output", type=Path, metavar="OUT_DIR", help="the target directory to write")
-    photo.add_argument("--rig", choices=("draped", "flat", "fur"), default="draped",
-                       help="a swatch draped over a rod (default), a flat swatch on a card, a fur patch")
-    photo.add_argument("--image", action="append", required=True, metavar="PHOTO",
-                       help="a photo (PNG, JPEG, TIFF); repeat for each view")
-    photo.add_argument("--light", action="append", type=_vector, metavar="X,Y,Z",
-                       help="per --image, in order: the direction its directional light travels, in the rig's frame "
-                       "(x across, y along the fibers, z towards the camera)")
+    photo.add_argument(
+        "--rig",
+        choices=("draped", "flat", "fur"),
+        default="draped",
+        help="a swatch draped over a rod (default), a flat swatch on a card, a fur patch",
+    )
+    photo.add_argument(
+        "--image",
+        action="append",
+        required=True,
+        metavar="PHOTO",
+        help="a photo (PNG, JPEG, TIFF); repeat for each view",
+    )
+    photo.add_argument(
+        "--light",
+        action="append",
+        type=_vector,
+        metavar="X,Y,Z",
+        help="per --image, in order: the direction its directional light travels, in the rig's frame "
+        "(x across, y along the fibers, z towards the camera)",
+    )
     photo.add_argument("--hdri", metavar="EXR", help="a lat-long EXR taken where the swatch stood, for every view")
-    photo.add_argument("--transfer", choices=TRANSFERS, default="auto",
-                       help="the photos' transfer curve (default auto)")
-    photo.add_argument("--width", type=float, default=0.4,
-                       help="swatch width across the fibers (scene units, default 0.4)")
+    photo.add_argument(
+        "--transfer", choices=TRANSFERS, default="auto", help="the photos' transfer curve (default auto)"
+    )
+    photo.add_argument(
+        "--width", type=float, default=0.4, help="swatch width across the fibers (scene units, default 0.4)"
+    )
     photo.add_argument("--length", type=float, default=0.5, help="swatch length along the fibers (default 0.5)")
     photo.add_argument("--count", type=int, default=152, help="fibers (default 152)")
     photo.add_argument("--layers", type=int, default=4, help="layers of fibers (default 4)")
@@ -293,13 +399,22 @@ def _add_photo(actions) -> None:
     lens = photo.add_mutually_exclusive_group()
     lens.add_argument("--ortho-width", type=float, help="an orthographic camera of this view width (scene units)")
     lens.add_argument("--fov", type=float, help="perspective: horizontal field of view, degrees")
-    photo.add_argument("--sensor-width", type=float,
-                       help="perspective: sensor width in mm, with the photo's EXIF focal length")
+    photo.add_argument(
+        "--sensor-width", type=float, help="perspective: sensor width in mm, with the photo's EXIF focal length"
+    )
     photo.add_argument("--resolution", type=int, default=64, help="pixels across of the target's images (default 64)")
-    photo.add_argument("--card", type=float, metavar="REFLECTANCE",
-                       help="a grey card behind the swatch, of this reflectance (e.g. 0.18), rendered as its [card]")
-    photo.add_argument("--mask", nargs="+", metavar="auto|FILE",
-                       help="'auto': leave out the background (not with --card); or a mask per photo (white = counts)")
+    photo.add_argument(
+        "--card",
+        type=float,
+        metavar="REFLECTANCE",
+        help="a grey card behind the swatch, of this reflectance (e.g. 0.18), rendered as its [card]",
+    )
+    photo.add_argument(
+        "--mask",
+        nargs="+",
+        metavar="auto|FILE",
+        help="'auto': leave out the background (not with --card); or a mask per photo (white = counts)",
+    )
     photo.set_defaults(run=run_photo)
 
 
@@ -307,8 +422,10 @@ def run_photo(args: argparse.Namespace) -> int:
     from .photo_target import make_photo_target
 
     written = make_photo_target(args.output, args)
-    print(f"wrote {', '.join(p.name for p in written)} to {args.output}; fit it with "
-          f"`warp-hair fit {args.output} -o {args.output}_fit`")
+    print(
+        f"wrote {', '.join(p.name for p in written)} to {args.output}; fit it with "
+        f"`warp-hair fit {args.output} -o {args.output}_fit`"
+    )
     return 0
 
 
@@ -323,12 +440,16 @@ def run_targets(args: argparse.Namespace) -> int:
         if args.action == "list":
             target = load_target(directory)
             truth = "" if target.truth is None else " ".join(f"{k}={v}" for k, v in target.truth.to_dict().items())
-            by = {"warp-hair": "", "unknown": " (of unknown origin)"}.get(target.origin, f" (rendered by {target.origin})")
+            by = {"warp-hair": "", "unknown": " (of unknown origin)"}.get(
+                target.origin, f" (rendered by {target.origin})"
+            )
             print(f"{directory.name}: {', '.join(im.name for im in target.images)}{by}; {truth}")
             continue
         if not args.names and target_renderer(directory) != "warp-hair":
-            print(f"{directory.name}: rendered by {target_renderer(directory)}, left as it is "
-                  "(benchmarks/make_peer_targets.py re-renders it)")
+            print(
+                f"{directory.name}: rendered by {target_renderer(directory)}, left as it is "
+                "(benchmarks/make_peer_targets.py re-renders it)"
+            )
             continue
         start = time.perf_counter()
         with render_cli.progress_bar(unit="px", desc=f"make {directory.name}") as progress:
@@ -346,13 +467,22 @@ def _check_target(args: argparse.Namespace) -> int:
     target = load_target(resolve_target(args.target))
     names = [n.strip() for n in args.fit.split(",") if n.strip()]
     start = time.perf_counter()
-    result = check_target(target, parse_assignments(args.at, "--at"), names, spp=args.spp,
-                          model_error=args.model_error, threads=args.threads)
+    result = check_target(
+        target,
+        parse_assignments(args.at, "--at"),
+        names,
+        spp=args.spp,
+        model_error=args.model_error,
+        threads=args.threads,
+    )
     print(describe(result))
     print(f"({time.perf_counter() - start:.0f} s)")
     if not result.identifiable:
-        print(f"{render_cli.PROG}: {target.name} is a bad target: its images do not pin down "
-              f"{', '.join(p.split(':')[0] for p in result.problems)}", file=sys.stderr)
+        print(
+            f"{render_cli.PROG}: {target.name} is a bad target: its images do not pin down "
+            f"{', '.join(p.split(':')[0] for p in result.problems)}",
+            file=sys.stderr,
+        )
         return 1
     return 0
 
@@ -366,16 +496,24 @@ def add_batch(subparsers) -> None:
         "it) as Ray tasks: on a Ray started on this machine, or on the cluster at --address. Each job's results are "
         "written beside the manifest as it finishes; a rerun skips finished jobs; Ctrl-C keeps what finished. "
         "Writes summary.csv, summary.json and report.html. Exit status 1 when a job failed. Needs the cluster "
-        "extra: pip install -e \".[cluster]\".",
+        'extra: pip install -e ".[cluster]".',
     )
     parser.add_argument("manifest", type=Path, metavar="MANIFEST.toml", help="the manifest")
-    parser.add_argument("-o", "--output", type=Path, metavar="OUT_DIR",
-                        help="the results' folder (default: the manifest's [batch] output, else <stem>_out beside it)")
+    parser.add_argument(
+        "-o",
+        "--output",
+        type=Path,
+        metavar="OUT_DIR",
+        help="the results' folder (default: the manifest's [batch] output, else <stem>_out beside it)",
+    )
     parser.add_argument("--address", metavar="HOST:PORT", help="join this Ray cluster (default: start one here)")
     parser.add_argument("--cpus", type=int, metavar="N", help="CPUs of the Ray started here (default: all cores)")
-    parser.add_argument("--cpus-per-job", type=int, metavar="N",
-                        help="CPUs (and Warp threads) each job declares (default: the manifest's [batch] cpus_per_job, "
-                        "else 1)")
+    parser.add_argument(
+        "--cpus-per-job",
+        type=int,
+        metavar="N",
+        help="CPUs (and Warp threads) each job declares (default: the manifest's [batch] cpus_per_job, else 1)",
+    )
     parser.set_defaults(run=run_batch_command)
 
 
@@ -390,8 +528,10 @@ def run_batch_command(args: argparse.Namespace) -> int:
     if args.cpus_per_job is not None:
         manifest.cpus_per_job = args.cpus_per_job
     outcome = run_batch(manifest, address=args.address, cpus=args.cpus)
-    print(f"{len(outcome.done)} done, {len(outcome.skipped)} finished earlier, {len(outcome.failed)} failed; "
-          f"wrote {manifest.output / 'summary.csv'}, {manifest.output / 'report.html'}")
+    print(
+        f"{len(outcome.done)} done, {len(outcome.skipped)} finished earlier, {len(outcome.failed)} failed; "
+        f"wrote {manifest.output / 'summary.csv'}, {manifest.output / 'report.html'}"
+    )
     for name in outcome.failed:
         from .batch import store
 

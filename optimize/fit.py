@@ -178,15 +178,21 @@ def check_settings(target: Target, settings: FitSettings) -> tuple:
         if not isinstance(settings.refine, int) or settings.refine < 0:
             raise ValueError(f"refine must be an integer >= 0, got {settings.refine!r}")
         if settings.refine > 0 and settings.loss not in REFINABLE_LOSSES:
-            raise ValueError(f"refine: Gauss–Newton steps need a sum-of-squares loss ({', '.join(REFINABLE_LOSSES)}), "
-                             f"not {settings.loss!r}; use refine=0 (--refine 0) with it")
+            raise ValueError(
+                f"refine: Gauss–Newton steps need a sum-of-squares loss ({', '.join(REFINABLE_LOSSES)}), "
+                f"not {settings.loss!r}; use refine=0 (--refine 0) with it"
+            )
     check_model_error(settings.model_error)
     if camera.fitted(target) and "exposure" in names:
-        raise ValueError(f"{target.name}: its gains are fitted already (gains = {target.gains!r}, camera.py); "
-                         "exposure would be a second gain on every image: leave it out of the controls")
+        raise ValueError(
+            f"{target.name}: its gains are fitted already (gains = {target.gains!r}, camera.py); "
+            "exposure would be a second gain on every image: leave it out of the controls"
+        )
     unknown = sorted(set(settings.init) - set(names))
     if unknown:
-        raise ValueError(f"init gives control(s) {unknown} that are not fitted (fitted: {list(names)}); the scene files set the others")
+        raise ValueError(
+            f"init gives control(s) {unknown} that are not fitted (fitted: {list(names)}); the scene files set the others"
+        )
     return names
 
 
@@ -215,9 +221,9 @@ class _Latents:
         self.inversion = inversion
         beta_n = torch.tensor(start["beta_n"][0] if "beta_n" in start else self.fixed_beta_n, dtype=torch.float64)
         self.tensors = {
-            name: SPECS[name].to_latent(
-                torch.tensor(v if SPECS[name].size == 3 else v[0], dtype=torch.float64), beta_n, inversion
-            ).requires_grad_()
+            name: SPECS[name]
+            .to_latent(torch.tensor(v if SPECS[name].size == 3 else v[0], dtype=torch.float64), beta_n, inversion)
+            .requires_grad_()
             for name, v in start.items()
         }
 
@@ -233,8 +239,10 @@ def _plain(values: dict) -> dict:
 
 
 def _mean_values(history_values: dict, window: int) -> dict:
-    return {name: _as_control(name, np.atleast_1d(np.mean(np.asarray(vals[-window:], dtype=np.float64), axis=0)).tolist())
-            for name, vals in history_values.items()}
+    return {
+        name: _as_control(name, np.atleast_1d(np.mean(np.asarray(vals[-window:], dtype=np.float64), axis=0)).tolist())
+        for name, vals in history_values.items()
+    }
 
 
 class Batches:
@@ -333,21 +341,36 @@ class FitRun:
         mini-batch of its blocks where it is larger than settings.batch."""
         hair, gain = hair_and_gain(values)
         pairs, used = [], []
-        for k, image in enumerate(self.target.images):
+        for k, _image in enumerate(self.target.images):
             pixels, batch_mask = self.batches[k].draw(seeds[k])  # of counted pixels only: it implies the target's mask
             used.append(self.masks[k] if batch_mask is None else batch_mask)
-            pairs.append(render_torch_pair(self.scenes[k], hair, spp=max(1, spp // 2), seed=seeds[k],
-                                           threads=self.settings.threads, pixels=pixels))
+            pairs.append(
+                render_torch_pair(
+                    self.scenes[k],
+                    hair,
+                    spp=max(1, spp // 2),
+                    seed=seeds[k],
+                    threads=self.settings.threads,
+                    pixels=pixels,
+                )
+            )
         gains = [gain] * len(pairs)
         if camera.fitted(self.target):  # a photo's exposures and white balance, solved for these renders
-            solved = camera.gains_for(self.target, pairs, self.targets, used, self.settings.loss, self.settings.pool,
-                                      self.scales).per_channel
+            solved = camera.gains_for(
+                self.target, pairs, self.targets, used, self.settings.loss, self.settings.pool, self.scales
+            ).per_channel
             gains = [torch.from_numpy(g) for g in solved]
         total = 0.0
         for k, pair in enumerate(pairs):
             for rendered in pair:
-                total = total + image_loss(rendered * gains[k], self.targets[k], self.settings.loss, used[k],
-                                           self.settings.pool, self.scales[k])
+                total = total + image_loss(
+                    rendered * gains[k],
+                    self.targets[k],
+                    self.settings.loss,
+                    used[k],
+                    self.settings.pool,
+                    self.scales[k],
+                )
         return total / (2 * len(self.target.images))
 
     def step(self) -> float:
@@ -383,10 +406,16 @@ class FitRun:
     def history(self) -> History:
         """The Adam iterations recorded so far."""
         r = self.record
-        values = {name: np.array(v, dtype=np.float64).reshape((-1, 3) if SPECS[name].size == 3 else (-1,))
-                  for name, v in r["values"].items()}
-        return History(loss=np.array(r["loss"], dtype=np.float64), spp=np.array(r["spp"], dtype=np.int64),
-                       lr=np.array(r["lr"], dtype=np.float64), values=values)
+        values = {
+            name: np.array(v, dtype=np.float64).reshape((-1, 3) if SPECS[name].size == 3 else (-1,))
+            for name, v in r["values"].items()
+        }
+        return History(
+            loss=np.array(r["loss"], dtype=np.float64),
+            spp=np.array(r["spp"], dtype=np.int64),
+            lr=np.array(r["lr"], dtype=np.float64),
+            values=values,
+        )
 
     def descend(self) -> Descent:
         """step() until the iterations are done or the loss plateaus; Ctrl-C stops it with the estimate so far."""
@@ -395,8 +424,11 @@ class FitRun:
         try:
             while not self.done:
                 loss = self.step()
-                bar.set_postfix_str(f"loss={loss:.3g} spp={self.record['spp'][-1]} "
-                                    f"{_describe({n: v[-1] for n, v in self.record['values'].items()})}", refresh=False)
+                bar.set_postfix_str(
+                    f"loss={loss:.3g} spp={self.record['spp'][-1]} "
+                    f"{_describe({n: v[-1] for n, v in self.record['values'].items()})}",
+                    refresh=False,
+                )
                 bar.update()
         except KeyboardInterrupt:
             stop_reason = "interrupted"
@@ -427,14 +459,17 @@ class FitRun:
         bar = tqdm(total=steps, desc="Gauss-Newton", unit="step", disable=not self.progress)
         run = None
         try:
-            run = GaussNewton(self.target, descent.estimate, self.settings, self.final_spp, self.final_seed, steps,
-                              scenes=self.scenes)
+            run = GaussNewton(
+                self.target, descent.estimate, self.settings, self.final_spp, self.final_seed, steps, scenes=self.scenes
+            )
             while not run.done:
                 record = run.step()
                 if bar.n >= bar.total:  # the refinement runs on while its points still move (refine.py)
                     bar.total = bar.n + 1
-                bar.set_postfix_str(f"loss={record.loss:.3g} {'kept' if record.accepted else 'undone'} "
-                                    f"{_describe(record.values)}", refresh=False)
+                bar.set_postfix_str(
+                    f"loss={record.loss:.3g} {'kept' if record.accepted else 'undone'} {_describe(record.values)}",
+                    refresh=False,
+                )
                 bar.update()
             return run.result()
         except KeyboardInterrupt:
@@ -451,27 +486,50 @@ class FitRun:
         interrupted = descent.stop_reason == "interrupted" or (refinement is not None and refinement.interrupted)
         lin = None if refinement is None else refinement.linearization
         if lin is None:
-            lin = linearize(self.target, values, self.settings, self.final_spp, self.final_seed,
-                            threads=self.settings.threads, scenes=self.scenes)
+            lin = linearize(
+                self.target,
+                values,
+                self.settings,
+                self.final_spp,
+                self.final_seed,
+                threads=self.settings.threads,
+                scenes=self.scenes,
+            )
         images = lin.images
         full_spp = self.settings.spp * FINAL_SPP_FACTOR
         if self.final_spp < full_spp and not interrupted:
             # The linearisations of a large image rendered few samples a pixel: a picture of the fit that a person
             # compares with the target (comparison.png) wants the full samples.
             try:
-                images = _render_fitted(self.scenes, values, full_spp, self.final_seed, self.settings.threads,
-                                        None if lin.camera is None else lin.camera.gains.per_channel)
+                images = _render_fitted(
+                    self.scenes,
+                    values,
+                    full_spp,
+                    self.final_seed,
+                    self.settings.threads,
+                    None if lin.camera is None else lin.camera.gains.per_channel,
+                )
             except KeyboardInterrupt:
                 interrupted = True
-        losses = [image_loss(torch.from_numpy(fitted), torch.from_numpy(image.image), self.settings.loss,
-                             None if image.mask is None else torch.from_numpy(image.mask), self.settings.pool)
-                  for fitted, image in zip(images, self.target.images)]
+        losses = [
+            image_loss(
+                torch.from_numpy(fitted),
+                torch.from_numpy(image.image),
+                self.settings.loss,
+                None if image.mask is None else torch.from_numpy(image.mask),
+                self.settings.pool,
+            )
+            for fitted, image in zip(images, self.target.images)
+        ]
         return Evaluation(images, float(np.mean([float(v) for v in losses])), lin, interrupted)
 
     def uncertainty(self, evaluation: Evaluation, refinement: Refinement | None) -> Uncertainty:
         """The uncertainties from the loss linearised at the result, with the refinement's Monte Carlo error."""
-        return estimate_uncertainty(evaluation.linearization, None if refinement is None else refinement.mc_covariance,
-                                    target_model_error(self.target, self.settings.model_error))
+        return estimate_uncertainty(
+            evaluation.linearization,
+            None if refinement is None else refinement.mc_covariance,
+            target_model_error(self.target, self.settings.model_error),
+        )
 
     def run(self) -> FitResult:
         """Every stage in order (see the module docstring), and the FitResult of them."""
@@ -483,8 +541,9 @@ class FitRun:
             uncertainty = self.uncertainty(evaluation, refinement)
         return self.result(descent, refinement, evaluation, uncertainty)
 
-    def result(self, descent: Descent, refinement: Refinement | None, evaluation: Evaluation,
-               uncertainty: Uncertainty | None) -> FitResult:
+    def result(
+        self, descent: Descent, refinement: Refinement | None, evaluation: Evaluation, uncertainty: Uncertainty | None
+    ) -> FitResult:
         warnings = [] if refinement is None else list(refinement.warnings)
         note = interpenetration_note(self.target)
         if note is not None:
@@ -497,8 +556,9 @@ class FitRun:
             uncertainties=None if uncertainty is None else uncertainty.uncertainties,
             loss=evaluation.loss,
             start={name: _as_control(name, v) for name, v in self.start.items()},
-            history=descent.history if refinement is None else dataclasses.replace(descent.history,
-                                                                                  refine=refinement.steps),
+            history=descent.history
+            if refinement is None
+            else dataclasses.replace(descent.history, refine=refinement.steps),
             iterations=descent.iterations,
             stop_reason="interrupted" if evaluation.interrupted else descent.stop_reason,
             seconds=time.perf_counter() - self.begun,
@@ -516,8 +576,13 @@ class FitRun:
             return None
         mc = None if refinement is None else refinement.mc_covariance
         hair_covariance = lin.statistical_covariance + (0 if mc is None else mc)
-        return camera.report(lin.camera, self.target, hair_covariance, lin.scatter,
-                             target_model_error(self.target, self.settings.model_error))
+        return camera.report(
+            lin.camera,
+            self.target,
+            hair_covariance,
+            lin.scatter,
+            target_model_error(self.target, self.settings.model_error),
+        )
 
 
 def _render_fitted(scenes, values: dict, spp: int, seed: int, threads, gains=None) -> list:
@@ -525,9 +590,11 @@ def _render_fitted(scenes, values: dict, spp: int, seed: int, threads, gains=Non
     photo's gains, (n, 3))."""
     hair, gain = hair_and_gain(values)
     gain = float(gain)
-    return [(gain if gains is None else gains[k].astype(np.float32))
-            * render(scene_with_controls(scene, hair), spp=spp, seed=seed + k, threads=threads)
-            for k, scene in enumerate(scenes)]
+    return [
+        (gain if gains is None else gains[k].astype(np.float32))
+        * render(scene_with_controls(scene, hair), spp=spp, seed=seed + k, threads=threads)
+        for k, scene in enumerate(scenes)
+    ]
 
 
 def gauss_newton_spp(settings: FitSettings, target: Target) -> int:

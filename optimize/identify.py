@@ -77,17 +77,32 @@ class Identifiability:
         return not self.problems
 
     def table(self) -> str:
-        header = ("control", "value", "σ target noise", "shift per 1% brighter", "σ expected", "bound",
-                  "largest correlation")
+        header = (
+            "control",
+            "value",
+            "σ target noise",
+            "shift per 1% brighter",
+            "σ expected",
+            "bound",
+            "largest correlation",
+        )
         values = np.concatenate([np.atleast_1d(v) for v in self.values.values()])
         rows = []
         for k, label in enumerate(self.labels):
             other = self.correlation[k]
-            rows.append((label, f"{values[k]:.3f}", f"{self.noise[k]:.4f}", f"{self.shift[k]:+.4f}",
-                         f"{self.sigma[k]:.4f}", "" if np.isnan(self.bounds[k]) else f"{self.bounds[k]:g}",
-                         "" if other is None else f"{other[1]:+.2f} with {other[0]}"))
-        widths = [max(len(r[i]) for r in rows + [header]) for i in range(len(header))]
-        lines = ["  ".join(cell.ljust(w) for cell, w in zip(row, widths)).rstrip() for row in [header] + rows]
+            rows.append(
+                (
+                    label,
+                    f"{values[k]:.3f}",
+                    f"{self.noise[k]:.4f}",
+                    f"{self.shift[k]:+.4f}",
+                    f"{self.sigma[k]:.4f}",
+                    "" if np.isnan(self.bounds[k]) else f"{self.bounds[k]:g}",
+                    "" if other is None else f"{other[1]:+.2f} with {other[0]}",
+                )
+            )
+        widths = [max(len(r[i]) for r in [*rows, header]) for i in range(len(header))]
+        lines = ["  ".join(cell.ljust(w) for cell, w in zip(row, widths)).rstrip() for row in [header, *rows]]
         lines.insert(1, "  ".join("-" * w for w in widths))
         return "\n".join(lines)
 
@@ -96,24 +111,37 @@ class Identifiability:
         CAMERA_BOUND."""
         if not self.camera:
             return ""
-        lines = [f"camera unknowns (fitted with the hair; pinned when the expected σ is below {100 * CAMERA_BOUND:g}%):"]
+        lines = [
+            f"camera unknowns (fitted with the hair; pinned when the expected σ is below {100 * CAMERA_BOUND:g}%):"
+        ]
         for label, value, sigma in self.camera:
             verdict = "pinned" if sigma < CAMERA_BOUND else "not pinned: it trades off with the hair"
             lines.append(f"  {label:<18} {value:.4f}  σ {100 * sigma:.2f}%  {verdict}")
         return "\n".join(lines)
 
     def summary(self) -> str:
-        rule = (f"σ expected = √(σ target noise² + ({100 * self.model_error:g}% model error · shift per 1%)²), "
-                "below its bound for every control")
+        rule = (
+            f"σ expected = √(σ target noise² + ({100 * self.model_error:g}% model error · shift per 1%)²), "
+            "below its bound for every control"
+        )
         if self.identifiable:
             return f"identifiable: {rule}"
         return "not identifiable (" + rule + " fails):\n" + "\n".join(f"  {p}" for p in self.problems)
 
 
-def check_target(target, values: dict | None = None, controls=DEFAULT_FIT, spp: int | None = None,
-                 model_error: float | None = None, render_spp: int = CHECK_SPP,
-                 linearisations: int = CHECK_LINEARISATIONS, seed: int = 0, threads=None, settings=None,
-                 scenes=None) -> Identifiability:
+def check_target(
+    target,
+    values: dict | None = None,
+    controls=DEFAULT_FIT,
+    spp: int | None = None,
+    model_error: float | None = None,
+    render_spp: int = CHECK_SPP,
+    linearisations: int = CHECK_LINEARISATIONS,
+    seed: int = 0,
+    threads=None,
+    settings=None,
+    scenes=None,
+) -> Identifiability:
     """Linearise the loss at the target's true controls (or `values`, {name: float or list}, which override
     them) and judge each fitted control (see the module docstring). spp: the samples per pixel the target's
     noise is taken at (default: each image's scene [render] spp, what it was rendered with); settings: the
@@ -132,9 +160,11 @@ def check_target(target, values: dict | None = None, controls=DEFAULT_FIT, spp: 
     at.update({name: as_values(name, v) for name, v in (values or {}).items()})
     missing = [name for name in names if name not in at]
     if missing:
-        raise ValueError(f"{target.name}: no true value for {', '.join(missing)} (the target has "
-                         f"{'no truth.json' if target.truth is None else 'none in truth.json'}); give the controls "
-                         "to check at (--at NAME=V)")
+        raise ValueError(
+            f"{target.name}: no true value for {', '.join(missing)} (the target has "
+            f"{'no truth.json' if target.truth is None else 'none in truth.json'}); give the controls "
+            "to check at (--at NAME=V)"
+        )
     unknown = sorted(set(at) - set(names))
     if unknown:
         raise ValueError(f"values given for {unknown}, which are not checked (checked: {list(names)})")
@@ -145,8 +175,10 @@ def check_target(target, values: dict | None = None, controls=DEFAULT_FIT, spp: 
     model_error = target_model_error(target, model_error)
     scenes = [prepare(image.scene) for image in target.images] if scenes is None else scenes
 
-    lins = [linearize(target, at, settings, render_spp, seed + SEED_STRIDE * k, threads=threads, scenes=scenes)
-            for k in range(linearisations)]
+    lins = [
+        linearize(target, at, settings, render_spp, seed + SEED_STRIDE * k, threads=threads, scenes=scenes)
+        for k in range(linearisations)
+    ]
     jacobians = np.concatenate([lin.jacobians for lin in lins])
     w = lins[0].loss_weights
     h_inv = np.linalg.pinv(crossed_curvature(jacobians, w))
@@ -173,11 +205,16 @@ def check_target(target, values: dict | None = None, controls=DEFAULT_FIT, spp: 
         rho = cov / np.outer(noise, noise)
     correlation = [None] * p
     for i, j in itertools.permutations(range(p), 2):
-        if owners[i] != owners[j] and np.isfinite(rho[i, j]) and (correlation[i] is None or abs(rho[i, j]) > abs(correlation[i][1])):
+        if (
+            owners[i] != owners[j]
+            and np.isfinite(rho[i, j])
+            and (correlation[i] is None or abs(rho[i, j]) > abs(correlation[i][1]))
+        ):
             correlation[i] = (labels[j], float(rho[i, j]))
     bounds = np.array([BOUNDS.get(owner, np.nan) for owner in owners])
-    result = Identifiability(target.name, target.origin, at, labels, target_spp, noise, shift, model_error,
-                             correlation, bounds, [])
+    result = Identifiability(
+        target.name, target.origin, at, labels, target_spp, noise, shift, model_error, correlation, bounds, []
+    )
     result.problems = _problems(result, flat)
     projection = lins[0].camera
     if projection is not None:
@@ -190,8 +227,10 @@ def check_target(target, values: dict | None = None, controls=DEFAULT_FIT, spp: 
         is_gain = np.array([label.startswith("gain") for label in projection.labels], dtype=float)
         cov_gg += model_error**2 * np.outer(is_gain, is_gain)
         values = camera.label_values(projection, target)
-        result.camera = [(label, float(v), float(np.sqrt(max(cov_gg[k, k], 0.0))))
-                         for k, (label, v) in enumerate(zip(projection.labels, values))]
+        result.camera = [
+            (label, float(v), float(np.sqrt(max(cov_gg[k, k], 0.0))))
+            for k, (label, v) in enumerate(zip(projection.labels, values))
+        ]
     return result
 
 
@@ -200,8 +239,9 @@ def _quantisation_variances(target, settings) -> np.ndarray | None:
     rounded to 1/(2^bits − 1) of the range, an error uniform over one step (variance step²/12), times the
     transfer curve's slope there. JPEG's compression error comes on top of that and is not counted here (the
     fit's own σ, from its residuals' scatter, counts it). None when no image is a photo."""
-    from .linearize import loss_weights, pool_like_loss
     from warp_hair.photo import srgb_decode
+
+    from .linearize import loss_weights, pool_like_loss
 
     if all(image.photo is None for image in target.images):
         return None
@@ -261,28 +301,38 @@ def _problems(result: Identifiability, flat: np.ndarray) -> list:
     for k, label in enumerate(result.labels):
         bound, sigma = result.bounds[k], result.sigma[k]
         if flat[k]:
-            problems.append(f"{label}: the images do not change with it at all; add a view or a light in which it "
-                            "shows, or fix it")
+            problems.append(
+                f"{label}: the images do not change with it at all; add a view or a light in which it shows, or fix it"
+            )
             continue
         if np.isnan(bound) or sigma < bound:
             continue
-        message = (f"{label}: expected σ {sigma:.3g} ≥ its bound {bound:g} (target noise {result.noise[k]:.3g}, "
-                   f"model error {model[k]:.3g})")
+        message = (
+            f"{label}: expected σ {sigma:.3g} ≥ its bound {bound:g} (target noise {result.noise[k]:.3g}, "
+            f"model error {model[k]:.3g})"
+        )
         if model[k] >= bound:
-            message += (f"; a {100 * result.model_error:g}% brightness disagreement alone moves it by {model[k]:.3g}, "
-                        "and no number of samples removes that: fit exposure as well, which absorbs a uniform "
-                        "disagreement but may trade off against it (check with --fit ...,exposure), or add a view in "
-                        "which it changes the image otherwise than brightness does")
+            message += (
+                f"; a {100 * result.model_error:g}% brightness disagreement alone moves it by {model[k]:.3g}, "
+                "and no number of samples removes that: fit exposure as well, which absorbs a uniform "
+                "disagreement but may trade off against it (check with --fit ...,exposure), or add a view in "
+                "which it changes the image otherwise than brightness does"
+            )
         else:
             factor = result.noise[k] ** 2 / (bound**2 - model[k] ** 2)
             spp = ", ".join(str(int(np.ceil(factor * n))) for n in sorted(set(result.target_spp)))
             samples = f"render the target with {factor:.2g}× the samples ({spp} spp; σ falls as 1/√spp)"
             other = result.correlation[k]
             if other is not None and abs(other[1]) > CORRELATION_WARNING:
-                message += (f"; it trades off with {other[0]} (correlation {other[1]:+.2f}): add a view that tells "
-                            "them apart (a light from another side, another camera)"
-                            + (f", or {samples}" if factor <= MANY_SAMPLES else
-                               f"; more samples alone would take {factor:.2g}× as many"))
+                message += (
+                    f"; it trades off with {other[0]} (correlation {other[1]:+.2f}): add a view that tells "
+                    "them apart (a light from another side, another camera)"
+                    + (
+                        f", or {samples}"
+                        if factor <= MANY_SAMPLES
+                        else f"; more samples alone would take {factor:.2g}× as many"
+                    )
+                )
             else:
                 message += f"; {samples}, or add another view (a light from another side, another camera)"
         problems.append(message)
@@ -291,12 +341,15 @@ def _problems(result: Identifiability, flat: np.ndarray) -> list:
 
 def describe(result: Identifiability) -> str:
     """What `warp-hair targets check` prints."""
-    by = {"warp-hair": "rendered by warp-hair", "unknown": "of unknown origin"}.get(result.origin,
-                                                                                 f"rendered by {result.origin}")
+    by = {"warp-hair": "rendered by warp-hair", "unknown": "of unknown origin"}.get(
+        result.origin, f"rendered by {result.origin}"
+    )
     spp = ", ".join(f"{n}" for n in result.target_spp)
-    head = (f"{result.target} ({by}; its noise taken at {spp} spp per image), checked at "
-            + " ".join(f"{name}={_fmt(v)}" for name, v in result.values.items())
-            + f"; model error {100 * result.model_error:g}%")
+    head = (
+        f"{result.target} ({by}; its noise taken at {spp} spp per image), checked at "
+        + " ".join(f"{name}={_fmt(v)}" for name, v in result.values.items())
+        + f"; model error {100 * result.model_error:g}%"
+    )
     camera = result.camera_table()
     return f"{head}\n{result.table()}\n" + (f"{camera}\n" if camera else "") + result.summary()
 

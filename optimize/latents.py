@@ -82,7 +82,9 @@ class ControlSpec:
 
 def _need_inversion(inversion) -> None:
     if inversion is None:
-        raise ValueError("the albedo's latent needs the target's albedo inversion coefficients (HairParams.albedo_inversion)")
+        raise ValueError(
+            "the albedo's latent needs the target's albedo inversion coefficients (HairParams.albedo_inversion)"
+        )
 
 
 def _spec(name: str) -> ControlSpec:
@@ -129,7 +131,7 @@ def by_control(names, flat) -> dict:
     out, k = {}, 0
     for name in names:
         size = SPECS[name].size
-        out[name] = [float(v) for v in flat[k:k + size]] if size == 3 else float(flat[k])
+        out[name] = [float(v) for v in flat[k : k + size]] if size == 3 else float(flat[k])
         k += size
     return out
 

@@ -178,8 +178,12 @@ def linearize(target, values: dict, settings, spp: int, seed: int, threads=None,
     renders = []  # per image, its two passes' (Jacobian, image, standard error)
     for k, image in enumerate(target.images):
         scene = scene_with_controls(scenes[k], hair)
-        renders.append([render_jacobian(scene, spp=spp, seed=pass_seed, threads=threads)
-                        for pass_seed in (seed + k, default_grad_seed(seed + k))])
+        renders.append(
+            [
+                render_jacobian(scene, spp=spp, seed=pass_seed, threads=threads)
+                for pass_seed in (seed + k, default_grad_seed(seed + k))
+            ]
+        )
     gains = np.full((len(target.images), 3), float(gain))
     solved = None
     if camera.fitted(target):  # a photo's exposures and white balance, for these renders (camera.py)
@@ -220,8 +224,13 @@ def linearize(target, values: dict, settings, spp: int, seed: int, threads=None,
         # gains' columns are ∂r/∂log g = ω G I, which at the gains' optimum is the weighted target t up to the
         # residual: taken from t, the projection is the same at every linearisation and free of our render
         # noise (from the renders, it would tie the two passes' noise together and move with each step's).
-        projection = camera.Projection(solved, camera.columns(target, targets, image_residuals), weights,
-                                       jacobians.mean(axis=0), camera.labels(target))
+        projection = camera.Projection(
+            solved,
+            camera.columns(target, targets, image_residuals),
+            weights,
+            jacobians.mean(axis=0),
+            camera.labels(target),
+        )
         residuals = np.stack([projection.apply(r) for r in residuals])
         jacobians = np.stack([projection.apply(a) for a in jacobians])
         targets = projection.apply(targets)

@@ -26,7 +26,9 @@ REL_EPSILON = 0.01
 
 def block_mean(image: torch.Tensor, weight: torch.Tensor, pool: int):
     """(H, W, C) → per k×k block Σ weight·image / Σ weight, and the blocks' total weights (partial edge blocks kept)."""
-    summed = torch.nn.functional.avg_pool2d((image * weight[..., None]).permute(2, 0, 1)[None], pool, ceil_mode=True, divisor_override=1)
+    summed = torch.nn.functional.avg_pool2d(
+        (image * weight[..., None]).permute(2, 0, 1)[None], pool, ceil_mode=True, divisor_override=1
+    )
     total = torch.nn.functional.avg_pool2d(weight[None, None], pool, ceil_mode=True, divisor_override=1)
     return (summed / total.clamp_min(1e-12))[0].permute(1, 2, 0), total[0, 0]
 
@@ -51,8 +53,14 @@ def loss_scale(target: torch.Tensor, kind: str = "l2", mask: torch.Tensor | None
     return _scale(pooled if counted is None else pooled[counted], kind)
 
 
-def image_loss(image: torch.Tensor, target: torch.Tensor, kind: str = "l2", mask: torch.Tensor | None = None, pool: int = 1,
-               scale: torch.Tensor | None = None):
+def image_loss(
+    image: torch.Tensor,
+    target: torch.Tensor,
+    kind: str = "l2",
+    mask: torch.Tensor | None = None,
+    pool: int = 1,
+    scale: torch.Tensor | None = None,
+):
     """The loss of `image` against `target` over the pixels `mask` counts. `scale`: the target's scale to divide
     by (`loss_scale`), by default its own under `mask`; a mini-batch of blocks passes the whole image's, so that
     its loss is an unbiased estimate of the whole image's rather than a ratio of two estimates."""

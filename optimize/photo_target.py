@@ -67,15 +67,19 @@ def camera_fov(photo, fov=None, sensor_width=None) -> float:
         from_exif = horizontal_fov(exif["focal_length_35mm"], 36.0)
         source = f"EXIF 35 mm equivalent focal length {exif['focal_length_35mm']:g} mm"
     if fov is not None and from_exif is not None and abs(fov / from_exif - 1) > FOV_TOLERANCE:
-        raise ValueError(f"{photo.path}: --fov {fov:g}° contradicts the {source}, which gives {from_exif:.4g}°; "
-                         "drop one of them (a crop or a converter may have changed the photo's field of view)")
+        raise ValueError(
+            f"{photo.path}: --fov {fov:g}° contradicts the {source}, which gives {from_exif:.4g}°; "
+            "drop one of them (a crop or a converter may have changed the photo's field of view)"
+        )
     if fov is not None:
         return float(fov)
     if from_exif is None:
         if sensor_width is not None:
             raise ValueError(f"{photo.path}: --sensor-width given but the photo has no EXIF focal length; give --fov")
-        raise ValueError(f"{photo.path}: no field of view: give --fov, or --sensor-width with a photo whose EXIF has "
-                         "its focal length, or --ortho-width for an orthographic camera")
+        raise ValueError(
+            f"{photo.path}: no field of view: give --fov, or --sensor-width with a photo whose EXIF has "
+            "its focal length, or --ortho-width for an orthographic camera"
+        )
     return from_exif
 
 
@@ -110,11 +114,26 @@ def background_mask(image: np.ndarray) -> np.ndarray:
 
 def _fibers_table(rig: str, args) -> dict:
     if rig == "fur":
-        return {"generator": "fur", "count": args.count, "patch": args.patch, "length": args.fur_length,
-                "root_radius": args.fiber_radius, "tip_radius": args.fiber_radius / 3, "seed": 1}
-    table = {"generator": "swatch", "count": args.count, "layers": args.layers, "length": args.length,
-             "width": args.width, "radius": args.fiber_radius, "segments": 128 if rig == "draped" else 8,
-             "jitter": 0.15, "seed": 1}
+        return {
+            "generator": "fur",
+            "count": args.count,
+            "patch": args.patch,
+            "length": args.fur_length,
+            "root_radius": args.fiber_radius,
+            "tip_radius": args.fiber_radius / 3,
+            "seed": 1,
+        }
+    table = {
+        "generator": "swatch",
+        "count": args.count,
+        "layers": args.layers,
+        "length": args.length,
+        "width": args.width,
+        "radius": args.fiber_radius,
+        "segments": 128 if rig == "draped" else 8,
+        "jitter": 0.15,
+        "seed": 1,
+    }
     if rig == "draped":
         table["drape"] = args.drape
     return table
@@ -156,8 +175,10 @@ def make_photo_target(out_dir, args) -> list[Path]:
     if args.rig not in RIGS:
         raise ValueError(f"--rig {args.rig!r}; allowed: {list(RIGS)}")
     if args.hdri is None and len(args.light or []) != len(images):
-        raise ValueError(f"{len(images)} photo(s) but {len(args.light or [])} --light direction(s): give one --light "
-                         "per --image, in the same order (or --hdri for all)")
+        raise ValueError(
+            f"{len(images)} photo(s) but {len(args.light or [])} --light direction(s): give one --light "
+            "per --image, in the same order (or --hdri for all)"
+        )
     if args.mask and len(args.mask) not in (1, len(images)) and args.mask != ["auto"]:
         raise ValueError("--mask takes 'auto' or one mask file per --image")
     names = [p.stem for p in images]
@@ -174,31 +195,40 @@ def make_photo_target(out_dir, args) -> list[Path]:
             keep &= background_mask(image)
         elif args.mask and args.mask != ["auto"]:
             given = np.asarray(Image.open(args.mask[k if len(args.mask) > 1 else 0]).convert("L")) > 127
-            given, _ = downsample(np.repeat(given[..., None].astype(np.float32), 3, -1), np.zeros(given.shape, bool),
-                                  args.resolution)
+            given, _ = downsample(
+                np.repeat(given[..., None].astype(np.float32), 3, -1), np.zeros(given.shape, bool), args.resolution
+            )
             keep &= given[..., 0] > 0.5
         if not keep.any():
             raise ValueError(f"{path}: no pixel is left to fit once clipped, crushed and background pixels are out")
         resolution = (image.shape[1], image.shape[0])
         scene_name, exr_name = f"scene_{path.stem}.toml", f"{path.stem}.exr"
-        parts = [f"# Made by `warp-hair targets photo` from {path.name} ({photo.format} {photo.bits}-bit, "
-                 f"{photo.transfer} decoded, {int(photo.clipped.sum())} clipped and {int(photo.crushed.sum())} "
-                 "crushed pixels left out). [hair] is where a fit starts; the light's level is arbitrary: the fit "
-                 "solves each photo's gain and the white balance.",
-                 _table("camera", _camera_table(args.rig, args, photo, resolution))]
+        parts = [
+            f"# Made by `warp-hair targets photo` from {path.name} ({photo.format} {photo.bits}-bit, "
+            f"{photo.transfer} decoded, {int(photo.clipped.sum())} clipped and {int(photo.crushed.sum())} "
+            "crushed pixels left out). [hair] is where a fit starts; the light's level is arbitrary: the fit "
+            "solves each photo's gain and the white balance.",
+            _table("camera", _camera_table(args.rig, args, photo, resolution)),
+        ]
         if args.hdri is not None:
             parts.append(_table("lights", {"type": "environment", "file": str(Path(args.hdri).resolve())}, True))
         else:
-            parts.append(_table("lights", {"type": "directional", "direction": list(args.light[k]),
-                                           "irradiance": [3.0, 3.0, 3.0]}, True))
+            parts.append(
+                _table(
+                    "lights",
+                    {"type": "directional", "direction": list(args.light[k]), "irradiance": [3.0, 3.0, 3.0]},
+                    True,
+                )
+            )
         parts += [_table("fibers", _fibers_table(args.rig, args)), _table("hair", START_HAIR)]
         if args.card is not None:
             parts.append(_table("card", {"albedo": [args.card] * 3}))
         # A photo has no samples: its spp says how noisy `targets check` and the fit's refinement take it to be.
         parts.append(_table("render", {"spp": PHOTO_SPP, "max_depth": 32, "seed": 1}))
         (out_dir / scene_name).write_text("\n\n".join(parts) + "\n", encoding="utf-8")
-        write_exr(out_dir / exr_name, image, {"photo": {"file": path.name, "transfer": photo.transfer,
-                                                        "exif": photo.exif}})
+        write_exr(
+            out_dir / exr_name, image, {"photo": {"file": path.name, "transfer": photo.transfer, "exif": photo.exif}}
+        )
         entry = {"scene": scene_name, "image": exr_name}
         written += [out_dir / scene_name, out_dir / exr_name]
         if not keep.all():
@@ -207,8 +237,12 @@ def make_photo_target(out_dir, args) -> list[Path]:
             entry["mask"] = mask_name
             written.append(out_dir / mask_name)
         entries.append(entry)
-    lines = ["# Made by `warp-hair targets photo`: the photos decoded to linear EXR; their exposures and white balance "
-             "are fitted with the hair.", 'gains = "per-image"', 'white_balance = "fit"']
+    lines = [
+        "# Made by `warp-hair targets photo`: the photos decoded to linear EXR; their exposures and white balance "
+        "are fitted with the hair.",
+        'gains = "per-image"',
+        'white_balance = "fit"',
+    ]
     for entry in entries:
         lines += ["", "[[images]]"] + [f"{key} = {_toml(value)}" for key, value in entry.items()]
     (out_dir / "target.toml").write_text("\n".join(lines) + "\n", encoding="utf-8")

@@ -129,12 +129,19 @@ class GaussNewton:
         self.lin = self._with_earlier(self._linearized(self.x, 0))
 
     def _linearized(self, x_at, k) -> Linearization:
-        return linearize(self.target, by_control(self.names, x_at), self.settings, self.spp,
-                         self.seed + SEED_STRIDE * k, threads=self.settings.threads, scenes=self.scenes)
+        return linearize(
+            self.target,
+            by_control(self.names, x_at),
+            self.settings,
+            self.spp,
+            self.seed + SEED_STRIDE * k,
+            threads=self.settings.threads,
+            scenes=self.scenes,
+        )
 
     def _with_earlier(self, lin_at: Linearization) -> Linearization:
         """lin_at with the Jacobians of the JACOBIAN_WINDOW − 1 linearisations before it."""
-        earlier = self.jacobians[-(JACOBIAN_WINDOW - 1):]
+        earlier = self.jacobians[-(JACOBIAN_WINDOW - 1) :]
         self.jacobians.append(lin_at.jacobians)
         if not earlier:
             return lin_at
@@ -163,11 +170,16 @@ class GaussNewton:
             self.damping = max(self.damping * LAMBDA_DOWN, 1e-9)
         else:
             self.damping *= LAMBDA_UP
-        record = GaussNewtonStep(values=lin_new.values, loss=lin_new.loss, misfit=lin_new.misfit, change=2.0 * change,
-                                 accepted=accepted)
+        record = GaussNewtonStep(
+            values=lin_new.values, loss=lin_new.loss, misfit=lin_new.misfit, change=2.0 * change, accepted=accepted
+        )
         self.steps.append(record)
-        if (self.damping <= LAMBDA_MAX and self.k == self.limit and self.limit < MAX_EXTENSION * self.planned
-                and drifting(_later(self.kept))):
+        if (
+            self.damping <= LAMBDA_MAX
+            and self.k == self.limit
+            and self.limit < MAX_EXTENSION * self.planned
+            and drifting(_later(self.kept))
+        ):
             self.limit += 1
         return record
 
@@ -181,7 +193,7 @@ class GaussNewton:
             return Refinement(self.lin.values, self.lin, None, tuple(self.steps), notes)
         final = self._with_earlier(self._linearized(np.mean(averaged, axis=0), self.k + 1))
         # One linearisation's scatter estimate is noisy where our render is much noisier than the target.
-        final = dataclasses.replace(final, scatter=float(np.mean(_later(self.scatters) + [final.scatter_estimate])))
+        final = dataclasses.replace(final, scatter=float(np.mean([*_later(self.scatters), final.scatter_estimate])))
         self.kept_values = final.values
         return Refinement(final.values, final, mean_covariance(averaged, final), tuple(self.steps), notes)
 
@@ -190,9 +202,11 @@ def _unsettled(points: list, steps: int, names) -> str:
     """The warning for averaged points that still move: which component moves most, and by how much."""
     worst = int(np.argmax(drift_statistic(points)))
     moved = float(np.ptp(np.array(points)[:, worst]))
-    return (f"the Gauss-Newton steps had not settled after {steps} steps ({component_labels(names)[worst]} still "
-            f"moving, by {moved:.3g} over the last {len(points)}): the estimate may be off by more than its "
-            "uncertainty; fit again from this result (--init) or with more steps (--refine)")
+    return (
+        f"the Gauss-Newton steps had not settled after {steps} steps ({component_labels(names)[worst]} still "
+        f"moving, by {moved:.3g} over the last {len(points)}): the estimate may be off by more than its "
+        "uncertainty; fit again from this result (--init) or with more steps (--refine)"
+    )
 
 
 def within_noise(step: np.ndarray, lin: Linearization) -> bool:
@@ -240,7 +254,7 @@ def drifting(points: list) -> bool:
 def _later(kept: list) -> list:
     """The later half of the kept steps after the first: the earlier ones may still be on their way in."""
     after_first = kept[1:]
-    return after_first[-((len(after_first) + 1) // 2):]
+    return after_first[-((len(after_first) + 1) // 2) :]
 
 
 def mean_covariance(points: list, lin: Linearization) -> np.ndarray:

@@ -14,8 +14,8 @@ import numpy as np
 from warp_hair.io import srgb_encode
 from warp_hair.model.params import HairParams
 
-from .latents import EXPOSURE, SPECS, hair_and_gain
 from .fit import FitResult
+from .latents import EXPOSURE, SPECS, hair_and_gain
 from .target import Target
 
 CHANNEL_COLOURS = ("tab:red", "tab:green", "tab:blue")
@@ -86,15 +86,18 @@ def format_table(result: FitResult, truth: dict, renderer: str | None = None) ->
         if split:
             sigma += (_fmt(parts["noise"][name]), _fmt(parts["model"][name]))
         true = truth.get(name)
-        rows.append((name, _fmt(value)) + sigma + ("" if true is None else _fmt(true),
-                     "" if true is None else _fmt(np.asarray(value) - np.asarray(true), 3)))
-    widths = [max(len(r[k]) for r in rows + [header]) for k in range(len(header))]
-    lines = ["  ".join(cell.ljust(w) for cell, w in zip(row, widths)).rstrip() for row in [header] + rows]
+        rows.append(
+            (name, _fmt(value), *sigma, "" if true is None else _fmt(true), "" if true is None else _fmt(np.asarray(value) - np.asarray(true), 3))
+        )
+    widths = [max(len(r[k]) for r in [*rows, header]) for k in range(len(header))]
+    lines = ["  ".join(cell.ljust(w) for cell, w in zip(row, widths)).rstrip() for row in [header, *rows]]
     lines.insert(1, "  ".join("-" * w for w in widths))
     if split:
         by = f"{renderer}, which rendered the target," if renderer else "the target's renderer"
-        lines.append(f"± 1σ = √(noise² + model²); model: what a {100 * parts['model_error']:g}% disagreement in "
-                     f"brightness between {by} and warp-hair moves the fit by (--model-error)")
+        lines.append(
+            f"± 1σ = √(noise² + model²); model: what a {100 * parts['model_error']:g}% disagreement in "
+            f"brightness between {by} and warp-hair moves the fit by (--model-error)"
+        )
     return "\n".join(lines)
 
 
@@ -125,8 +128,9 @@ def plot_convergence(path: Path, result: FitResult, truth: dict) -> None:
         for k in range(values.shape[1]):
             ax.plot(its, values[:, k], color=colours[k], lw=1.0)
             for x, r, keep in zip(steps, refine, kept):
-                ax.plot(x, np.atleast_1d(r.values[name])[k], "o", ms=3, color=colours[k],
-                        mfc=colours[k] if keep else "none")
+                ax.plot(
+                    x, np.atleast_1d(r.values[name])[k], "o", ms=3, color=colours[k], mfc=colours[k] if keep else "none"
+                )
             if true is not None:
                 ax.axhline(true[k], color=colours[k], ls="--", lw=1.0)
         spec = SPECS[name]
@@ -157,9 +161,11 @@ def plot_comparison(path: Path, result: FitResult, target: Target) -> None:
         exposure = display_exposure(image.image)
         diff = (fitted - image.image).mean(axis=-1)
         limit = max(float(np.percentile(np.abs(diff), 99)), 1e-6)
-        panels = ((srgb_encode(image.image * exposure), f"target: {image.name}", None),
-                  (srgb_encode(fitted * exposure), "fit", None),
-                  (diff, f"fit − target (±{limit:.3g})", limit))
+        panels = (
+            (srgb_encode(image.image * exposure), f"target: {image.name}", None),
+            (srgb_encode(fitted * exposure), "fit", None),
+            (diff, f"fit − target (±{limit:.3g})", limit),
+        )
         for ax, (picture, title, lim) in zip(axes[row], panels):
             if lim is None:
                 ax.imshow(picture, interpolation="nearest")
@@ -198,10 +204,16 @@ def photo_records(target: Target) -> dict:
         if photo is None:
             continue
         records[image.name] = {
-            "file": photo.path.name, "format": photo.format, "bits": photo.bits, "transfer": photo.transfer,
-            "pixels": int(photo.clipped.size), "clipped": int(photo.clipped.sum()),
+            "file": photo.path.name,
+            "format": photo.format,
+            "bits": photo.bits,
+            "transfer": photo.transfer,
+            "pixels": int(photo.clipped.size),
+            "clipped": int(photo.clipped.sum()),
             "crushed": int((photo.crushed & ~photo.clipped).sum()),
-            "counted": int(image.mask.sum()), "exif": photo.exif, "notes": photo.notes,
+            "counted": int(image.mask.sum()),
+            "exif": photo.exif,
+            "notes": photo.notes,
         }
     return records
 
@@ -209,11 +221,13 @@ def photo_records(target: Target) -> dict:
 def photo_summary(target: Target) -> list[str]:
     """One line per photo image: its decoding, and the pixels left out of the loss (what `warp-hair fit` prints)."""
     lines = []
-    for name, r in photo_records(target).items():
+    for _name, r in photo_records(target).items():
         exif = ", ".join(f"{k} {v:g}" for k, v in r["exif"].items())
-        lines.append(f"{r['file']}: {r['format']} {r['bits']}-bit, {r['transfer']} decoded to linear; "
-                     f"{r['clipped']} clipped and {r['crushed']} crushed pixels of {r['pixels']} left out of the "
-                     f"loss" + (f"; EXIF {exif}" if exif else "") + "".join(f"; {n}" for n in r["notes"]))
+        lines.append(
+            f"{r['file']}: {r['format']} {r['bits']}-bit, {r['transfer']} decoded to linear; "
+            f"{r['clipped']} clipped and {r['crushed']} crushed pixels of {r['pixels']} left out of the "
+            f"loss" + (f"; EXIF {exif}" if exif else "") + "".join(f"; {n}" for n in r["notes"])
+        )
     return lines
 
 
@@ -224,14 +238,21 @@ def camera_table(result: FitResult, truth: dict | None = None) -> str:
         return ""
     truth = truth or {}
     modes = camera["modes"]
-    lines = [f"camera (gains {modes['gains']}, white balance {modes['white_balance']}; the gains scale the render "
-             "to the photo, green's white balance is 1):"]
+    lines = [
+        f"camera (gains {modes['gains']}, white balance {modes['white_balance']}; the gains scale the render "
+        "to the photo, green's white balance is 1):"
+    ]
     for name, (value, sigma) in camera["gains"].items():
         true = truth.get("gains", {}).get(name)
         versus = "" if true is None else f"  true {true:.4f}  error {100 * (value / true - 1):+.1f}%"
         lines.append(f"  gain[{name}]  {value:.4f} ± {sigma:.4f}{versus}")
     wb = camera["white_balance"]
     true = truth.get("white_balance")
-    lines.append("  white_balance  " + _fmt(wb["value"], 4) + " ± " + _fmt(wb["sigma"], 4)
-                 + ("" if true is None else "  true " + _fmt(true, 4)))
+    lines.append(
+        "  white_balance  "
+        + _fmt(wb["value"], 4)
+        + " ± "
+        + _fmt(wb["sigma"], 4)
+        + ("" if true is None else "  true " + _fmt(true, 4))
+    )
     return "\n".join(lines)

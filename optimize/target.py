@@ -48,21 +48,21 @@ image from elsewhere. The fit assumes a brightness disagreement with such target
 from __future__ import annotations
 
 import json
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+import tomllib
 
 import targets as shipped
 from warp_hair.geometry.interpenetration import checked_interpenetration
-
-from .camera import GAIN_MODES, WHITE_BALANCE_MODES
 from warp_hair.io import read_exr, write_exr
 from warp_hair.model.params import HairParams
 from warp_hair.photo import TRANSFERS, Photo, read_photo
 from warp_hair.renderer.render import render, render_metadata
 from warp_hair.scene import Scene, load_scene
+
+from .camera import GAIN_MODES, WHITE_BALANCE_MODES
 
 TARGET_FILE = shipped.TARGET_FILE
 TRUTH_FILE = "truth.json"
@@ -113,7 +113,7 @@ class Target:
         return "warp-hair"
 
 
-def interpenetration_note(target: "Target") -> str | None:
+def interpenetration_note(target: Target) -> str | None:
     """A warning for the fit's report when the target's strands pass through each other and another renderer (or
     an unknown one) made its images: renderers disagree there (docs/scenes.md, "Interpenetrating strands")."""
     if target.origin == "warp-hair":
@@ -125,8 +125,8 @@ def interpenetration_note(target: "Target") -> str | None:
             return (
                 f"the target's strands interpenetrate ({report.pairs} pairs of {report.num_strands} strands) and its "
                 f"images were rendered by {target.origin}: renderers disagree there (issue 23's swatch: 2-18% in "
-                f"image means). This fit renders with [render] interpenetration = \"{rule}\"; a Cycles 4.x CPU "
-                "render needs \"exit\", Mitsuba 3 \"enter\" (docs/scenes.md, \"Interpenetrating strands\")"
+                f'image means). This fit renders with [render] interpenetration = "{rule}"; a Cycles 4.x CPU '
+                'render needs "exit", Mitsuba 3 "enter" (docs/scenes.md, "Interpenetrating strands")'
             )
     return None
 
@@ -149,15 +149,19 @@ def _read_spec(directory) -> dict:
     try:
         spec = tomllib.loads(spec_path.read_text(encoding="utf-8"))
     except FileNotFoundError:
-        raise FileNotFoundError(f"{spec_path}: not found; a target directory needs a {TARGET_FILE} listing its images") from None
+        raise FileNotFoundError(
+            f"{spec_path}: not found; a target directory needs a {TARGET_FILE} listing its images"
+        ) from None
     except (OSError, UnicodeDecodeError) as error:
         raise ValueError(f"{spec_path}: cannot read: {error}") from None
     except tomllib.TOMLDecodeError as error:
         raise ValueError(f"{spec_path}: TOML syntax error: {error}") from None
     unknown = sorted(set(spec) - SPEC_KEYS)
     if unknown:
-        raise ValueError(f"{spec_path}: unknown key(s) {unknown}; a target file has [[images]] tables, renderer, "
-                         "gains and white_balance")
+        raise ValueError(
+            f"{spec_path}: unknown key(s) {unknown}; a target file has [[images]] tables, renderer, "
+            "gains and white_balance"
+        )
     for key, allowed in (("gains", GAIN_MODES), ("white_balance", WHITE_BALANCE_MODES)):
         if key in spec and spec[key] not in allowed:
             raise ValueError(f"{spec_path}: {key} = {spec[key]!r}; allowed: {list(allowed)}")
@@ -173,7 +177,7 @@ def _read_spec(directory) -> dict:
             raise ValueError(f"{where}: unknown key(s) {unknown}; allowed: {sorted(IMAGE_KEYS)}")
         for key in ("scene", "image"):
             if not isinstance(entry.get(key), str) or not entry[key]:
-                raise ValueError(f"{where}: needs {key} = \"<file name>\"")
+                raise ValueError(f'{where}: needs {key} = "<file name>"')
         if "mask" in entry and not isinstance(entry["mask"], str):
             raise ValueError(f"{where}: mask must be a file name, got {entry['mask']!r}")
         if "transfer" in entry and entry["transfer"] not in TRANSFERS:
@@ -197,8 +201,9 @@ def load_target(directory) -> Target:
     _check_consistent(images)
     truth = read_truth(directory / TRUTH_FILE)
     gains, white_balance = _camera_unknowns(directory / TARGET_FILE, spec, images)
-    return Target(directory.resolve().name, directory, images, truth, spec.get("renderer", "warp-hair"), gains,
-                  white_balance)
+    return Target(
+        directory.resolve().name, directory, images, truth, spec.get("renderer", "warp-hair"), gains, white_balance
+    )
 
 
 def _photo_mask(photo, mask):
@@ -206,9 +211,11 @@ def _photo_mask(photo, mask):
     keep = ~(photo.clipped | photo.crushed)
     combined = keep if mask is None else (mask & keep)
     if not combined.any():
-        raise ValueError(f"{photo.path}: every pixel{' the mask selects' if mask is not None else ''} is clipped "
-                         f"({int(photo.clipped.sum())}) or crushed to black ({int(photo.crushed.sum())}): nothing "
-                         "is left to fit; expose the photo so that the hair lies within the range")
+        raise ValueError(
+            f"{photo.path}: every pixel{' the mask selects' if mask is not None else ''} is clipped "
+            f"({int(photo.clipped.sum())}) or crushed to black ({int(photo.crushed.sum())}): nothing "
+            "is left to fit; expose the photo so that the hair lies within the range"
+        )
     return combined
 
 
@@ -223,8 +230,10 @@ def _camera_unknowns(spec_path: Path, spec: dict, images) -> tuple:
     white_balance = spec.get("white_balance", "fit" if display else "none")
     if gains == "exif" and not with_exif:
         lacking = next(image for image, p in zip(images, photos) if p is None or p.relative_exposure is None)
-        raise ValueError(f"{spec_path}: gains = \"exif\" but {lacking.image_path.name} has no EXIF exposure time, "
-                         "f-number and ISO to relate its exposure to the others'; use gains = \"per-image\"")
+        raise ValueError(
+            f'{spec_path}: gains = "exif" but {lacking.image_path.name} has no EXIF exposure time, '
+            'f-number and ISO to relate its exposure to the others\'; use gains = "per-image"'
+        )
     return gains, white_balance
 
 
@@ -249,10 +258,14 @@ def _read_target_image(path: Path, scene: Scene, transfer: str = "auto") -> tupl
     bad = ~np.isfinite(image)
     if bad.any():
         y, x, c = np.argwhere(bad)[0]
-        raise ValueError(f"{path}: {int(bad.sum())} NaN or infinite value(s), the first at pixel (x={x}, y={y}), channel {'RGB'[c]}")
+        raise ValueError(
+            f"{path}: {int(bad.sum())} NaN or infinite value(s), the first at pixel (x={x}, y={y}), channel {'RGB'[c]}"
+        )
     if (image < 0).any():
         y, x, c = np.argwhere(image < 0)[0]
-        raise ValueError(f"{path}: negative radiance {image[y, x, c]} at pixel (x={x}, y={y}); targets are linear radiance >= 0")
+        raise ValueError(
+            f"{path}: negative radiance {image[y, x, c]} at pixel (x={x}, y={y}); targets are linear radiance >= 0"
+        )
     return image, metadata, photo
 
 
@@ -282,7 +295,9 @@ def _check_consistent(images) -> None:
         if other.scene.hair.to_table() != first.scene.hair.to_table():
             raise ValueError(f"{pair} have different [hair] tables; the images of a target show one hair")
         a, b = first.scene.fibers, other.scene.fibers
-        if a.points.shape != b.points.shape or not (np.array_equal(a.points, b.points) and np.array_equal(a.radii, b.radii)):
+        if a.points.shape != b.points.shape or not (
+            np.array_equal(a.points, b.points) and np.array_equal(a.radii, b.radii)
+        ):
             raise ValueError(f"{pair} have different fibers; the images of a target show the same fibers")
 
 
@@ -314,12 +329,16 @@ def make_target(directory, threads=None, progress=None) -> list[Path]:
     _check_writable_target(directory)
     renderer = target_renderer(directory)
     if any(Path(entry["image"]).suffix.lower() != ".exr" for entry in entries):
-        raise ValueError(f"{directory}: its images are photos (or made to look like them), not renders to remake; "
-                         "the shipped photo-like targets are remade with `python benchmarks/make_photo_targets.py`")
+        raise ValueError(
+            f"{directory}: its images are photos (or made to look like them), not renders to remake; "
+            "the shipped photo-like targets are remade with `python benchmarks/make_photo_targets.py`"
+        )
     if renderer != "warp-hair":
-        raise ValueError(f"{directory}: its images were rendered by {renderer}; re-render them with "
-                         f"`python benchmarks/make_peer_targets.py {directory.name}` (from a source checkout, with "
-                         f"{renderer} installed)")
+        raise ValueError(
+            f"{directory}: its images were rendered by {renderer}; re-render them with "
+            f"`python benchmarks/make_peer_targets.py {directory.name}` (from a source checkout, with "
+            f"{renderer} installed)"
+        )
     scenes = [load_scene(directory / entry["scene"]) for entry in entries]
     total = sum(s.camera.resolution[0] * s.camera.resolution[1] for s in scenes)
     written, done = [], 0
@@ -349,9 +368,11 @@ def _check_writable_target(directory: Path) -> None:
     """An installed package's shipped targets are its data, not a working copy: they are remade in a checkout."""
     if shipped.is_source_checkout() or directory.resolve().parent != SHIPPED_TARGETS.resolve():
         return
-    raise ValueError(f"{directory}: a shipped target of the installed warp-hair package, which is not rewritten; "
-                     f"remake it in a source checkout, or copy the directory elsewhere and make the copy "
-                     f"(`cp -r {directory} my_target && warp-hair targets make my_target`)")
+    raise ValueError(
+        f"{directory}: a shipped target of the installed warp-hair package, which is not rewritten; "
+        f"remake it in a source checkout, or copy the directory elsewhere and make the copy "
+        f"(`cp -r {directory} my_target && warp-hair targets make my_target`)"
+    )
 
 
 def shipped_targets() -> list[Path]:

@@ -68,8 +68,10 @@ def check_model_error(value, where: str = "model_error") -> None:
     if value is None:
         return
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0:
-        raise ValueError(f"{where} must be a finite number >= 0 (a relative brightness disagreement, e.g. 0.01 for "
-                         f"1%; 0 for none), got {value!r}")
+        raise ValueError(
+            f"{where} must be a finite number >= 0 (a relative brightness disagreement, e.g. 0.01 for "
+            f"1%; 0 for none), got {value!r}"
+        )
 
 
 def brightness_sensitivity(lin: Linearization) -> np.ndarray:
@@ -92,8 +94,10 @@ def brightness_sensitivity(lin: Linearization) -> np.ndarray:
     is ω·I = m / gain: s is then gain along exposure and zero along the rest (exactly for one linearisation's
     two passes, up to the earlier Jacobians' noise when they are pooled in): exposure absorbs the disagreement."""
     if lin.targets is None:
-        raise ValueError("the linearisation carries no target values (Linearization.targets): the sensitivity "
-                         "to a brightness disagreement needs them")
+        raise ValueError(
+            "the linearisation carries no target values (Linearization.targets): the sensitivity "
+            "to a brightness disagreement needs them"
+        )
     return np.linalg.pinv(lin.curvature) @ lin.crossed(lin.residuals + lin.targets)
 
 
@@ -116,8 +120,9 @@ class Uncertainty:
     warnings: tuple[str, ...]
 
 
-def estimate_uncertainty(lin: Linearization, mc_covariance: np.ndarray | None = None,
-                         model_error: float = 0.0) -> Uncertainty:
+def estimate_uncertainty(
+    lin: Linearization, mc_covariance: np.ndarray | None = None, model_error: float = 0.0
+) -> Uncertainty:
     """The uncertainties at the linearisation's values (see the module docstring). mc_covariance: the
     estimate's own Monte Carlo covariance (`refine`); None leaves it out. model_error: ε, the relative
     brightness disagreement between the target's renderer and ours; 0 adds nothing, and the uncertainties are
@@ -127,8 +132,10 @@ def estimate_uncertainty(lin: Linearization, mc_covariance: np.ndarray | None = 
     p = A.shape[1]
     labels = component_labels(names)
     flat = np.abs(A).max(axis=0) == 0
-    warnings = [f"{label} does not change the rendered images at all: it cannot be fitted from this target"
-                for label in np.array(labels)[flat]]
+    warnings = [
+        f"{label} does not change the rendered images at all: it cannot be fitted from this target"
+        for label in np.array(labels)[flat]
+    ]
     cov = lin.statistical_covariance
     if mc_covariance is not None:
         cov = cov + mc_covariance

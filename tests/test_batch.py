@@ -24,13 +24,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 import warp as wp
+from test_calibrate import BETA_N, BLOCK_TOML
 
 import targets
 from optimize import FitSettings, fit, load_target
 from optimize.batch import load_manifest, run_batch, store
 from optimize.batch.report import number, sigma
 from optimize.batch.split import assemble, part_pixels
-from test_calibrate import BETA_N, BLOCK_TOML
 from warp_hair.io import read_exr
 from warp_hair.renderer.render import render
 from warp_hair.scene import load_scene
@@ -46,9 +46,9 @@ MANIFEST = f"""
 cpus_per_job = 1
 
 [defaults.fit]
-iters = {SHORT['iters']}
-spp = {SHORT['spp']}
-refine = {SHORT['refine']}
+iters = {SHORT["iters"]}
+spp = {SHORT["spp"]}
+refine = {SHORT["refine"]}
 
 [[fit]]
 target = "black_straight"
@@ -116,16 +116,24 @@ def test_a_split_render_is_the_whole_render_bit_for_bit():
         assemble(scene.camera.resolution, pieces + pieces[:1])
 
 
-@pytest.mark.parametrize("text, message", [
-    ("[[fit]]\ntarget = 'black_straight'\nitres = 3\n", r"\[\[fit\]\] #1: unknown key\(s\) \['itres'\]"),
-    ("[batch]\nretries = -1\n[[fit]]\ntarget = 'black_straight'\n", r"\[batch\] retries must be a whole number >= 0"),
-    ("[[fit]]\ntarget = 'black_straight'\n[[fit]]\ntarget = 'black_straight'\n",
-     "another entry is named 'black_straight'"),
-    ("[[render]]\nscene = 'a.toml'\nsplit = 0\n", r"\[\[render\]\] #1 split must be a whole number >= 1, got 0"),
-    ("[[fit]]\ntarget = 'black_straight'\nname = '../x'\n", "name '../x' must be letters"),
-    ("[batch]\n", "the manifest lists no work"),
-    ("[[fits]]\n", r"unknown table\(s\) \['fits'\]"),
-])
+@pytest.mark.parametrize(
+    "text, message",
+    [
+        ("[[fit]]\ntarget = 'black_straight'\nitres = 3\n", r"\[\[fit\]\] #1: unknown key\(s\) \['itres'\]"),
+        (
+            "[batch]\nretries = -1\n[[fit]]\ntarget = 'black_straight'\n",
+            r"\[batch\] retries must be a whole number >= 0",
+        ),
+        (
+            "[[fit]]\ntarget = 'black_straight'\n[[fit]]\ntarget = 'black_straight'\n",
+            "another entry is named 'black_straight'",
+        ),
+        ("[[render]]\nscene = 'a.toml'\nsplit = 0\n", r"\[\[render\]\] #1 split must be a whole number >= 1, got 0"),
+        ("[[fit]]\ntarget = 'black_straight'\nname = '../x'\n", "name '../x' must be letters"),
+        ("[batch]\n", "the manifest lists no work"),
+        ("[[fits]]\n", r"unknown table\(s\) \['fits'\]"),
+    ],
+)
 def test_manifest_errors_name_the_entry_and_key(tmp_path, text, message):
     path = tmp_path / "m.toml"
     path.write_text(text)
@@ -171,16 +179,16 @@ def test_split_render_in_the_batch_is_one_machines_render(batch):
 
 def test_a_rerun_does_no_finished_work_again(batch):
     manifest, first = batch
-    stamps = {name: (store.job_dir(manifest.output, name) / "status.json").stat().st_mtime_ns
-              for name in first.done}
+    stamps = {name: (store.job_dir(manifest.output, name) / "status.json").stat().st_mtime_ns for name in first.done}
     again = run_batch(load_manifest(manifest.path), progress=False)
     assert again.done == [] and sorted(again.skipped) == sorted(first.done) and again.failed == ["bad_loss"]
-    assert stamps == {name: (store.job_dir(manifest.output, name) / "status.json").stat().st_mtime_ns
-                      for name in first.done}
+    assert stamps == {
+        name: (store.job_dir(manifest.output, name) / "status.json").stat().st_mtime_ns for name in first.done
+    }
 
 
 def test_a_worker_killed_mid_batch_costs_one_retry(cluster, one_by_one, tmp_path):
-    (tmp_path / "m.toml").write_text(MANIFEST.split("[[fit]]\ntarget = \"black_straight\"\nname")[0])
+    (tmp_path / "m.toml").write_text(MANIFEST.split('[[fit]]\ntarget = "black_straight"\nname')[0])
     manifest = load_manifest(tmp_path / "m.toml")
     killed = []
 
@@ -253,7 +261,7 @@ def test_the_report_shows_every_image_and_number_in_a_browser(batch, tmp_path):
                         assert show(v) in text, (row["name"], key, show(v))
         if row["status"] == "failed":
             assert row["error"] in text
-    assert "<bsdf type=\"hair\"" in text and "Material \"hair\"" in text  # the export snippets
+    assert '<bsdf type="hair"' in text and 'Material "hair"' in text  # the export snippets
     assert "P(β_n) coefficients" in text
 
 
@@ -274,9 +282,21 @@ def _open_in_chromium(page: Path, tmp_path: Path) -> dict:
         pytest.skip("Chromium is not installed (apt-get install chromium); the report's browser check needs it")
     copy = tmp_path / "report_checked.html"
     copy.write_text(page.read_text(encoding="utf-8").replace("</body>", CHECK + "</body>"), encoding="utf-8")
-    result = subprocess.run([browser, "--headless", "--no-sandbox", "--disable-gpu", "--virtual-time-budget=10000",
-                             f"--user-data-dir={tmp_path / 'chromium'}", "--dump-dom", copy.as_uri()],
-                            capture_output=True, text=True, timeout=120)
+    result = subprocess.run(
+        [
+            browser,
+            "--headless",
+            "--no-sandbox",
+            "--disable-gpu",
+            "--virtual-time-budget=10000",
+            f"--user-data-dir={tmp_path / 'chromium'}",
+            "--dump-dom",
+            copy.as_uri(),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     found = re.search(r'<pre id="browser-check">(.*?)</pre>', result.stdout, re.S)
     assert found, result.stderr[-2000:]
     return json.loads(html.unescape(found.group(1)))

@@ -41,6 +41,7 @@ import warnings
 import numpy as np
 import pytest
 import warp as wp
+from helpers import bsdf_grad
 from helpers.bsdf_derivatives import (
     ATOL,
     COLOUR_MODES,
@@ -55,7 +56,6 @@ from helpers.bsdf_derivatives import (
 from helpers.sphere import random_directions
 
 import warp_hair as wh
-from helpers import bsdf_grad
 from warp_hair.model.hair_bsdf import HairCoefficients, hair_coefficients
 from warp_hair.model.params import TALK_ALBEDO_INVERSION, sigma_a_from_albedo
 
@@ -78,7 +78,7 @@ def compare_mode(mode: str, seed: int = 7) -> dict:
     |∂ log out/∂θ| ≥ 0.1 ν (so the absolute allowance is at most RTOL of it)."""
     rng = np.random.default_rng(seed + COLOUR_MODES.index(mode))
     results = {}
-    for material in range(MATERIALS_PER_MODE):
+    for _material in range(MATERIALS_PER_MODE):
         controls = random_controls(rng, mode)
         params = wh.HairParams(**controls)
         wo, wi, h = configurations(rng, params, CONFIGS_PER_MATERIAL)
@@ -98,7 +98,9 @@ def compare_mode(mode: str, seed: int = 7) -> dict:
             i, o = np.unravel_index(np.argmax(excess), excess.shape)
             if excess[i, o] > r["excess"]:
                 r["excess"] = float(excess[i, o])
-                r["where"] = dict(controls=controls, wo=wo[i], wi=wi[i], h=h[i], output=int(o), warp=g[i, o], reference=d[i, o])
+                r["where"] = {
+                    "controls": controls, "wo": wo[i], "wi": wi[i], "h": h[i], "output": int(o), "warp": g[i, o], "reference": d[i, o]
+                }
     return results
 
 
@@ -126,7 +128,9 @@ def _sigma_a_slopes(controls, step=1e-6):
     """∂σ_a/∂β_n and ∂σ_a/∂albedo (diagonal), both (3,), of the albedo inversion in float64."""
     albedo, beta_n = np.array(controls["albedo"]), controls["beta_n"]
     p = controls.get("albedo_inversion", TALK_ALBEDO_INVERSION)
-    d_beta_n = (sigma_a_from_albedo(albedo, beta_n + step, p) - sigma_a_from_albedo(albedo, beta_n - step, p)) / (2 * step)
+    d_beta_n = (sigma_a_from_albedo(albedo, beta_n + step, p) - sigma_a_from_albedo(albedo, beta_n - step, p)) / (
+        2 * step
+    )
     h = step * albedo
     d_albedo = (sigma_a_from_albedo(albedo + h, beta_n, p) - sigma_a_from_albedo(albedo - h, beta_n, p)) / (2 * h)
     return d_beta_n, d_albedo
@@ -147,7 +151,11 @@ def test_albedo_input_adds_exactly_the_absorption_path():
             out = np.abs(evaluate(with_sigma, wo, wi, h))
             absorption_path = gs["sigma_a"] @ d_beta_n
             lhs = ga["beta_n"] - gs["beta_n"]
-            allowed = RTOL * (np.abs(ga["beta_n"]) + np.abs(gs["beta_n"]) + np.abs(absorption_path)) + ATOL * out * nu + UNDERFLOW
+            allowed = (
+                RTOL * (np.abs(ga["beta_n"]) + np.abs(gs["beta_n"]) + np.abs(absorption_path))
+                + ATOL * out * nu
+                + UNDERFLOW
+            )
             assert np.all(np.abs(lhs - absorption_path) <= allowed)
             # The same allowance as the reference comparison, with ν = 1 per unit σ_a carried through ∂σ_a/∂albedo.
             albedo_path = gs["sigma_a"] * d_albedo
@@ -248,15 +256,17 @@ def test_shapes_and_names():
     rng = np.random.default_rng(15)
     wo, wi = random_directions(rng, 5), random_directions(rng, 5)
     for controls, colour_keys in (
-        (dict(albedo=[0.6, 0.4, 0.2]), {"albedo": (5, 3, 3)}),
-        (dict(sigma_a=0.3), {"sigma_a": (5, 3, 3)}),
-        (dict(eumelanin=1.3), {"eumelanin": (5, 3), "pheomelanin": (5, 3)}),
+        ({"albedo": [0.6, 0.4, 0.2]}, {"albedo": (5, 3, 3)}),
+        ({"sigma_a": 0.3}, {"sigma_a": (5, 3, 3)}),
+        ({"eumelanin": 1.3}, {"eumelanin": (5, 3), "pheomelanin": (5, 3)}),
     ):
         params = wh.HairParams(**controls)
         value_grad, pdf_grad = bsdf_grad.eval_grad(params, wo, wi, 0.3), bsdf_grad.pdf_grad(params, wo, wi, 0.3)
-        scalars = {name: (5, 3) for name in bsdf_grad.SCALAR_CONTROLS}
+        scalars = dict.fromkeys(bsdf_grad.SCALAR_CONTROLS, (5, 3))
         assert {k: v.shape for k, v in value_grad.items()} == {**colour_keys, **scalars}
-        assert {k: v.shape for k, v in pdf_grad.items()} == {k: s[:1] + s[2:] for k, s in {**colour_keys, **scalars}.items()}
+        assert {k: v.shape for k, v in pdf_grad.items()} == {
+            k: s[:1] + s[2:] for k, s in {**colour_keys, **scalars}.items()
+        }
     # A single direction and a scalar h broadcast like bsdf.eval; the split over threads changes nothing.
     assert bsdf_grad.eval_grad(params, wo[0], wi, 0.0)["beta_m"].shape == (5, 3)
     one, two = bsdf_grad.pdf_grad(params, wo, wi, 0.3, threads=1), bsdf_grad.pdf_grad(params, wo, wi, 0.3, threads=2)
@@ -290,10 +300,37 @@ Z = [0.0, 0.0, 1.0]
     "grad,params,wo,wi,h,extra,error,pattern",
     [
         (bsdf_grad.eval_grad, {"albedo": 0.5}, Z, Z, 0.0, {}, TypeError, r"params must be a warp_hair.HairParams"),
-        (bsdf_grad.eval_grad, wh.HairParams(albedo=0.5), np.zeros((4, 2)), Z, 0.0, {}, ValueError, r"wo must have shape"),
-        (bsdf_grad.pdf_grad, wh.HairParams(albedo=0.5), Z, [0, 0, 2], 0.0, {}, ValueError, r"wi must hold unit vectors"),
+        (
+            bsdf_grad.eval_grad,
+            wh.HairParams(albedo=0.5),
+            np.zeros((4, 2)),
+            Z,
+            0.0,
+            {},
+            ValueError,
+            r"wo must have shape",
+        ),
+        (
+            bsdf_grad.pdf_grad,
+            wh.HairParams(albedo=0.5),
+            Z,
+            [0, 0, 2],
+            0.0,
+            {},
+            ValueError,
+            r"wi must hold unit vectors",
+        ),
         (bsdf_grad.pdf_grad, wh.HairParams(albedo=0.5), Z, Z, 1.5, {}, ValueError, r"h must lie in \[-1, 1\]"),
-        (bsdf_grad.eval_grad, wh.HairParams(albedo=0.5), Z, Z, 0.0, {"threads": 0}, ValueError, r"threads must be at least 1"),
+        (
+            bsdf_grad.eval_grad,
+            wh.HairParams(albedo=0.5),
+            Z,
+            Z,
+            0.0,
+            {"threads": 0},
+            ValueError,
+            r"threads must be at least 1",
+        ),
     ],
 )
 def test_bad_input_is_rejected_like_bsdf_eval(grad, params, wo, wi, h, extra, error, pattern):

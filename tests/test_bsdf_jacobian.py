@@ -30,11 +30,12 @@ import warnings
 import numpy as np
 import pytest
 import warp as wp
-from scipy.special import i0e, i1e
 from helpers import bsdf_derivatives as fd
+from helpers import bsdf_grad
+from scipy.special import i0e, i1e
 
 import warp_hair as wh
-from helpers import bsdf_grad
+from warp_hair.model.hair_bsdf import HairCoefficients, hair_coefficients, lobe_setup
 from warp_hair.model.jacobian import (
     CoefficientDerivatives,
     coefficient_derivatives,
@@ -43,10 +44,9 @@ from warp_hair.model.jacobian import (
     lobe_setup_grad,
     value_jacobian_mat,
 )
-from warp_hair.model.hair_bsdf import HairCoefficients, hair_coefficients, lobe_setup
 from warp_hair.model.lobes import logistic_norm, longitudinal_norm
-from warp_hair.numerics import bessel_i0e_with_log_slope
 from warp_hair.model.params import BETA_FLOOR
+from warp_hair.numerics import bessel_i0e_with_log_slope
 
 wp.set_module_options({"enable_backward": False})
 
@@ -269,7 +269,7 @@ def test_coefficient_derivatives_match_central_differences():
 @wp.kernel
 def _bessel_slope_kernel(x: wp.array(dtype=float), out: wp.array(dtype=float)):
     i = wp.tid()
-    value, slope = bessel_i0e_with_log_slope(x[i])
+    _value, slope = bessel_i0e_with_log_slope(x[i])
     out[i] = slope
 
 

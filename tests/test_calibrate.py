@@ -9,15 +9,15 @@ renders below misses them by up to 3.8 standard errors (χ²/dof 5.8).
 
 import dataclasses
 import math
-import tomllib
 import warnings
 
 import numpy as np
 import pytest
+import tomllib
 
 from warp_hair.calibrate import (
-    environment_white,
     block_scene,
+    environment_white,
     fit_inversion,
     measure_points,
     measured_pixels,
@@ -95,8 +95,9 @@ def test_hair_params_use_their_own_coefficients():
             talk = HairParams(albedo=albedo, beta_n=beta_n)
         b = max(beta_n, 0.01)
         np.testing.assert_allclose(custom.absorption, (np.log(albedo) / _polynomial(b, CUSTOM)) ** 2, rtol=1e-12)
-        np.testing.assert_allclose(talk.absorption, (np.log(albedo) / _polynomial(b, TALK_ALBEDO_INVERSION)) ** 2,
-                                   rtol=1e-12)
+        np.testing.assert_allclose(
+            talk.absorption, (np.log(albedo) / _polynomial(b, TALK_ALBEDO_INVERSION)) ** 2, rtol=1e-12
+        )
     assert talk.albedo_inversion == TALK_ALBEDO_INVERSION
     # Changing a control keeps the inversion; it is no control itself.
     moved = custom.replace(beta_n=0.4)
@@ -154,7 +155,7 @@ def test_calibrated_copy_keeps_the_scene_and_refuses_to_overwrite_it(tmp_path):
     fibers = tmp_path / "fibers.txt"
     fibers.write_text("0 -0.5 0 0.01\n0 0.5 0 0.01\n")
     source = tmp_path / "scene.toml"
-    generated = BLOCK_TOML[BLOCK_TOML.index('generator = "swatch"'):BLOCK_TOML.index("segments = 1")]
+    generated = BLOCK_TOML[BLOCK_TOML.index('generator = "swatch"') : BLOCK_TOML.index("segments = 1")]
     source.write_text(BLOCK_TOML.replace(generated + "segments = 1", 'file = "fibers.txt"  # kept comment'))
     (tmp_path / "out").mkdir()
     copy = write_calibrated_scene(source, tmp_path / "out" / "calibrated.toml", CUSTOM)
@@ -198,8 +199,9 @@ def test_recovered_coefficients_reproduce_talk_renders_within_noise():
     assert np.all(np.abs(z) < 3.5), z
     assert np.sum(z**2) / (len(z) - 6) < 3.0
     # And through HairParams: asking for the measured albedo with the fitted inversion gives back σ_a.
-    recovered = [HairParams(albedo=c, beta_n=b, albedo_inversion=coefficients).absorption[0]
-                 for c, b in zip(albedo, beta_n)]
+    recovered = [
+        HairParams(albedo=c, beta_n=b, albedo_inversion=coefficients).absorption[0] for c, b in zip(albedo, beta_n)
+    ]
     slope = 2 * sigma_a / (albedo * np.abs(np.log(albedo)))  # |dσ_a/dc| of the inversion
     assert np.all(np.abs(np.array(recovered) - sigma_a) < 1.1 * slope * 3.5 * stderr)
 
@@ -213,7 +215,7 @@ def test_calibrate_command(tmp_path, capsys):
     out = capsys.readouterr().out
     assert "[hair.albedo_inversion]" in out and "chi2/dof" in out and f"wrote {copy}" in out
     fitted = load_scene(copy).hair.albedo_inversion
-    printed = tomllib.loads(out[out.index("[hair.albedo_inversion]"):out.index("wrote")])
+    printed = tomllib.loads(out[out.index("[hair.albedo_inversion]") : out.index("wrote")])
     assert printed["hair"]["albedo_inversion"]["coefficients"] == list(fitted)
     assert scene.read_text() == BLOCK_TOML
 

@@ -61,7 +61,7 @@ def test_centre_ray_goes_along_forward(camera):
 
 @pytest.mark.parametrize("camera", CAMERAS, ids=IDS)
 def test_directions_are_unit(camera):
-    _, directions = camera_rays(camera, *_pixel_grid(), jitter=np.random.default_rng(1).random(RESOLUTION[::-1] + (2,)))
+    _, directions = camera_rays(camera, *_pixel_grid(), jitter=np.random.default_rng(1).random((*RESOLUTION[::-1], 2)))
     np.testing.assert_allclose(np.linalg.norm(directions, axis=-1), 1.0, atol=1e-6)
 
 

@@ -145,6 +145,11 @@ def test_warps_log_level_is_the_hosts(tmp_path):
         f"main(['render', {str(tmp_path / 'missing.toml')!r}, '-o', {str(tmp_path / 'x.exr')!r}]); "
         "levels.append(wp.config.log_level); print(levels == [wp.LOG_DEBUG] * 2)"
     )
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
-                         cwd=Path(__file__).resolve().parents[1])
+    out = subprocess.run(
+        [sys.executable, "-c", code],
+        capture_output=True,
+        text=True,
+        check=True,
+        cwd=Path(__file__).resolve().parents[1],
+    )
     assert out.stdout.strip().splitlines()[-1] == "True"

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import bsdf_grad
 
 from optimize.latents import SPECS, parse_control_names
 from optimize.linearize import COLUMNS
@@ -27,7 +28,6 @@ from warp_hair.controls import (
 from warp_hair.model.params import HairParams
 from warp_hair.renderer.gradients import named_gradients
 from warp_hair.scene import load_scene
-from helpers import bsdf_grad
 from warp_hair.torch import allowed_controls
 
 EXAMPLE_SCENE = Path(__file__).resolve().parents[1] / "examples" / "swatch.toml"
@@ -36,8 +36,9 @@ EXAMPLE_SCENE = Path(__file__).resolve().parents[1] / "examples" / "swatch.toml"
 MATERIALS = {
     "albedo": HairParams(albedo=[0.7, 0.5, 0.3], beta_m=0.25, beta_n=0.4, alpha=-3.0, eta=1.7, r_roughness_scale=2.0),
     "sigma_a": HairParams(sigma_a=[0.2, 0.5, 1.1], beta_m=0.35, beta_n=0.2, alpha=4.0, eta=1.45, r_roughness_scale=0.5),
-    "melanin": HairParams(eumelanin=1.3, pheomelanin=0.4, beta_m=0.45, beta_n=0.6, alpha=1.0, eta=1.6,
-                          r_roughness_scale=3.0),
+    "melanin": HairParams(
+        eumelanin=1.3, pheomelanin=0.4, beta_m=0.45, beta_n=0.6, alpha=1.0, eta=1.6, r_roughness_scale=3.0
+    ),
 }
 
 
@@ -111,7 +112,7 @@ def test_hair_params_and_the_command_line_are_the_tables(colour_input):
     """One attribute of HairParams and one flag of the command line per control, named as in the table: a
     material's every control given as flags arrives in HairParams unchanged."""
     params = MATERIALS[colour_input]
-    assert [f.name for f in dataclasses.fields(HairParams)] == list(CONTROL_NAMES) + ["albedo_inversion"]
+    assert [f.name for f in dataclasses.fields(HairParams)] == [*list(CONTROL_NAMES), "albedo_inversion"]
     for name in CONTROL_NAMES:
         given = getattr(params, name)
         assert (given is None) == (name not in controls_of(colour_input))
@@ -214,6 +215,11 @@ def test_the_product_does_not_import_the_test_oracle():
         "import sys, warp_hair, warp_hair.torch, warp_hair.renderer.gradients, optimize.fit, optimize.linearize; "
         "print(sorted(m for m in sys.modules if m.split('.')[0] in ('tests', 'helpers') or 'bsdf_grad' in m))"
     )
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
-                         cwd=Path(__file__).resolve().parents[1])
+    out = subprocess.run(
+        [sys.executable, "-c", code],
+        capture_output=True,
+        text=True,
+        check=True,
+        cwd=Path(__file__).resolve().parents[1],
+    )
     assert out.stdout.strip() == "[]"

@@ -299,7 +299,7 @@ def test_black_map_and_poles_stay_finite(image):
         assert not value.any()
 
 
-@pytest.mark.parametrize("kwargs", [dict(radiance=0.0), dict()])
+@pytest.mark.parametrize("kwargs", [{"radiance": 0.0}, {}])
 def test_black_constant_light(kwargs):
     env, _ = environment_data(**kwargs)
     _, density, value = sample(env, edge_uniforms())
@@ -310,13 +310,13 @@ def test_black_constant_light(kwargs):
 @pytest.mark.parametrize(
     "kwargs",
     [
-        dict(radiance=1.0, image=np.ones((2, 4, 3), np.float32)),
-        dict(image=np.ones((4, 3), np.float32)),
-        dict(image=np.ones((2, 4, 4), np.float32)),
-        dict(image=np.full((2, 4, 3), -1.0, np.float32)),
-        dict(image=np.full((2, 4, 3), np.nan, np.float32)),
-        dict(radiance=(1.0, -1.0, 0.0)),
-        dict(radiance=1.0, scale=-1.0),
+        {"radiance": 1.0, "image": np.ones((2, 4, 3), np.float32)},
+        {"image": np.ones((4, 3), np.float32)},
+        {"image": np.ones((2, 4, 4), np.float32)},
+        {"image": np.full((2, 4, 3), -1.0, np.float32)},
+        {"image": np.full((2, 4, 3), np.nan, np.float32)},
+        {"radiance": (1.0, -1.0, 0.0)},
+        {"radiance": 1.0, "scale": -1.0},
     ],
 )
 def test_invalid_input_is_rejected(kwargs):

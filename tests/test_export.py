@@ -84,7 +84,9 @@ def test_mitsuba_values(colour):
     # Mitsuba has no albedo input: the talk's inversion, undone, gives the fitted albedo back.
     np.testing.assert_allclose(sigma, expected_sigma_a(params), rtol=1e-12)
     if params.albedo is not None:
-        np.testing.assert_allclose(np.exp(-np.sqrt(sigma) * chiang_denominator(params.beta_n)), params.albedo, rtol=1e-12)
+        np.testing.assert_allclose(
+            np.exp(-np.sqrt(sigma) * chiang_denominator(params.beta_n)), params.albedo, rtol=1e-12
+        )
     assert floats["longitudinal_roughness"] == params.beta_m and floats["azimuthal_roughness"] == params.beta_n
     # Hair(): m_eta = int_ior / ext_ior.
     assert floats["int_ior"] / floats["ext_ior"] == pytest.approx(params.eta, rel=1e-15)
@@ -168,7 +170,9 @@ def test_cycles_values(colour):
     assert inputs["IOR"] == params.eta and inputs["Coat"] == 0.0
     # The logistic scale: (0.265 s + 1.194 s² + 5.372 s²²) · √(π/8), as ours.
     s = inputs["Radial Roughness"]
-    assert (0.265 * s + 1.194 * s**2 + 5.372 * s**22) * math.sqrt(math.pi / 8) == pytest.approx(logistic_scale(params.beta_n))
+    assert (0.265 * s + 1.194 * s**2 + 5.372 * s**22) * math.sqrt(math.pi / 8) == pytest.approx(
+        logistic_scale(params.beta_n)
+    )
     # Blender 4.5: bsdf_hair_chiang_setup sets alpha = −Offset (radians) and hair_alpha_angles evaluates R at
     # the viewer's sin θ_o cos 2α − cos θ_o sin 2α.
     two_alpha = 2 * -inputs["Offset"]
@@ -220,10 +224,12 @@ def test_cycles_script_builds_the_node_in_blender(tmp_path):
     params = HairParams(sigma_a=(0.5, 1.0, 2.0), r_roughness_scale=0.5, alpha=2.0)
     script = tmp_path / "hair_cycles.py"
     export(params, "cycles", script)
-    probe = (f"import runpy; m = runpy.run_path({str(script)!r})['make_material']()\n"
-             "n = [n for n in m.node_tree.nodes if n.bl_idname == 'ShaderNodeBsdfHairPrincipled'][0]\n"
-             "print(n.model, n.parametrization, [round(x, 6) for x in n.inputs['Absorption Coefficient'].default_value],"
-             " round(n.inputs['Coat'].default_value, 6), round(n.inputs['Offset'].default_value, 6))\n")
+    probe = (
+        f"import runpy; m = runpy.run_path({str(script)!r})['make_material']()\n"
+        "n = [n for n in m.node_tree.nodes if n.bl_idname == 'ShaderNodeBsdfHairPrincipled'][0]\n"
+        "print(n.model, n.parametrization, [round(x, 6) for x in n.inputs['Absorption Coefficient'].default_value],"
+        " round(n.inputs['Coat'].default_value, 6), round(n.inputs['Offset'].default_value, 6))\n"
+    )
     out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=300, check=True).stdout
     coat = coat_from_r_roughness_scale(0.3, 0.5)
     assert f"CHIANG ABSORPTION [0.5, 1.0, 2.0] {round(coat, 6)} {round(math.radians(2.0), 6)}" in out
@@ -245,8 +251,12 @@ def materialx_inputs(text):
     shader = material.getInput("surfaceshader").getConnectedNode()
     bsdf = shader.getInput("bsdf").getConnectedNode()
     assert bsdf.getCategory() == "chiang_hair_bsdf" and bsdf.getNodeDef().getName() == "ND_chiang_hair_bsdf"
-    return {i.getName(): np.atleast_1d(np.array(list(i.getValue()) if hasattr(i.getValue(), "__len__") else
-                                                i.getValue(), dtype=np.float64)) for i in bsdf.getInputs()}
+    return {
+        i.getName(): np.atleast_1d(
+            np.array(list(i.getValue()) if hasattr(i.getValue(), "__len__") else i.getValue(), dtype=np.float64)
+        )
+        for i in bsdf.getInputs()
+    }
 
 
 @pytest.mark.parametrize("colour", LOOKS)
@@ -290,8 +300,9 @@ def test_load_look_from_params_truth_and_scene(tmp_path):
     truth.write_text(json.dumps(params.to_dict()))
     assert load_look(truth) == params
     scene = tmp_path / "scene.toml"
-    scene.write_text('[camera]\nwidth = 1\n[hair]\nalbedo = [0.6, 0.4, 0.2]\nbeta_m = 0.25\nbeta_n = 0.4\n'
-                     'alpha = 2.5\neta = 1.6\n')
+    scene.write_text(
+        "[camera]\nwidth = 1\n[hair]\nalbedo = [0.6, 0.4, 0.2]\nbeta_m = 0.25\nbeta_n = 0.4\nalpha = 2.5\neta = 1.6\n"
+    )
     assert load_look(scene) == params
 
 
@@ -299,7 +310,7 @@ def test_load_look_from_params_truth_and_scene(tmp_path):
     "content, message",
     [
         ('{"look": {"beta_m": 0.3}}', r"params.json \"look\": HairParams needs exactly one colour input"),
-        ('{"target": "t", "fitted": {"albedo": [0.5, 0.5, 0.5]}}', "has no \"look\""),
+        ('{"target": "t", "fitted": {"albedo": [0.5, 0.5, 0.5]}}', 'has no "look"'),
         ('{"colour": 1}', "unknown keys \\['colour'\\]"),
         ("[1, 2]", "must be an object"),
         ("{", "not a JSON look"),
@@ -332,8 +343,11 @@ def test_cli_export_to_stdout_and_file(tmp_path, capsys):
 def test_cli_export_errors(tmp_path, capsys, args, message):
     nocolour = tmp_path / "nocolour.json"
     nocolour.write_text('{"beta_m": 0.3}')
-    swap = {"LOOK": str(write_look(tmp_path, LOOKS["albedo"])), "NOCOLOUR": str(nocolour),
-            "missing.json": str(tmp_path / "missing.json")}
+    swap = {
+        "LOOK": str(write_look(tmp_path, LOOKS["albedo"])),
+        "NOCOLOUR": str(nocolour),
+        "missing.json": str(tmp_path / "missing.json"),
+    }
     assert main(["export", *[swap.get(a, a) for a in args]]) == 2
     err = capsys.readouterr().err
     assert err.startswith("warp-hair: error: ") and message in err and "Traceback" not in err

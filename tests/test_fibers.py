@@ -1,5 +1,6 @@
 """Tests of warp_hair.geometry: the fiber container, its two file formats and the procedural generators."""
 
+import itertools
 import struct
 from pathlib import Path
 
@@ -7,8 +8,8 @@ import numpy as np
 import pytest
 
 from warp_hair.geometry.assembly import FiberAssembly, FiberDataError
-from warp_hair.geometry.generators import curly, fur, swatch, wavy
 from warp_hair.geometry.formats import load_fibers, save_fibers
+from warp_hair.geometry.generators import curly, fur, swatch, wavy
 
 BENCH_FIBERS = Path(__file__).parents[1] / "benchmarks" / "standard_swatch_fibers.txt"
 GENERATORS = [swatch, wavy, curly, fur]
@@ -175,7 +176,7 @@ def test_hair_writer_rejects_strands_longer_than_uint16(tmp_path):
 
 
 GOOD_POINTS = np.arange(27, dtype=np.float32).reshape(9, 3)
-GOOD_HAIR = dict(segments=[2, 3, 1], points=GOOD_POINTS, thickness=np.full(9, 0.02), strands=3, total=9)
+GOOD_HAIR = {"segments": [2, 3, 1], "points": GOOD_POINTS, "thickness": np.full(9, 0.02), "strands": 3, "total": 9}
 
 
 def with_nan_at(index):
@@ -332,7 +333,7 @@ def test_swatch_layers_at_distinct_depths():
     layers = layer_slices(swatch(), 4)
     z_ranges = [(layer[..., 2].min(), layer[..., 2].max()) for layer in layers]
     assert z_ranges[0][1] <= 0.004  # the front layer lies at z = 0
-    for (front_lo, _), (_, back_hi) in zip(z_ranges, z_ranges[1:]):
+    for (front_lo, _), (_, back_hi) in itertools.pairwise(z_ranges):
         assert back_hi < front_lo
 
 

@@ -20,14 +20,25 @@ TRUTH = {"albedo": [0.55, 0.38, 0.22], "beta_m": 0.3, "beta_n": 0.4}
 
 def scene_text(direction, spp):
     """A 120-fiber draped swatch with the TRUTH controls under one directional light, 24×24 pixels."""
-    return toml_text({
-        "camera": front_camera(0.36, (24, 24)),
-        "lights": [{"type": "directional", "direction": direction, "irradiance": [3.0, 3.0, 3.0]}],
-        "fibers": {"generator": "swatch", "count": 120, "layers": 2, "length": 0.5, "width": 0.4, "radius": 0.004,
-                   "drape": 0.25, "segments": 16, "seed": 4},
-        "hair": dict(TRUTH),
-        "render": {"spp": spp, "max_depth": 16, "seed": 3},
-    })
+    return toml_text(
+        {
+            "camera": front_camera(0.36, (24, 24)),
+            "lights": [{"type": "directional", "direction": direction, "irradiance": [3.0, 3.0, 3.0]}],
+            "fibers": {
+                "generator": "swatch",
+                "count": 120,
+                "layers": 2,
+                "length": 0.5,
+                "width": 0.4,
+                "radius": 0.004,
+                "drape": 0.25,
+                "segments": 16,
+                "seed": 4,
+            },
+            "hair": dict(TRUTH),
+            "render": {"spp": spp, "max_depth": 16, "seed": 3},
+        }
+    )
 
 
 # At 1024 spp this target's own noise leaves red albedo uncertain by ±0.03 (1σ, as the fit reports it), the
@@ -37,8 +48,9 @@ TARGET_SPP = 4096
 
 @pytest.fixture(scope="module")
 def small_target(tmp_path_factory):
-    directory = write_front_back_target(tmp_path_factory.mktemp("small_target"),
-                                        lambda direction: scene_text(direction, TARGET_SPP))
+    directory = write_front_back_target(
+        tmp_path_factory.mktemp("small_target"), lambda direction: scene_text(direction, TARGET_SPP)
+    )
     make_target(directory)
     return directory
 
@@ -73,8 +85,25 @@ def test_reduced_fit_recovers_the_true_controls(small_target, batch):
 
 def test_fit_command_writes_its_outputs(small_target, tmp_path, capsys):
     out = tmp_path / "out"
-    assert main(["fit", str(small_target), "-o", str(out), "--iters", "6", "--spp", "4", "--fit", "albedo,beta_m",
-                 "--export", "mitsuba,cycles"]) == 0
+    assert (
+        main(
+            [
+                "fit",
+                str(small_target),
+                "-o",
+                str(out),
+                "--iters",
+                "6",
+                "--spp",
+                "4",
+                "--fit",
+                "albedo,beta_m",
+                "--export",
+                "mitsuba,cycles",
+            ]
+        )
+        == 0
+    )
     printed = capsys.readouterr().out
     assert "fitted" in printed and "true" in printed and "beta_m" in printed
     params = json.loads((out / "params.json").read_text())

@@ -17,8 +17,11 @@ def outcomes(tmp_path_factory):
 
 
 def test_every_outcome_is_a_named_error_or_a_finite_render(outcomes):
-    failures = [f"#{c.index} {c.area} {c.source}: {c.mutation} -> {o}: {d[:200]}"
-                for c, (o, d) in outcomes if o not in fuzz.PASSING]
+    failures = [
+        f"#{c.index} {c.area} {c.source}: {c.mutation} -> {o}: {d[:200]}"
+        for c, (o, d) in outcomes
+        if o not in fuzz.PASSING
+    ]
     assert not failures, "\n".join(failures)
 
 

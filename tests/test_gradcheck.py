@@ -8,7 +8,6 @@ from helpers.scenes import SPARSE_HAIR, sparse_scene_dict, toml_text
 from warp_hair.cli import main
 from warp_hair.gradcheck import GradcheckRow, gradcheck, target_hair
 
-
 # 12×12 px, the gradient checks' sparse scene at 16 spp (helpers.scenes.sparse_scene_dict).
 SPARSE_SCENE = toml_text(sparse_scene_dict(SPARSE_HAIR, (12, 12), spp=16))
 
@@ -25,7 +24,7 @@ def test_gradcheck_prints_a_row_per_control(sparse_scene_file, capsys):
     out = capsys.readouterr().out
     rows = {line.split()[0]: line for line in out.splitlines() if re.match(r"(albedo\[[rgb]\]|eta)\s", line)}
     assert set(rows) == {"albedo[r]", "albedo[g]", "albedo[b]", "eta"}, out
-    for control, line in rows.items():
+    for _control, line in rows.items():
         assert line.split()[-1] == "OK", out
     assert "4/4 OK" in out
 

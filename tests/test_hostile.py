@@ -6,10 +6,10 @@ import json
 import struct
 import subprocess
 import sys
-import tomllib
 
 import numpy as np
 import pytest
+import tomllib
 from helpers import reference_model as reference
 from helpers.scenes import TINY_SCENE
 
@@ -49,13 +49,25 @@ BAD = [
     (("camera", "origin"), [1e308, 1e308, 1e308], "scene.toml: [camera] origin must be at most 1e+15 in magnitude"),
     (("camera", "width"), 1e-300, "scene.toml: [camera] width must be in [1e-15, 1e+15] scene units"),
     (("camera", "resolution"), [2**16, 2**16], "scene.toml: [camera] resolution 65536x65536 has more than 2147483647"),
-    (("lights", 0, "irradiance"), [1e39, 1e39, 1e39], "scene.toml: [[lights]] #1 irradiance must be three numbers in [0, 1e+12]"),
+    (
+        ("lights", 0, "irradiance"),
+        [1e39, 1e39, 1e39],
+        "scene.toml: [[lights]] #1 irradiance must be three numbers in [0, 1e+12]",
+    ),
     (("hair", "eta"), 1e300, "scene.toml: [hair] eta = 1e+300 is outside the allowed range (1.0, 10.0]"),
-    (("hair", "r_roughness_scale"), 1e-300, "r_roughness_scale = 1e-300 is outside the allowed range [1e-06, 1000000.0]"),
+    (
+        ("hair", "r_roughness_scale"),
+        1e-300,
+        "r_roughness_scale = 1e-300 is outside the allowed range [1e-06, 1000000.0]",
+    ),
     (("hair", "beta_m"), "0.3", "scene.toml: [hair] beta_m must be a number, got '0.3'"),
     (("hair", "beta_m"), True, "scene.toml: [hair] beta_m must be a number, got True"),
     (("hair", "eumelanin"), False, "scene.toml: [hair] eumelanin must be a number, got False"),
-    (("fibers", "jitter"), [0.1, 0.1], "scene.toml: [fibers] generator 'swatch': jitter must be a number, got [0.1, 0.1]"),
+    (
+        ("fibers", "jitter"),
+        [0.1, 0.1],
+        "scene.toml: [fibers] generator 'swatch': jitter must be a number, got [0.1, 0.1]",
+    ),
     (("fibers", "radius"), [0.1, 0.1, 0.1], "generator 'swatch': radius must be a number, got [0.1, 0.1, 0.1]"),
     (("fibers", "segments"), 2**31, "generator 'swatch': segments must be at most 2147483647"),
     (("fibers", "segments"), 2**63 - 1, "generator 'swatch': segments must be at most 2147483647"),
@@ -75,8 +87,11 @@ def test_values_that_would_overflow_or_wrap_are_errors_naming_the_key(path, valu
 
 
 def test_the_scale_limit_names_the_ratio():
-    with pytest.raises(ValueError, match=r"scene\.toml: the fibers and camera extend to 3 scene units from the origin, "
-                       r"3e\+06 times its thinnest fiber radius 1e-06"):
+    with pytest.raises(
+        ValueError,
+        match=r"scene\.toml: the fibers and camera extend to 3 scene units from the origin, "
+        r"3e\+06 times its thinnest fiber radius 1e-06",
+    ):
         scene_from_dict(scene_with(("fibers", "radius"), 1e-6), where="scene.toml")
 
 
@@ -99,8 +114,11 @@ def test_generator_sizes_are_checked_before_allocating(generator, args, message)
 
 def test_memory_error_says_how_much(monkeypatch):
     monkeypatch.setattr(validate, "available_memory", lambda: 2**30)
-    with pytest.raises(ValueError, match=r"scene\.toml: \[fibers\] generator 'swatch': 10000000 fibers of 8 segments "
-                       r"\(90000000 vertices\) would take 10.7 GiB of memory, more than the 1 GiB available"):
+    with pytest.raises(
+        ValueError,
+        match=r"scene\.toml: \[fibers\] generator 'swatch': 10000000 fibers of 8 segments "
+        r"\(90000000 vertices\) would take 10.7 GiB of memory, more than the 1 GiB available",
+    ):
         scene_from_dict(scene_with(("fibers", "count"), 10**7), where="scene.toml")
     monkeypatch.setattr(validate, "available_memory", lambda: 100 * 2**10)
     with pytest.raises(ValueError, match=r"scene\.toml: rendering 320 fiber segments at 12x8 would take"):
@@ -127,24 +145,30 @@ def test_up_parallel_after_normalisation_is_an_error():
 
 
 def test_environment_radiance_beyond_the_limit(tmp_path):
-    with pytest.raises(ValueError, match=r"scene\.toml: \[\[lights\]\] #2 radiance must be three numbers in \[0, 1e\+12\]"):
-        scene_from_dict(scene_with(("lights",), BASE["lights"] + [{"type": "environment", "radiance": [1e39] * 3}]),
-                        where="scene.toml")
+    with pytest.raises(
+        ValueError, match=r"scene\.toml: \[\[lights\]\] #2 radiance must be three numbers in \[0, 1e\+12\]"
+    ):
+        scene_from_dict(
+            scene_with(("lights",), BASE["lights"] + [{"type": "environment", "radiance": [1e39] * 3}]),
+            where="scene.toml",
+        )
     write_exr(tmp_path / "sky.exr", np.ones((4, 8, 3), dtype=np.float32))
     light = {"type": "environment", "file": "sky.exr", "scale": 1e39}
     with pytest.raises(ValueError) as error:
         scene_from_dict(scene_with(("lights",), [light]), base_dir=tmp_path, where="scene.toml")
-    assert str(error.value).startswith(f"scene.toml: [[lights]] #1 file: {tmp_path / 'sky.exr'} times scale 1e+39: "
-                                       "radiance must be finite and in [0, 1e+12]")
+    assert str(error.value).startswith(
+        f"scene.toml: [[lights]] #1 file: {tmp_path / 'sky.exr'} times scale 1e+39: "
+        "radiance must be finite and in [0, 1e+12]"
+    )
 
 
 def test_render_checks_seed_and_spp_of_python_callers():
     scene = scene_from_dict(BASE)
     for kwargs, message in [
-        (dict(seed=2**32), "seed must be at most 4294967295"),
-        (dict(seed=-1), "seed must be at least 0"),
-        (dict(spp=2**31), "spp must be at most 2147483647"),
-        (dict(spp=2.0), "spp must be an integer, got 2.0"),
+        ({"seed": 2**32}, "seed must be at most 4294967295"),
+        ({"seed": -1}, "seed must be at least 0"),
+        ({"spp": 2**31}, "spp must be at most 2147483647"),
+        ({"spp": 2.0}, "spp must be an integer, got 2.0"),
     ]:
         with pytest.raises(ValueError, match=message):
             wh.render(scene, **kwargs)
@@ -167,11 +191,15 @@ def test_python_built_scene_is_checked_at_render():
 def test_far_vertex_and_huge_thickness_name_the_file_strand_and_vertex(tmp_path):
     path = tmp_path / "far.txt"
     path.write_text("# two strands\n0 0 0 0.01\n0 1 0 0.01\n\n1 0 0 0.01\n1 1 0 0.01\n1e30 0 0 0.01\n")
-    with pytest.raises(ValueError, match=rf"{path}: line 7: strand 1, vertex 2: position \(1e\+30, 0.0, 0.0\) is beyond ±1e\+15"):
+    with pytest.raises(
+        ValueError, match=rf"{path}: line 7: strand 1, vertex 2: position \(1e\+30, 0.0, 0.0\) is beyond ±1e\+15"
+    ):
         load_fibers(path)
     header = struct.pack("<4s4I5f88s", b"HAIR", 2, 6, 2, 2, 1e38, 0, 1, 1, 1, b"")
     (tmp_path / "thick.hair").write_bytes(header + np.zeros((6, 3), "<f4").tobytes())
-    with pytest.raises(ValueError, match=r"thick\.hair: strand 0, vertex 0: radius 5e\+37 is outside \[1e-15, 1e\+15\]"):
+    with pytest.raises(
+        ValueError, match=r"thick\.hair: strand 0, vertex 0: radius 5e\+37 is outside \[1e-15, 1e\+15\]"
+    ):
         load_fibers(tmp_path / "thick.hair")
 
 
@@ -198,15 +226,15 @@ def test_bytes_after_the_hair_data_are_an_error(tmp_path):
 @pytest.mark.parametrize(
     "controls,message",
     [
-        (dict(albedo="0.5"), "albedo[r] must be a number, got '0.5'"),
-        (dict(albedo=[0.5, True, 0.5]), "albedo[g] must be a number, got True"),
-        (dict(albedo=0.5, beta_m=True), "beta_m must be a number, got True"),
-        (dict(eumelanin=False), "eumelanin must be a number, got False"),
-        (dict(albedo=0.5, eta=3.5e38), "eta = 3.5e+38 is outside the allowed range (1.0, 10.0]"),
-        (dict(albedo=0.5, r_roughness_scale=1e-40), "r_roughness_scale = 1e-40 is outside"),
-        (dict(albedo=0.5, r_roughness_scale=1e40), "r_roughness_scale = 1e+40 is outside"),
-        (dict(sigma_a=1e300), "sigma_a[r] = 1e+300 is outside the allowed range [0.0, 1e+30]"),
-        (dict(albedo=0.5, alpha=10**400), "alpha must be finite"),
+        ({"albedo": "0.5"}, "albedo[r] must be a number, got '0.5'"),
+        ({"albedo": [0.5, True, 0.5]}, "albedo[g] must be a number, got True"),
+        ({"albedo": 0.5, "beta_m": True}, "beta_m must be a number, got True"),
+        ({"eumelanin": False}, "eumelanin must be a number, got False"),
+        ({"albedo": 0.5, "eta": 3.5e38}, "eta = 3.5e+38 is outside the allowed range (1.0, 10.0]"),
+        ({"albedo": 0.5, "r_roughness_scale": 1e-40}, "r_roughness_scale = 1e-40 is outside"),
+        ({"albedo": 0.5, "r_roughness_scale": 1e40}, "r_roughness_scale = 1e+40 is outside"),
+        ({"sigma_a": 1e300}, "sigma_a[r] = 1e+300 is outside the allowed range [0.0, 1e+30]"),
+        ({"albedo": 0.5, "alpha": 10**400}, "alpha must be finite"),
     ],
 )
 def test_hair_params_are_strict(controls, message):
@@ -229,7 +257,7 @@ def unit_rows(rng, n):
 def test_eta_near_one_is_finite_and_matches_the_reference(eta):
     """η within a few float32 steps of 1: finite at grazing, and away from grazing (where the float64 reference
     is well conditioned) the same as the reference within test_reference_agreement's tolerance."""
-    controls = dict(albedo=[0.6, 0.4, 0.2], eta=eta, alpha=0.0)
+    controls = {"albedo": [0.6, 0.4, 0.2], "eta": eta, "alpha": 0.0}
     params = HairParams(**controls)
     grazing = wh.bsdf.eval(params, [[1.0, 0.0, 0.0]], [[0.0, 0.0, 1.0]], 0.3)
     assert np.isfinite(grazing).all() and (grazing >= 0).all()
@@ -238,19 +266,24 @@ def test_eta_near_one_is_finite_and_matches_the_reference(eta):
     keep = np.abs(wo[:, 0]) < 0.9
     wo, wi = wo[keep], wi[keep]
     h = rng.uniform(-0.95, 0.95, len(wo))
-    np.testing.assert_allclose(wh.bsdf.eval(params, wo, wi, h), reference.eval(controls, wo, wi, h), rtol=1e-4, atol=1e-6)
-    w, weight, density = wh.bsdf.sample(params, np.repeat([[1.0, 0.0, 0.0]], 16, axis=0), 0.3, rng.uniform(size=(16, 3)))
+    np.testing.assert_allclose(
+        wh.bsdf.eval(params, wo, wi, h), reference.eval(controls, wo, wi, h), rtol=1e-4, atol=1e-6
+    )
+    w, weight, density = wh.bsdf.sample(
+        params, np.repeat([[1.0, 0.0, 0.0]], 16, axis=0), 0.3, rng.uniform(size=(16, 3))
+    )
     assert np.isfinite(w).all() and np.isfinite(weight).all() and np.isfinite(density).all()
 
 
 def test_fresnel_guard_leaves_grazing_values_unchanged():
     """At exactly grazing wo the reflectance is 1 for every η > 1, which the guard returns without the formula."""
-    controls = dict(sigma_a=0.3, eta=1.55, alpha=0.0)
+    controls = {"sigma_a": 0.3, "eta": 1.55, "alpha": 0.0}
     wo = np.repeat([[1.0, 0.0, 0.0]], 64, axis=0)
     wi = unit_rows(np.random.default_rng(4), 64)
     h = np.linspace(-0.9, 0.9, 64)
-    np.testing.assert_allclose(wh.bsdf.eval(HairParams(**controls), wo, wi, h), reference.eval(controls, wo, wi, h),
-                               rtol=1e-4, atol=1e-6)
+    np.testing.assert_allclose(
+        wh.bsdf.eval(HairParams(**controls), wo, wi, h), reference.eval(controls, wo, wi, h), rtol=1e-4, atol=1e-6
+    )
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -278,6 +311,7 @@ def test_truth_json_errors_name_the_file(tmp_path, truth, message):
 
 # ---------------------------------------------------------------------------------------------------------------
 # Command line
+
 
 @pytest.mark.parametrize(
     "options,replace,message",
@@ -323,8 +357,11 @@ def test_unexpected_errors_are_short_unless_debug(tmp_path, capsys, monkeypatch)
     assert "Traceback" in capsys.readouterr().err
 
 
-@pytest.mark.parametrize("command", [["render", "SCENE", "-o", "OUT"], ["gradcheck", "SCENE", "--spp", "256", "--params", "beta_m"]],
-                         ids=["render", "gradcheck"])
+@pytest.mark.parametrize(
+    "command",
+    [["render", "SCENE", "-o", "OUT"], ["gradcheck", "SCENE", "--spp", "256", "--params", "beta_m"]],
+    ids=["render", "gradcheck"],
+)
 def test_ctrl_c_stops_within_a_second(tmp_path, command):
     """A real SIGINT to a real `warp-hair render` or `gradcheck`: no new tiles start, one line, exit 130, and no
     output file."""
@@ -333,7 +370,9 @@ def test_ctrl_c_stops_within_a_second(tmp_path, command):
 
     scene = tmp_path / "slow.toml"
     # 4096 spp: one 256-pixel range would take seconds; ranges shrink with spp to stay short.
-    scene.write_text(TINY_SCENE.replace("resolution = [12, 8]", "resolution = [160, 160]").replace("spp = 2", "spp = 4096"))
+    scene.write_text(
+        TINY_SCENE.replace("resolution = [12, 8]", "resolution = [160, 160]").replace("spp = 2", "spp = 4096")
+    )
     out = tmp_path / "slow.exr"
     arguments = [{"SCENE": str(scene), "OUT": str(out)}.get(a, a) for a in command] + ["--threads", "2"]
     code = (
@@ -376,9 +415,12 @@ def _tiny_target():
 
     from optimize.target import Target, TargetImage
 
-    scene = swatch_scene({"albedo": [0.6, 0.4, 0.3], "beta_m": 0.3, "beta_n": 0.3},
-                         [{"type": "directional", "direction": [0.3, -0.4, -1.0], "irradiance": [3.0, 3.0, 3.0]}],
-                         resolution=(8, 8), render_table={"spp": 8, "max_depth": 8, "seed": 1})
+    scene = swatch_scene(
+        {"albedo": [0.6, 0.4, 0.3], "beta_m": 0.3, "beta_n": 0.3},
+        [{"type": "directional", "direction": [0.3, -0.4, -1.0], "irradiance": [3.0, 3.0, 3.0]}],
+        resolution=(8, 8),
+        render_table={"spp": 8, "max_depth": 8, "seed": 1},
+    )
     return Target("tiny", None, [TargetImage("front", scene, wh.render(scene, spp=8, seed=11), None, None)], None)
 
 

@@ -22,14 +22,27 @@ def write_target(directory, lights, drape, spp):
     directory.mkdir()
     entries = []
     for k, direction in enumerate(lights):
-        (directory / f"scene_{k}.toml").write_text(toml_text({
-            "camera": front_camera(0.2, (16, 16)),
-            "lights": [{"type": "directional", "direction": direction, "irradiance": [3.0, 3.0, 3.0]}],
-            "fibers": {"generator": "swatch", "count": 60, "layers": 3, "length": 0.4, "width": 0.24,
-                       "radius": 0.004, "segments": 12, "seed": 2, **({"drape": drape} if drape else {})},
-            "hair": HAIR,
-            "render": {"spp": spp, "max_depth": 16, "seed": 3},
-        }))
+        (directory / f"scene_{k}.toml").write_text(
+            toml_text(
+                {
+                    "camera": front_camera(0.2, (16, 16)),
+                    "lights": [{"type": "directional", "direction": direction, "irradiance": [3.0, 3.0, 3.0]}],
+                    "fibers": {
+                        "generator": "swatch",
+                        "count": 60,
+                        "layers": 3,
+                        "length": 0.4,
+                        "width": 0.24,
+                        "radius": 0.004,
+                        "segments": 12,
+                        "seed": 2,
+                        **({"drape": drape} if drape else {}),
+                    },
+                    "hair": HAIR,
+                    "render": {"spp": spp, "max_depth": 16, "seed": 3},
+                }
+            )
+        )
         entries.append(f'[[images]]\nscene = "scene_{k}.toml"\nimage = "image_{k}.exr"\n')
     (directory / "target.toml").write_text("\n".join(entries))
     make_target(directory, threads=1)
@@ -80,8 +93,10 @@ def test_the_expected_sigma_is_the_scatter_that_the_targets_own_noise_gives_the_
     h_inv = np.linalg.inv(lin.curvature)
     # The loss's weights are the target's, one factor per image that does not move the minimum: the committed
     # target's weights serve for every render of it.
-    weights = [loss_weights(pool_like_loss(image, image.image, None, settings.pool)[0], settings.loss)
-               for image in target.images]
+    weights = [
+        loss_weights(pool_like_loss(image, image.image, None, settings.pool)[0], settings.loss)
+        for image in target.images
+    ]
     estimates = []
     for seed in range(200):
         t = []
@@ -98,8 +113,10 @@ def test_the_check_needs_values_to_check_at(tmp_path, capsys):
     directory = write_target(tmp_path / "t", [[0.2, -0.3, -1.0]], 0.15, 8)
     (directory / "truth.json").unlink()
     assert main(["targets", "check", str(directory)]) == 2
-    assert "no true value for albedo, beta_m, beta_n (the target has no truth.json); give the controls to check " \
-           "at (--at NAME=V)" in capsys.readouterr().err
+    assert (
+        "no true value for albedo, beta_m, beta_n (the target has no truth.json); give the controls to check "
+        "at (--at NAME=V)" in capsys.readouterr().err
+    )
     target = load_target(directory)
     with pytest.raises(ValueError, match=r"values given for \['eta'\], which are not checked"):
         check_target(copy.deepcopy(target), {**HAIR, "eta": 1.5})

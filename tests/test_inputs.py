@@ -13,27 +13,30 @@ from warp_hair.model.params import HairParams
 @pytest.mark.parametrize(
     "controls,pattern",
     [
-        (dict(albedo=[0.5, 1.2, 0.5]), r"albedo\[g\] = 1.2 is outside the allowed range \(0.0, 1.0\]"),
-        (dict(albedo=0.0), r"albedo\[r\] = 0.0 is outside the allowed range \(0.0, 1.0\]"),
-        (dict(albedo=[0.5, 0.5]), r"albedo must be one number or three"),
-        (dict(sigma_a=[-0.1, 0.0, 0.0]), r"sigma_a\[r\] = -0.1 is outside the allowed range \[0.0, 1e\+30\]"),
-        (dict(eumelanin=-1.0), r"eumelanin = -1.0 is outside the allowed range"),
-        (dict(albedo=0.5, beta_m=1.5), r"beta_m = 1.5 is outside the allowed range \[0.0, 1.0\]"),
-        (dict(albedo=0.5, beta_n=-0.2), r"beta_n = -0.2 is outside the allowed range \[0.0, 1.0\]"),
-        (dict(albedo=0.5, alpha=45.0), r"alpha = 45.0 is outside the allowed range \[-30.0, 30.0\]"),
-        (dict(albedo=0.5, eta=1.0), r"eta = 1.0 is outside the allowed range \(1.0, 10.0\]"),
+        ({"albedo": [0.5, 1.2, 0.5]}, r"albedo\[g\] = 1.2 is outside the allowed range \(0.0, 1.0\]"),
+        ({"albedo": 0.0}, r"albedo\[r\] = 0.0 is outside the allowed range \(0.0, 1.0\]"),
+        ({"albedo": [0.5, 0.5]}, r"albedo must be one number or three"),
+        ({"sigma_a": [-0.1, 0.0, 0.0]}, r"sigma_a\[r\] = -0.1 is outside the allowed range \[0.0, 1e\+30\]"),
+        ({"eumelanin": -1.0}, r"eumelanin = -1.0 is outside the allowed range"),
+        ({"albedo": 0.5, "beta_m": 1.5}, r"beta_m = 1.5 is outside the allowed range \[0.0, 1.0\]"),
+        ({"albedo": 0.5, "beta_n": -0.2}, r"beta_n = -0.2 is outside the allowed range \[0.0, 1.0\]"),
+        ({"albedo": 0.5, "alpha": 45.0}, r"alpha = 45.0 is outside the allowed range \[-30.0, 30.0\]"),
+        ({"albedo": 0.5, "eta": 1.0}, r"eta = 1.0 is outside the allowed range \(1.0, 10.0\]"),
         # Above 1 in float64 but 1 in float32, where the kernels evaluate the BSDF.
-        (dict(albedo=0.5, eta=1.000000001), r"eta = 1.000000001 is outside .*\(1.0, 10.0\] in float32.*rounds to 1.0"),
+        ({"albedo": 0.5, "eta": 1.000000001}, r"eta = 1.000000001 is outside .*\(1.0, 10.0\] in float32.*rounds to 1.0"),
         # Nested lists are not flattened: the key is named.
-        (dict(albedo=[[0.5, 0.5, 0.5]]), r"albedo must be one number or three \(RGB\), in a flat list"),
-        (dict(sigma_a=[[0.5], [0.5], [0.5]]), r"sigma_a must be one number or three \(RGB\), in a flat list"),
-        (dict(sigma_a=[0.5, [0.5], 0.5]), r"sigma_a\[g\] must be a number"),
-        (dict(albedo=0.5, r_roughness_scale=0.0), r"r_roughness_scale = 0.0 is outside the allowed range \[1e-06, 1000000.0\]"),
-        (dict(albedo=0.5, beta_m=float("nan")), r"beta_m must be finite"),
-        (dict(albedo=0.5, eta="glass"), r"eta must be a number, got 'glass'"),
-        (dict(), r"exactly one colour input.*got none"),
-        (dict(albedo=0.5, sigma_a=0.1), r"exactly one colour input.*got albedo, sigma_a"),
-        (dict(sigma_a=0.1, eumelanin=1.0), r"exactly one colour input.*got sigma_a, eumelanin/pheomelanin"),
+        ({"albedo": [[0.5, 0.5, 0.5]]}, r"albedo must be one number or three \(RGB\), in a flat list"),
+        ({"sigma_a": [[0.5], [0.5], [0.5]]}, r"sigma_a must be one number or three \(RGB\), in a flat list"),
+        ({"sigma_a": [0.5, [0.5], 0.5]}, r"sigma_a\[g\] must be a number"),
+        (
+            {"albedo": 0.5, "r_roughness_scale": 0.0},
+            r"r_roughness_scale = 0.0 is outside the allowed range \[1e-06, 1000000.0\]",
+        ),
+        ({"albedo": 0.5, "beta_m": float("nan")}, r"beta_m must be finite"),
+        ({"albedo": 0.5, "eta": "glass"}, r"eta must be a number, got 'glass'"),
+        ({}, r"exactly one colour input.*got none"),
+        ({"albedo": 0.5, "sigma_a": 0.1}, r"exactly one colour input.*got albedo, sigma_a"),
+        ({"sigma_a": 0.1, "eumelanin": 1.0}, r"exactly one colour input.*got sigma_a, eumelanin/pheomelanin"),
     ],
 )
 def test_bad_controls_name_the_parameter(controls, pattern):
@@ -87,13 +90,22 @@ WO = np.array([[0.0, 0.0, 1.0]])
 @pytest.mark.parametrize(
     "call,pattern",
     [
-        (lambda: wh.bsdf.eval(PARAMS, np.zeros((4, 2)), WO, 0.0), r"wo must have shape \(N, 3\) or \(3,\), got \(4, 2\)"),
-        (lambda: wh.bsdf.eval(PARAMS, WO, [[0.0, 0.0, 2.0]], 0.0), r"wi must hold unit vectors .* wi\[0\] has length 2"),
+        (
+            lambda: wh.bsdf.eval(PARAMS, np.zeros((4, 2)), WO, 0.0),
+            r"wo must have shape \(N, 3\) or \(3,\), got \(4, 2\)",
+        ),
+        (
+            lambda: wh.bsdf.eval(PARAMS, WO, [[0.0, 0.0, 2.0]], 0.0),
+            r"wi must hold unit vectors .* wi\[0\] has length 2",
+        ),
         (lambda: wh.bsdf.eval(PARAMS, WO, WO, 1.5), r"h must lie in \[-1, 1\]; h\[0\] = 1.5"),
         (lambda: wh.bsdf.pdf(PARAMS, WO, [[np.nan, 0.0, 1.0]], 0.0), r"wi contains NaN or Inf"),
         (lambda: wh.bsdf.pdf(PARAMS, WO, WO, [0.0, np.inf]), r"h contains NaN or Inf"),
         (lambda: wh.bsdf.sample(PARAMS, WO, 0.0, [[0.5, 1.0, 0.5]]), r"u must lie in \[0, 1\); u\[0, 1\] = 1.0"),
-        (lambda: wh.bsdf.sample(PARAMS, WO, 0.0, np.zeros((5, 2))), r"u must have shape \(N, 3\) or \(3,\), got \(5, 2\)"),
+        (
+            lambda: wh.bsdf.sample(PARAMS, WO, 0.0, np.zeros((5, 2))),
+            r"u must have shape \(N, 3\) or \(3,\), got \(5, 2\)",
+        ),
         (
             lambda: wh.bsdf.eval(PARAMS, np.tile(WO, (3, 1)), np.tile(WO, (2, 1)), 0.0),
             r"different lengths \(wo: 3, wi: 2, h: 1\); wi must have length 1 or 3",

@@ -71,8 +71,18 @@ def segment_distances(p0, p1, q0, q1):
 
 
 def test_a_wavy_swatch_agrees_with_a_float64_brute_force():
-    fibers = wavy(count=12, layers=2, length=0.2, radius=0.004, width=0.05, amplitude=0.006, wavelength=0.08,
-                  phase_jitter=1.0, segments=12, seed=3)
+    fibers = wavy(
+        count=12,
+        layers=2,
+        length=0.2,
+        radius=0.004,
+        width=0.05,
+        amplitude=0.006,
+        wavelength=0.08,
+        phase_jitter=1.0,
+        segments=12,
+        seed=3,
+    )
     p0, p1, r0, r1, strand, _ = fibers.segments()
     p0, p1 = p0.astype(np.float64), p1.astype(np.float64)
     distance = segment_distances(p0, p1, p0, p1)
@@ -92,11 +102,27 @@ def test_a_wavy_swatch_agrees_with_a_float64_brute_force():
 
 def test_loading_an_interpenetrating_scene_warns_once_and_names_the_rule():
     data = {
-        "camera": {"type": "orthographic", "origin": [0, 0, 3], "target": [0, 0, 0], "up": [0, 1, 0], "width": 0.3,
-                   "resolution": [8, 8]},
+        "camera": {
+            "type": "orthographic",
+            "origin": [0, 0, 3],
+            "target": [0, 0, 0],
+            "up": [0, 1, 0],
+            "width": 0.3,
+            "resolution": [8, 8],
+        },
         "lights": [{"type": "directional", "direction": [0, 0, -1], "irradiance": [1, 1, 1]}],
-        "fibers": {"generator": "wavy", "count": 12, "layers": 2, "length": 0.2, "width": 0.05, "amplitude": 0.006,
-                   "wavelength": 0.08, "phase_jitter": 1.0, "segments": 12, "seed": 3},
+        "fibers": {
+            "generator": "wavy",
+            "count": 12,
+            "layers": 2,
+            "length": 0.2,
+            "width": 0.05,
+            "amplitude": 0.006,
+            "wavelength": 0.08,
+            "phase_jitter": 1.0,
+            "segments": 12,
+            "seed": 3,
+        },
         "hair": {"albedo": 0.5},
         "render": {"interpenetration": "exit"},
     }
@@ -191,22 +217,31 @@ def test_exit_skips_the_whole_strand_the_ray_leaves():
 
 def test_bad_rule():
     with pytest.raises(ValueError, match="rule must be 'enter' or 'exit'"):
-        intersect(FiberBVH(two_strands([[0, 0, 0], [1, 0, 0]], [[0, 1, 0], [1, 1, 0]])), [0, 0, 1], [0, 0, -1],
-                  rule="cycles")
+        intersect(
+            FiberBVH(two_strands([[0, 0, 0], [1, 0, 0]], [[0, 1, 0], [1, 1, 0]])), [0, 0, 1], [0, 0, -1], rule="cycles"
+        )
 
 
 # --- the rule in the renderer -----------------------------------------------------------------------------------
 
 
 def small_scene(fibers, rule, light):
-    scene = scene_from_dict({
-        "camera": {"type": "orthographic", "origin": [0, 0, 3], "target": [0, 0, -0.05], "up": [0, 1, 0],
-                   "width": 0.1, "resolution": [12, 12]},
-        "lights": [{"type": "directional", "direction": light, "irradiance": [3, 3, 3]}],
-        "fibers": {"generator": "swatch", "count": 1, "layers": 1},
-        "hair": {"albedo": [0.5, 0.35, 0.25], "beta_m": 0.3, "beta_n": 0.4, "alpha": 0.0},
-        "render": {"spp": 4, "max_depth": 16, "interpenetration": rule},
-    })
+    scene = scene_from_dict(
+        {
+            "camera": {
+                "type": "orthographic",
+                "origin": [0, 0, 3],
+                "target": [0, 0, -0.05],
+                "up": [0, 1, 0],
+                "width": 0.1,
+                "resolution": [12, 12],
+            },
+            "lights": [{"type": "directional", "direction": light, "irradiance": [3, 3, 3]}],
+            "fibers": {"generator": "swatch", "count": 1, "layers": 1},
+            "hair": {"albedo": [0.5, 0.35, 0.25], "beta_m": 0.3, "beta_n": 0.4, "alpha": 0.0},
+            "render": {"spp": 4, "max_depth": 16, "interpenetration": rule},
+        }
+    )
     scene.fibers = fibers
     return scene
 
@@ -217,8 +252,17 @@ def test_the_rules_render_alike_where_strands_do_not_overlap_and_apart_where_the
 
     apart = swatch(count=16, layers=2, length=0.12, segments=6, seed=1)
     assert interpenetration(apart).pairs == 0
-    tangled = wavy(count=16, layers=2, length=0.12, width=0.05, amplitude=0.006, wavelength=0.06, phase_jitter=1.0,
-                   segments=12, seed=1)
+    tangled = wavy(
+        count=16,
+        layers=2,
+        length=0.12,
+        width=0.05,
+        amplitude=0.006,
+        wavelength=0.06,
+        phase_jitter=1.0,
+        segments=12,
+        seed=1,
+    )
     assert interpenetration(tangled).pairs > 5
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", InterpenetrationWarning)
@@ -245,8 +289,9 @@ def test_a_fit_notes_interpenetrating_strands_only_when_another_renderer_made_th
         spec = copy / "target.toml"
         spec.write_text('renderer = "cycles"\n' + spec.read_text())
         note = interpenetration_note(load_target(copy))
-    assert note.startswith("the target's strands interpenetrate (237 pairs of 240 strands) and its images were "
-                           "rendered by cycles")
+    assert note.startswith(
+        "the target's strands interpenetrate (237 pairs of 240 strands) and its images were rendered by cycles"
+    )
     assert 'interpenetration = "enter"' in note
 
 
@@ -261,8 +306,18 @@ def test_the_gradient_pass_traces_the_exit_rule_paths():
     from warp_hair.renderer.render import render
 
     data = sparse_scene_dict(SPARSE_HAIR)
-    data["fibers"] = {"generator": "wavy", "count": 24, "layers": 1, "length": 0.6, "radius": 0.004, "width": 0.2,
-                      "amplitude": 0.01, "wavelength": 0.15, "phase_jitter": 1.0, "seed": 3}
+    data["fibers"] = {
+        "generator": "wavy",
+        "count": 24,
+        "layers": 1,
+        "length": 0.6,
+        "radius": 0.004,
+        "width": 0.2,
+        "amplitude": 0.01,
+        "wavelength": 0.15,
+        "phase_jitter": 1.0,
+        "seed": 3,
+    }
     images = {}
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", InterpenetrationWarning)

@@ -15,8 +15,8 @@ from warp_hair.geometry.assembly import FiberAssembly
 from warp_hair.geometry.formats import load_fibers
 from warp_hair.geometry.generators import wavy
 from warp_hair.geometry.intersect import STACK_SIZE
-from warp_hair.geometry.tubes import FiberBVH
 from warp_hair.geometry.rays import intersect, occluded
+from warp_hair.geometry.tubes import FiberBVH
 
 BENCH_FIBERS = Path(__file__).parents[1] / "benchmarks" / "standard_swatch_fibers.txt"
 T_MIN_RADII = 1e-3
@@ -119,9 +119,7 @@ def reference_closest(tubes, origins, directions, t_max=np.inf):
     segment = np.where(np.isfinite(t_hits.min(axis=1)), t_hits.argmin(axis=1), -1)
     with np.errstate(invalid="ignore"):
         near_edge = (
-            (np.abs(np.abs(c["h"]) - 1) < 1e-4)
-            | (np.abs(c["margin"]) < 5e-3)
-            | (np.abs(c["t_in"] - t_max) < 1e-4)
+            (np.abs(np.abs(c["h"]) - 1) < 1e-4) | (np.abs(c["margin"]) < 5e-3) | (np.abs(c["t_in"] - t_max) < 1e-4)
         )
     return t_hits.min(axis=1), segment, ~near_edge.any(axis=1)
 
@@ -424,7 +422,7 @@ def test_a_ray_across_a_joint_perpendicular_to_the_bend_enters_once():
 
 
 def test_open_ends():
-    fibers, axis = straight_fiber(p0=(0.0, 0.0, 0.0), axis=(1, 0, 0), length=1.0, radius=0.05)
+    fibers, _axis = straight_fiber(p0=(0.0, 0.0, 0.0), axis=(1, 0, 0), length=1.0, radius=0.05)
     bvh = FiberBVH(fibers)
     r = 0.05
     # Along the axis into the open end, on the axis and off it: the ray is inside the tube, no hit.
@@ -450,7 +448,7 @@ def test_a_tilted_end_is_cut_perpendicular_to_its_segment():
     offsets = np.array([0.03, -0.03, 0.03, -0.03])
     along = np.array([-1e-4, -1e-4, 1e-4, 1e-4])
     feet = points[2] + along[:, None] * a + offsets[:, None] * side
-    hit = intersect(bvh, feet + [0.0, 0.0, 1.0], np.broadcast_to([0.0, 0.0, -1.0], feet.shape))
+    hit = intersect(bvh, [*feet, 0.0, 0.0, 1.0], np.broadcast_to([0.0, 0.0, -1.0], feet.shape))
     assert np.isfinite(hit["t"]).tolist() == [True, True, False, False]
 
 
@@ -646,8 +644,9 @@ def test_an_unbalanced_tree_agrees_with_the_float64_brute_force():
     tubes = reference_tubes(fibers)
     rng = np.random.default_rng(8)
     n = 2000
-    targets = np.column_stack([rng.choice(x, n) + rng.normal(scale=0.01, size=n), rng.uniform(-0.6, 0.6, n),
-                               rng.normal(scale=0.01, size=n)])
+    targets = np.column_stack(
+        [rng.choice(x, n) + rng.normal(scale=0.01, size=n), rng.uniform(-0.6, 0.6, n), rng.normal(scale=0.01, size=n)]
+    )
     origins, directions = rays_toward(rng, targets, distance=1.0)
     hit = intersect(bvh, origins, directions)
     t_ref, segment_ref, robust = reference_closest(tubes, origins, directions)
@@ -672,7 +671,7 @@ def rays_down_onto_the_arc(n, first, last, curve_radius=1.0):
     """Rays along −z onto the arc, at angles spread from first to last."""
     angles = np.linspace(first, last, n)
     targets = curve_radius * np.stack([np.cos(angles), np.sin(angles), np.zeros_like(angles)], axis=1)
-    origins = targets + [0.0, 0.0, 1.0]
+    origins = [*targets, 0.0, 0.0, 1.0]
     return origins, np.tile([0.0, 0.0, -1.0], (n, 1))
 
 

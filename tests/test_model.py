@@ -14,7 +14,7 @@ def test_residual_lobe_is_the_series_sum():
     n = 4096
     wo = random_directions(rng, n)
     h = rng.uniform(-0.95, 0.95, n)
-    for colour in (dict(albedo=[0.9, 0.5, 0.2]), dict(sigma_a=[0.05, 0.5, 3.0]), dict(eumelanin=0.3)):
+    for colour in ({"albedo": [0.9, 0.5, 0.2]}, {"sigma_a": [0.05, 0.5, 3.0]}, {"eumelanin": 0.3}):
         A = wh.bsdf.attenuation(wh.HairParams(**colour), wo, h).astype(np.float64)
         f = A[:, 0, :1]
         T = A[:, 1] / (1.0 - f) ** 2

@@ -28,14 +28,25 @@ TRUTH = {"albedo": [0.6, 0.42, 0.25], "beta_m": 0.3, "beta_n": 0.4}
 
 def swatch_text(direction, spp=64):
     """A 40-fiber draped swatch under one directional light, 16×16 pixels."""
-    return toml_text({
-        "camera": front_camera(0.24, (16, 16)),
-        "lights": [{"type": "directional", "direction": direction, "irradiance": [3.0, 3.0, 3.0]}],
-        "fibers": {"generator": "swatch", "count": 40, "layers": 2, "length": 0.3, "width": 0.22, "radius": 0.004,
-                   "drape": 0.15, "segments": 12, "seed": 5},
-        "hair": dict(TRUTH),
-        "render": {"spp": spp, "max_depth": 8, "seed": 2},
-    })
+    return toml_text(
+        {
+            "camera": front_camera(0.24, (16, 16)),
+            "lights": [{"type": "directional", "direction": direction, "irradiance": [3.0, 3.0, 3.0]}],
+            "fibers": {
+                "generator": "swatch",
+                "count": 40,
+                "layers": 2,
+                "length": 0.3,
+                "width": 0.22,
+                "radius": 0.004,
+                "drape": 0.15,
+                "segments": 12,
+                "seed": 5,
+            },
+            "hair": dict(TRUTH),
+            "render": {"spp": spp, "max_depth": 8, "seed": 2},
+        }
+    )
 
 
 @pytest.fixture(scope="module")
@@ -65,9 +76,16 @@ def _analytic_problem(rng, n=600, p=3):
         t = scale * target
         weight = 1.0 / np.sqrt(np.mean(t * t))  # the L2 loss's weight, from the target as it is given
         image = c * np.exp(b @ x)
-        return Linearization(values={}, residuals=weight * (image + render_noise - t), variances=np.zeros((2, n)),
-                             jacobians=weight * ((image[:, None] * b) + jacobian_noise), images=[],
-                             loss_weights=np.full(n, 1.0 / n), targets=weight * t, image_residuals=(n,))
+        return Linearization(
+            values={},
+            residuals=weight * (image + render_noise - t),
+            variances=np.zeros((2, n)),
+            jacobians=weight * ((image[:, None] * b) + jacobian_noise),
+            images=[],
+            loss_weights=np.full(n, 1.0 / n),
+            targets=weight * t,
+            image_residuals=(n,),
+        )
 
     return x0, linearised
 
@@ -110,8 +128,9 @@ def test_a_brighter_target_is_taken_for_a_higher_albedo_and_the_weights_do_not_c
         lin_scaled = linearize(scaled, TRUTH, settings, spp=8, seed=4, threads=1, scenes=scenes)
         np.testing.assert_allclose(lin_scaled.targets, lin.targets, rtol=1e-5)
         # ρ' = ω/1.01 · (I − 1.01 T) = (r + t)/1.01 − t
-        np.testing.assert_allclose(lin_scaled.residuals, (lin.residuals + lin.targets) / 1.01 - lin.targets,
-                                   rtol=1e-5, atol=1e-7)
+        np.testing.assert_allclose(
+            lin_scaled.residuals, (lin.residuals + lin.targets) / 1.01 - lin.targets, rtol=1e-5, atol=1e-7
+        )
         assert np.all(brightness_sensitivity(lin)[:3] > 0)
 
 
@@ -121,8 +140,7 @@ def test_exposure_absorbs_a_uniform_brightness_disagreement(own_target):
     gain of 1.3, so that a Jacobian column of gain·I in place of ∂r/∂gain = ω·I would show."""
     target = load_target(own_target)
     scenes = [prepare(image.scene) for image in target.images]
-    without = brightness_sensitivity(linearize(target, TRUTH, FitSettings(), spp=8, seed=6, threads=1,
-                                               scenes=scenes))
+    without = brightness_sensitivity(linearize(target, TRUTH, FitSettings(), spp=8, seed=6, threads=1, scenes=scenes))
     lin = linearize(target, {**TRUTH, "exposure": 1.3}, FitSettings(), spp=8, seed=6, threads=1, scenes=scenes)
     sensitivity = brightness_sensitivity(lin)
     assert sensitivity[-1] == pytest.approx(1.3, rel=1e-6)
@@ -138,9 +156,16 @@ def _linearization(rng, n=999):
     jacobian = rng.standard_normal((n, 2)) * np.array([1.0, 0.3])
     residuals = 0.05 * rng.standard_normal((2, n))
     jacobians = jacobian + 0.01 * rng.standard_normal((2, n, 2))
-    return Linearization(values={"beta_m": 0.3, "beta_n": 0.4}, residuals=residuals,
-                         variances=np.full((2, n), 0.05**2), jacobians=jacobians, images=[],
-                         loss_weights=np.full(n, 1.0 / n), targets=rng.uniform(0.5, 1.5, n), image_residuals=(n,))
+    return Linearization(
+        values={"beta_m": 0.3, "beta_n": 0.4},
+        residuals=residuals,
+        variances=np.full((2, n), 0.05**2),
+        jacobians=jacobians,
+        images=[],
+        loss_weights=np.full(n, 1.0 / n),
+        targets=rng.uniform(0.5, 1.5, n),
+        image_residuals=(n,),
+    )
 
 
 def _estimated(lin, model_error, mc):
@@ -171,15 +196,26 @@ def test_model_error_adds_its_own_part_and_zero_adds_nothing():
 def test_the_model_part_is_written_and_printed():
     rng = np.random.default_rng(13)
     result = _estimated(_linearization(rng), 0.01, None)
-    fit_result = types.SimpleNamespace(values={"beta_m": 0.31, "beta_n": 0.39}, uncertainties=result.uncertainties,
-                                       uncertainty_parts=result.parts)
+    fit_result = types.SimpleNamespace(
+        values={"beta_m": 0.31, "beta_n": 0.39}, uncertainties=result.uncertainties, uncertainty_parts=result.parts
+    )
     table = format_table(fit_result, {"beta_m": 0.3, "beta_n": 0.4}, "mitsuba")
     header = table.splitlines()[0].split("  ")
-    assert [cell.strip() for cell in header if cell.strip()] == ["control", "fitted", "± 1σ", "± noise", "± model",
-                                                                   "true", "error"]
+    assert [cell.strip() for cell in header if cell.strip()] == [
+        "control",
+        "fitted",
+        "± 1σ",
+        "± noise",
+        "± model",
+        "true",
+        "error",
+    ]
     assert "1% disagreement in brightness between mitsuba" in table
-    plain = types.SimpleNamespace(values=fit_result.values, uncertainties=result.parts["noise"],
-                                  uncertainty_parts={**result.parts, "model_error": 0.0})
+    plain = types.SimpleNamespace(
+        values=fit_result.values,
+        uncertainties=result.parts["noise"],
+        uncertainty_parts={**result.parts, "model_error": 0.0},
+    )
     assert "± model" not in format_table(plain, {})
 
 
@@ -192,11 +228,15 @@ def test_bad_model_errors_are_refused(own_target, value):
 
 @pytest.mark.parametrize("text", ["-0.01", "nan", "inf"])
 def test_the_commands_refuse_bad_model_errors(own_target, tmp_path, capsys, text):
-    for command in (["fit", str(own_target), "-o", str(tmp_path / "out"), "--iters", "1"],
-                    ["targets", "check", str(own_target)]):
-        assert main(command + ["--model-error", text]) == 2
-        assert f"--model-error must be a finite number >= 0 (a relative brightness disagreement, e.g. 0.01 for 1%; 0 " \
-               f"for none), got {float(text)!r}" in capsys.readouterr().err
+    for command in (
+        ["fit", str(own_target), "-o", str(tmp_path / "out"), "--iters", "1"],
+        ["targets", "check", str(own_target)],
+    ):
+        assert main([*command, "--model-error", text]) == 2
+        assert (
+            f"--model-error must be a finite number >= 0 (a relative brightness disagreement, e.g. 0.01 for 1%; 0 "
+            f"for none), got {float(text)!r}" in capsys.readouterr().err
+        )
     assert not (tmp_path / "out").exists()
 
 
@@ -220,11 +260,20 @@ def test_the_default_model_error_follows_who_rendered_the_target(own_target, tmp
 def test_params_json_holds_the_parts(tmp_path):
     rng = np.random.default_rng(14)
     result = _estimated(_linearization(rng), 0.01, None)
-    fit_result = types.SimpleNamespace(target="t", values={"beta_m": 0.31, "beta_n": 0.39}, start={}, loss=0.1,
-                                       uncertainties=result.uncertainties, uncertainty_parts=result.parts,
-                                       iterations=1, history=types.SimpleNamespace(refine=()), stop_reason="iterations",
-                                       seconds=1.0, warnings=[],
-                                       correlations={})
+    fit_result = types.SimpleNamespace(
+        target="t",
+        values={"beta_m": 0.31, "beta_n": 0.39},
+        start={},
+        loss=0.1,
+        uncertainties=result.uncertainties,
+        uncertainty_parts=result.parts,
+        iterations=1,
+        history=types.SimpleNamespace(refine=()),
+        stop_reason="iterations",
+        seconds=1.0,
+        warnings=[],
+        correlations={},
+    )
     look = types.SimpleNamespace(to_dict=dict)
     write_params(tmp_path / "params.json", fit_result, {}, look)
     data = json.loads((tmp_path / "params.json").read_text())

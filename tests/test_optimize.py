@@ -13,28 +13,40 @@ import torch
 from helpers.scenes import front_camera, toml_text
 
 from optimize.cli import main
-from optimize.latents import SPECS, parse_control_names
 from optimize.fit import Batches, FitSettings, check_settings, spp_at
+from optimize.latents import SPECS, parse_control_names
 from optimize.linearize import Linearization, linearize
 from optimize.losses import image_loss, loss_scale
-from optimize.refine import drifting, chi2_quantile, inside, mean_covariance, within_noise
-from optimize.uncertainty import estimate_uncertainty
+from optimize.refine import chi2_quantile, drifting, inside, mean_covariance, within_noise
 from optimize.target import SHIPPED_TARGETS, load_target, make_target, shipped_targets
+from optimize.uncertainty import estimate_uncertainty
 from warp_hair.io import read_exr, write_exr
 from warp_hair.model.params import TALK_ALBEDO_INVERSION
 from warp_hair.renderer.render import render
 from warp_hair.torch import default_grad_seed, scene_with_controls
 
+
 def scene_text(w, h, dz, red):
     """A 30-fiber draped swatch lit from the front (dz < 0) or from behind, w×h pixels."""
-    return toml_text({
-        "camera": front_camera(0.2, (w, h)),
-        "lights": [{"type": "directional", "direction": [0.2, -0.3, dz], "irradiance": [3.0, 3.0, 3.0]}],
-        "fibers": {"generator": "swatch", "count": 30, "layers": 2, "length": 0.3, "width": 0.2, "radius": 0.004,
-                   "drape": 0.2, "segments": 12, "seed": 5},
-        "hair": {"albedo": [red, 0.4, 0.3], "beta_m": 0.3, "beta_n": 0.4},
-        "render": {"spp": 4, "max_depth": 8},
-    })
+    return toml_text(
+        {
+            "camera": front_camera(0.2, (w, h)),
+            "lights": [{"type": "directional", "direction": [0.2, -0.3, dz], "irradiance": [3.0, 3.0, 3.0]}],
+            "fibers": {
+                "generator": "swatch",
+                "count": 30,
+                "layers": 2,
+                "length": 0.3,
+                "width": 0.2,
+                "radius": 0.004,
+                "drape": 0.2,
+                "segments": 12,
+                "seed": 5,
+            },
+            "hair": {"albedo": [red, 0.4, 0.3], "beta_m": 0.3, "beta_n": 0.4},
+            "render": {"spp": 4, "max_depth": 8},
+        }
+    )
 
 
 def write_target(directory, w=8, h=6, red=0.6, image_shape=None, extra="", back_red=None):
@@ -42,7 +54,8 @@ def write_target(directory, w=8, h=6, red=0.6, image_shape=None, extra="", back_
     (directory / "scene_front.toml").write_text(scene_text(w, h, -1.0, red))
     (directory / "scene_back.toml").write_text(scene_text(w, h, 1.0, red if back_red is None else back_red))
     (directory / "target.toml").write_text(
-        '[[images]]\nscene = "scene_front.toml"\nimage = "front.exr"\n' + extra
+        '[[images]]\nscene = "scene_front.toml"\nimage = "front.exr"\n'
+        + extra
         + '\n[[images]]\nscene = "scene_back.toml"\nimage = "back.exr"\n'
     )
     shape = image_shape or (h, w, 3)
@@ -115,7 +128,9 @@ def test_losses_against_their_formulas():
     scale = b + 0.01 * b.mean()
     assert torch.isclose(image_loss(a, b, "rel_l2"), (((a - b) / scale) ** 2).mean())
     blocks = lambda x: x[:8, :10].reshape(4, 2, 5, 2, 3).mean(dim=(1, 3))  # noqa: E731
-    assert torch.isclose(image_loss(a[:8, :10], b[:8, :10], pool=2), ((blocks(a) - blocks(b)) ** 2).mean() / (blocks(b) ** 2).mean())
+    assert torch.isclose(
+        image_loss(a[:8, :10], b[:8, :10], pool=2), ((blocks(a) - blocks(b)) ** 2).mean() / (blocks(b) ** 2).mean()
+    )
 
 
 def test_pooled_loss_averages_blocks_and_skips_masked_pixels():
@@ -153,12 +168,28 @@ def test_target_loads_with_truth_and_mask(tmp_path):
     [
         (lambda d: (d / "target.toml").unlink(), "target.toml: not found"),
         (lambda d: (d / "front.exr").unlink(), "front.exr: target image not found"),
-        (lambda d: write_exr(d / "front.exr", np.zeros((5, 8, 3), np.float32)), r"8x5 pixels but scene_front.toml's camera renders 8x6"),
-        (lambda d: write_exr(d / "back.exr", np.where(np.arange(48).reshape(6, 8, 1) == 13, np.nan, 0.1).repeat(3, 2).astype(np.float32)),
-         r"back.exr: 3 NaN or infinite value\(s\), the first at pixel \(x=5, y=1\)"),
+        (
+            lambda d: write_exr(d / "front.exr", np.zeros((5, 8, 3), np.float32)),
+            r"8x5 pixels but scene_front.toml's camera renders 8x6",
+        ),
+        (
+            lambda d: write_exr(
+                d / "back.exr",
+                np.where(np.arange(48).reshape(6, 8, 1) == 13, np.nan, 0.1).repeat(3, 2).astype(np.float32),
+            ),
+            r"back.exr: 3 NaN or infinite value\(s\), the first at pixel \(x=5, y=1\)",
+        ),
         (lambda d: write_exr(d / "back.exr", -np.ones((6, 8, 3), np.float32)), "negative radiance"),
-        (lambda d: (d / "target.toml").write_text('[[images]]\nscene = "scene_front.toml"\n'), r'needs image = "<file name>"'),
-        (lambda d: (d / "target.toml").write_text('[[images]]\nscene = "scene_front.toml"\nimage = "front.exr"\nweight = 2\n'), r"unknown key\(s\) \['weight'\]"),
+        (
+            lambda d: (d / "target.toml").write_text('[[images]]\nscene = "scene_front.toml"\n'),
+            r'needs image = "<file name>"',
+        ),
+        (
+            lambda d: (d / "target.toml").write_text(
+                '[[images]]\nscene = "scene_front.toml"\nimage = "front.exr"\nweight = 2\n'
+            ),
+            r"unknown key\(s\) \['weight'\]",
+        ),
         (lambda d: (d / "truth.json").write_text('{"albedo": 0.5, "beta": 0.3}'), r"unknown key\(s\) \['beta'\]"),
     ],
 )
@@ -201,8 +232,17 @@ def test_linearisation_reproduces_the_loss_and_its_gradient_crosses_the_passes()
         for k, image in enumerate(target.images):
             scene = scene_with_controls(image.scene, truth)
             for seed in (3 + k, default_grad_seed(3 + k)):
-                losses.append(float(image_loss(torch.from_numpy(render(scene, spp=2, seed=seed)),
-                                               torch.from_numpy(image.image), loss, None, settings.pool)))
+                losses.append(
+                    float(
+                        image_loss(
+                            torch.from_numpy(render(scene, spp=2, seed=seed)),
+                            torch.from_numpy(image.image),
+                            loss,
+                            None,
+                            settings.pool,
+                        )
+                    )
+                )
         assert lin.loss == pytest.approx(np.mean(losses), rel=1e-5)
         (r1, r2), (a1, a2), w = lin.residuals, lin.jacobians, lin.loss_weights
         assert w.sum() == pytest.approx(1.0)
@@ -219,8 +259,14 @@ def _noisy_linearization(rng, jacobian, offset, noise, jacobian_noise, channel_c
     rho = channel_correlation
     residuals = jacobian @ offset + noise * (np.sqrt(1 - rho) * own + np.sqrt(rho) * shared)
     jacobians = jacobian + jacobian_noise * rng.standard_normal((2, *jacobian.shape))
-    return Linearization(values={}, residuals=residuals, variances=np.full((2, n), noise**2), jacobians=jacobians,
-                         images=[], loss_weights=np.full(n, 1.0 / n))
+    return Linearization(
+        values={},
+        residuals=residuals,
+        variances=np.full((2, n), noise**2),
+        jacobians=jacobians,
+        images=[],
+        loss_weights=np.full(n, 1.0 / n),
+    )
 
 
 def test_curvature_is_unbiased_where_the_jacobian_is_mostly_noise():
@@ -431,8 +477,10 @@ def test_refine_steps_stay_inside_the_ranges():
 )
 def test_fit_command_errors(tmp_path, capsys, args, message):
     directory = write_target(tmp_path / "t")
-    assert main(["fit", str(directory), "-o", str(tmp_path / "out"), "--iters", "1"] + args) == 2
-    assert message.replace("\\", "") in capsys.readouterr().err.replace("\\", "") or pytest.fail(capsys.readouterr().err)
+    assert main(["fit", str(directory), "-o", str(tmp_path / "out"), "--iters", "1", *args]) == 2
+    assert message.replace("\\", "") in capsys.readouterr().err.replace("\\", "") or pytest.fail(
+        capsys.readouterr().err
+    )
 
 
 def test_fit_command_names_a_missing_target(tmp_path, capsys):
@@ -448,9 +496,17 @@ def test_fit_command_names_a_missing_target(tmp_path, capsys):
 def test_shipped_targets_are_complete():
     names = [d.name for d in shipped_targets()]
     own = ["auburn_curly", "black_straight", "blonde_straight", "brown_wavy", "chestnut_straight", "fur_patch"]
-    peers = [f"{peer}_{look}" for peer in ("cycles", "mitsuba") for look in ("blonde_straight", "brown_straight", "dark_wavy")]
+    peers = [
+        f"{peer}_{look}"
+        for peer in ("cycles", "mitsuba")
+        for look in ("blonde_straight", "brown_straight", "dark_wavy")
+    ]
     # The Cycles swatches as a camera saves them (benchmarks/make_photo_targets.py, issue 22).
-    photos = [f"photo_{look}_{kind}" for look in ("blonde_straight", "brown_straight", "dark_wavy") for kind in ("jpeg", "png")]
+    photos = [
+        f"photo_{look}_{kind}"
+        for look in ("blonde_straight", "brown_straight", "dark_wavy")
+        for kind in ("jpeg", "png")
+    ]
     assert names == sorted(own + peers + photos)
     for name in photos:
         target = load_target(SHIPPED_TARGETS / name)

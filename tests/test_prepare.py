@@ -17,8 +17,14 @@ from warp_hair.torch import render_torch_pair, scene_with_controls
 def small_scene():
     return scene_from_dict(
         {
-            "camera": {"type": "orthographic", "origin": [0.0, 0.0, 3.0], "target": [0.0, 0.0, 0.0],
-                       "up": [0.0, 1.0, 0.0], "width": 0.3, "resolution": [12, 10]},
+            "camera": {
+                "type": "orthographic",
+                "origin": [0.0, 0.0, 3.0],
+                "target": [0.0, 0.0, 0.0],
+                "up": [0.0, 1.0, 0.0],
+                "width": 0.3,
+                "resolution": [12, 10],
+            },
             "lights": [
                 {"type": "directional", "direction": [0.3, -0.4, -1.0], "irradiance": [3.0, 3.0, 3.0]},
                 {"type": "environment", "radiance": [0.3, 0.3, 0.3]},
@@ -102,7 +108,9 @@ def test_fit_builds_each_images_scene_once(monkeypatch):
 
     scene = small_scene()
     back = dataclasses.replace(scene, lights=[scene.lights[1]])
-    images = [TargetImage(name, s, render(s, spp=8, seed=11), None, None) for name, s in (("front", scene), ("back", back))]
+    images = [
+        TargetImage(name, s, render(s, spp=8, seed=11), None, None) for name, s in (("front", scene), ("back", back))
+    ]
     target = Target("tiny", None, images, None)
     built = []
     original = PreparedScene.__init__

@@ -128,9 +128,12 @@ def test_threads_do_not_change_the_image():
 def test_a_subset_of_pixels_renders_as_in_the_whole_image():
     """A fit's mini-batch renders some pixels only: each must come out as in the whole image (its own random
     stream), image, standard error and Jacobian alike, and the others 0."""
-    scene = swatch_scene({"albedo": [0.6, 0.4, 0.2]},
-                         [{"type": "directional", "direction": [0.3, -0.4, -1.0], "irradiance": [3.0, 3.0, 3.0]}],
-                         resolution=(20, 16), render_table={"spp": 4, "max_depth": 16, "seed": 9})
+    scene = swatch_scene(
+        {"albedo": [0.6, 0.4, 0.2]},
+        [{"type": "directional", "direction": [0.3, -0.4, -1.0], "irradiance": [3.0, 3.0, 3.0]}],
+        resolution=(20, 16),
+        render_table={"spp": 4, "max_depth": 16, "seed": 9},
+    )
     pixels = np.random.default_rng(0).choice(20 * 16, 37, replace=False)
     chosen = np.zeros(20 * 16, bool)
     chosen[pixels] = True

@@ -77,8 +77,16 @@ def scene_from_dict_like(scene, hair):
 
 @pytest.mark.parametrize(
     "name, component",
-    [("albedo", 0), ("albedo", 1), ("albedo", 2), ("beta_m", None), ("beta_n", None), ("alpha", None), ("eta", None),
-     ("r_roughness_scale", None)],
+    [
+        ("albedo", 0),
+        ("albedo", 1),
+        ("albedo", 2),
+        ("beta_m", None),
+        ("beta_n", None),
+        ("alpha", None),
+        ("eta", None),
+        ("r_roughness_scale", None),
+    ],
 )
 def test_gradient_matches_finite_differences(fd_case, name, component):
     """Every control (albedo input, so ∂/∂β_n includes the albedo inversion) within max(3%, 3 standard errors)."""

@@ -2,23 +2,23 @@
 
 import numpy as np
 import pytest
-from scipy.stats import chi2
 from helpers.sphere import from_angles, midpoint_grid
+from scipy.stats import chi2
 
 import warp_hair as wh
 
 # (beta_m, beta_n, theta_o in degrees, h, colour): β_n ≥ 0.3 as in Mitsuba's test; several β_m, θ_o, h.
 CHI2_CASES = [
-    (0.1, 0.3, 30.0, 0.2, dict(albedo=[0.8, 0.6, 0.4])),
-    (0.3, 0.3, -60.0, -0.9, dict(albedo=[0.8, 0.6, 0.4])),
-    (0.3, 0.5, 0.0, 0.0, dict(sigma_a=0.0)),
-    (0.5, 0.3, 45.0, 0.95, dict(eumelanin=1.3)),
-    (0.7, 0.9, -20.0, -0.5, dict(albedo=0.9)),
-    (0.2, 0.6, 75.0, 0.6, dict(sigma_a=[0.1, 0.3, 0.9])),
-    (1.0, 0.4, 10.0, -0.3, dict(albedo=[0.3, 0.2, 0.1])),
-    (0.15, 0.35, -80.0, 0.99, dict(sigma_a=0.0)),
+    (0.1, 0.3, 30.0, 0.2, {"albedo": [0.8, 0.6, 0.4]}),
+    (0.3, 0.3, -60.0, -0.9, {"albedo": [0.8, 0.6, 0.4]}),
+    (0.3, 0.5, 0.0, 0.0, {"sigma_a": 0.0}),
+    (0.5, 0.3, 45.0, 0.95, {"eumelanin": 1.3}),
+    (0.7, 0.9, -20.0, -0.5, {"albedo": 0.9}),
+    (0.2, 0.6, 75.0, 0.6, {"sigma_a": [0.1, 0.3, 0.9]}),
+    (1.0, 0.4, 10.0, -0.3, {"albedo": [0.3, 0.2, 0.1]}),
+    (0.15, 0.35, -80.0, 0.99, {"sigma_a": 0.0}),
     # A strong tilt: the sampler must rotate each lobe the way pdf does.
-    (0.1, 0.4, 15.0, -0.2, dict(albedo=[0.8, 0.6, 0.4], alpha=12.0)),
+    (0.1, 0.4, 15.0, -0.2, {"albedo": [0.8, 0.6, 0.4], "alpha": 12.0}),
 ]
 SIGNIFICANCE = 0.01
 # Narrow lobes near the poles vary fastest in sin θ: more sub-cells along it.

@@ -189,7 +189,11 @@ BAD_SCENES = [
     (("lights",), {"type": "directional"}, r"scene.toml: lights must be an array of tables ([[lights]])"),
     (("lights", 0, "type"), "spot", r"scene.toml: [[lights]] #1 type must be one of ['directional', 'environment']"),
     (("lights", 0, "direction"), [0, 0, 0], r"scene.toml: [[lights]] #1 direction must be a nonzero vector"),
-    (("lights", 0, "irradiance"), [1, -1, 1], r"scene.toml: [[lights]] #1 irradiance must be three numbers in [0, 1e+12]"),
+    (
+        ("lights", 0, "irradiance"),
+        [1, -1, 1],
+        r"scene.toml: [[lights]] #1 irradiance must be three numbers in [0, 1e+12]",
+    ),
     (("lights", 0, "radiance"), [1, 1, 1], r"scene.toml: [[lights]] #1 unknown key(s) ['radiance']"),
     (("lights", 1, "file"), "nowhere.exr", r"scene.toml: [[lights]] #2 file not found: "),
     (("lights", 1, "radiance"), [1, 1, 1], r"scene.toml: [[lights]] #2 needs exactly one of radiance"),

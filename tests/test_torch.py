@@ -72,8 +72,10 @@ def test_pair_meets_each_adjoint_with_the_other_images_jacobian():
     loss = 0.5 * ((pair[0] - 0.2) ** 2).sum() + 0.5 * ((pair[1] - 0.05) ** 2).sum()
     loss.backward()
     adjoints = [(pair[0] - 0.2).detach().numpy(), (pair[1] - 0.05).detach().numpy()]
-    crossed = [render_grad(substituted, adjoints[0], spp=8, seed=seeds[1]),
-               render_grad(substituted, adjoints[1], spp=8, seed=seeds[0])]
+    crossed = [
+        render_grad(substituted, adjoints[0], spp=8, seed=seeds[1]),
+        render_grad(substituted, adjoints[1], spp=8, seed=seeds[0]),
+    ]
     np.testing.assert_allclose(albedo.grad.numpy(), crossed[0]["albedo"] + crossed[1]["albedo"], rtol=1e-5)
     np.testing.assert_allclose(beta_m.grad.item(), crossed[0]["beta_m"] + crossed[1]["beta_m"], rtol=1e-5)
     uncrossed = sum(render_grad(substituted, a, spp=8, seed=seed)["beta_m"] for a, seed in zip(adjoints, seeds))

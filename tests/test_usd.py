@@ -7,13 +7,13 @@ import numpy as np
 import pytest
 
 pxr = pytest.importorskip("pxr", reason="usd-core is the `usd` extra")
+from helpers.curves import FORMS, dense_curve, distance_to_polyline  # noqa: E402
 from pxr import Gf, Usd, UsdGeom  # noqa: E402
 
 from warp_hair.geometry.formats import load_fibers, save_fibers
 from warp_hair.geometry.generators import swatch
-from warp_hair.scene import load_scene  # noqa: E402
 from warp_hair.geometry.usd import UsdCurveError, read_usd
-from helpers.curves import FORMS, dense_curve, distance_to_polyline  # noqa: E402
+from warp_hair.scene import load_scene  # noqa: E402
 
 RNG = np.random.default_rng(7)
 SEGMENTS = 5
@@ -30,13 +30,23 @@ def expected_polyline(cv, basis, wrap, segments=SEGMENTS):
         if wrap == "pinned" and basis != "bezier":
             cv = np.concatenate([[2 * cv[0] - cv[1]], cv, [2 * cv[-1] - cv[-2]]])
         spans = (len(cv) - 4) // step + 1
-        window = lambda i: cv[i * step:i * step + 4]  # noqa: E731
+        window = lambda i: cv[i * step : i * step + 4]  # noqa: E731
     points = [form(window(i), t) for i in range(spans) for t in np.arange(segments) / segments]
-    return np.array(points + [form(window(spans - 1), 1.0)])
+    return np.array([*points, form(window(spans - 1), 1.0)])
 
 
-def write_stage(path, curves, *, basis="bspline", kind="cubic", wrap="nonperiodic", widths=None,
-                interpolation="vertex", transform=None, prim="/Groom/hair"):
+def write_stage(
+    path,
+    curves,
+    *,
+    basis="bspline",
+    kind="cubic",
+    wrap="nonperiodic",
+    widths=None,
+    interpolation="vertex",
+    transform=None,
+    prim="/Groom/hair",
+):
     stage = Usd.Stage.CreateNew(str(path))
     xform = UsdGeom.Xform.Define(stage, "/Groom")
     if transform is not None:
@@ -96,8 +106,11 @@ def test_cubic_curves_are_traced_within_the_tolerance(tmp_path, basis):
 def test_pinned_curves_end_on_their_end_points(tmp_path):
     (cv,) = control_points(1, 5)
     for basis in ("bspline", "catmullRom"):
-        fibers = read_usd(write_stage(tmp_path / f"{basis}.usda", [cv], basis=basis, wrap="pinned", widths=[0.01],
-                                      interpolation="constant"))
+        fibers = read_usd(
+            write_stage(
+                tmp_path / f"{basis}.usda", [cv], basis=basis, wrap="pinned", widths=[0.01], interpolation="constant"
+            )
+        )
         points, _ = fibers.strand(0)
         np.testing.assert_allclose(points[[0, -1]], cv[[0, -1]], atol=1e-5)
 
@@ -108,8 +121,16 @@ def test_linear_curves_keep_vertices_and_halve_widths(tmp_path):
     fibers = read_usd(write_stage(tmp_path / "g.usda", curves, kind="linear", widths=widths))
     np.testing.assert_allclose(fibers.points, np.concatenate(curves), rtol=1e-6)
     np.testing.assert_allclose(fibers.radii, widths / 2, rtol=1e-6)
-    closed = read_usd(write_stage(tmp_path / "p.usda", curves, kind="linear", wrap="periodic", widths=[0.01, 0.02, 0.03],
-                                  interpolation="uniform"))
+    closed = read_usd(
+        write_stage(
+            tmp_path / "p.usda",
+            curves,
+            kind="linear",
+            wrap="periodic",
+            widths=[0.01, 0.02, 0.03],
+            interpolation="uniform",
+        )
+    )
     assert list(closed.vertex_counts) == [5, 5, 5]
     np.testing.assert_allclose(closed.strand(1)[0][-1], curves[1][0], rtol=1e-6)
     np.testing.assert_allclose(closed.strand(2)[1], 0.015, rtol=1e-6)
@@ -120,18 +141,28 @@ def test_vertex_and_varying_widths_on_cubic_curves(tmp_path):
     widths = np.array([0.01, 0.02, 0.04, 0.02, 0.01, 0.03])
     fibers = read_usd(write_stage(tmp_path / "v.usda", [cv], widths=widths), segments=SEGMENTS)
     # Vertex widths are interpolated with the curve's basis.
-    np.testing.assert_allclose(fibers.radii, expected_polyline(widths[:, None], "bspline", "nonperiodic")[:, 0] / 2,
-                               rtol=1e-5)
+    np.testing.assert_allclose(
+        fibers.radii, expected_polyline(widths[:, None], "bspline", "nonperiodic")[:, 0] / 2, rtol=1e-5
+    )
     ends = np.array([0.01, 0.03, 0.02, 0.04])  # varying: one per span end
     fibers = read_usd(write_stage(tmp_path / "y.usda", [cv], widths=ends, interpolation="varying"), segments=SEGMENTS)
-    np.testing.assert_allclose(fibers.radii, np.interp(np.arange(3 * SEGMENTS + 1) / SEGMENTS, np.arange(4), ends) / 2,
-                               rtol=1e-6)
+    np.testing.assert_allclose(
+        fibers.radii, np.interp(np.arange(3 * SEGMENTS + 1) / SEGMENTS, np.arange(4), ends) / 2, rtol=1e-6
+    )
 
 
 def test_transform_applied_to_points_and_widths(tmp_path):
     curves = control_points(2, 3)
-    fibers = read_usd(write_stage(tmp_path / "t.usda", curves, kind="linear", widths=[0.01, 0.02],
-                                  interpolation="uniform", transform=((1.0, -2.0, 0.5), 2.0)))
+    fibers = read_usd(
+        write_stage(
+            tmp_path / "t.usda",
+            curves,
+            kind="linear",
+            widths=[0.01, 0.02],
+            interpolation="uniform",
+            transform=((1.0, -2.0, 0.5), 2.0),
+        )
+    )
     np.testing.assert_allclose(fibers.points, 2.0 * np.concatenate(curves) + [1.0, -2.0, 0.5], rtol=1e-5, atol=1e-5)
     np.testing.assert_allclose(fibers.radii, np.repeat([0.01, 0.02], 3), rtol=1e-6)  # 2 × width / 2
 
@@ -158,16 +189,22 @@ def test_prim_selection_and_radius_for_missing_widths(tmp_path):
     "edit, message",
     [
         (lambda c: c.GetCurveVertexCountsAttr().Set([2, 2]), "curveVertexCounts add up to 4, but there are 3 points"),
-        (lambda c: c.GetPointsAttr().Set([Gf.Vec3f(0, 0, 0), Gf.Vec3f(float("nan"), 0, 0), Gf.Vec3f(1, 1, 1)]),
-         "point 1 .* is not finite"),
+        (
+            lambda c: c.GetPointsAttr().Set([Gf.Vec3f(0, 0, 0), Gf.Vec3f(float("nan"), 0, 0), Gf.Vec3f(1, 1, 1)]),
+            "point 1 .* is not finite",
+        ),
         (lambda c: c.GetWidthsAttr().Set([0.1, 0.1]), "has 2 widths; vertex widths need 3"),
         (lambda c: c.GetWidthsAttr().Set([0.1, -0.1, 0.1]), "width -0.1 .* is not a positive number"),
-        (lambda c: (c.GetTypeAttr().Set("cubic"), c.GetBasisAttr().Set("bspline")), "curve 0 has 3 control points, too few"),
+        (
+            lambda c: (c.GetTypeAttr().Set("cubic"), c.GetBasisAttr().Set("bspline")),
+            "curve 0 has 3 control points, too few",
+        ),
     ],
 )
 def test_bad_curves_name_file_and_prim(tmp_path, edit, message):
-    path = write_stage(tmp_path / "bad.usda", [np.zeros((3, 3)) + np.arange(3)[:, None]], kind="linear",
-                       widths=[0.1, 0.1, 0.1])
+    path = write_stage(
+        tmp_path / "bad.usda", [np.zeros((3, 3)) + np.arange(3)[:, None]], kind="linear", widths=[0.1, 0.1, 0.1]
+    )
     stage = Usd.Stage.Open(str(path))
     edit(UsdGeom.BasisCurves(stage.GetPrimAtPath("/Groom/hair")))
     stage.GetRootLayer().Save()
@@ -177,7 +214,7 @@ def test_bad_curves_name_file_and_prim(tmp_path, edit, message):
 
 def test_unreadable_stage_and_bad_options(tmp_path):
     path = tmp_path / "junk.usda"
-    path.write_text("#usda 1.0\ndef Xform \"oops\" {{{\n")
+    path.write_text('#usda 1.0\ndef Xform "oops" {{{\n')
     with pytest.raises(UsdCurveError, match="junk.usda: cannot open the USD stage"):
         load_fibers(path)
     with pytest.raises(UsdCurveError, match="radius must be a positive number, got 'thin'"):
@@ -214,9 +251,11 @@ def test_scene_file_reads_a_groom(tmp_path):
     curves = control_points(2, 6)
     write_stage(tmp_path / "groom.usda", curves, widths=None)
     scene = tmp_path / "scene.toml"
-    body = ('[camera]\ntype = "orthographic"\norigin = [0, 0, 5]\ntarget = [0, 0, 0]\nup = [0, 1, 0]\nwidth = 2.0\n'
-            'resolution = [8, 8]\n[[lights]]\ntype = "environment"\nradiance = [1, 1, 1]\n'
-            '[fibers]\nfile = "groom.usda"\nprim = "/Groom/hair"\nradius = 0.01\nsegments = 3\n[hair]\nalbedo = 0.5\n')
+    body = (
+        '[camera]\ntype = "orthographic"\norigin = [0, 0, 5]\ntarget = [0, 0, 0]\nup = [0, 1, 0]\nwidth = 2.0\n'
+        'resolution = [8, 8]\n[[lights]]\ntype = "environment"\nradiance = [1, 1, 1]\n'
+        '[fibers]\nfile = "groom.usda"\nprim = "/Groom/hair"\nradius = 0.01\nsegments = 3\n[hair]\nalbedo = 0.5\n'
+    )
     scene.write_text(body)
     fibers = load_scene(scene).fibers
     assert list(fibers.vertex_counts) == [3 * 3 + 1] * 2

@@ -68,8 +68,22 @@ def wheel(tmp_path_factory) -> Path:
         else:
             shutil.copy2(item, source / name)
     dist = base / "dist"
-    _run([sys.executable, "-m", "pip", "wheel", "-q", "--no-deps", "--no-build-isolation", "--no-index",
-          "-w", dist, source], cwd=base)
+    _run(
+        [
+            sys.executable,
+            "-m",
+            "pip",
+            "wheel",
+            "-q",
+            "--no-deps",
+            "--no-build-isolation",
+            "--no-index",
+            "-w",
+            dist,
+            source,
+        ],
+        cwd=base,
+    )
     (built,) = dist.glob("warp_hair-*.whl")
     return built
 
@@ -114,14 +128,25 @@ def test_no_test_code_ships(wheel):
         names = archive.namelist()
     modules = [n for n in names if n.endswith(".py")]
     assert {n.split("/")[0] for n in modules} == {"warp_hair", "optimize", "targets"}
-    test_code = [n for n in modules if {"tests", "testing", "helpers"} & set(n.split("/")[:-1])
-                 or Path(n).name.startswith("test_") or Path(n).name in ("conftest.py", "bsdf_grad.py")]
+    test_code = [
+        n
+        for n in modules
+        if {"tests", "testing", "helpers"} & set(n.split("/")[:-1])
+        or Path(n).name.startswith("test_")
+        or Path(n).name in ("conftest.py", "bsdf_grad.py")
+    ]
     assert test_code == [], f"test code in the wheel: {test_code}"
     assert "warp_hair/model/bsdf.py" in modules and "optimize/fit.py" in modules
 
 
 def test_installed_wheel_does_not_rewrite_its_shipped_targets(installed, tmp_path):
-    result = subprocess.run([installed / "warp-hair", "targets", "make", "black_straight"], cwd=tmp_path,
-                            env=_clean_env(), capture_output=True, text=True, timeout=300)
+    result = subprocess.run(
+        [installed / "warp-hair", "targets", "make", "black_straight"],
+        cwd=tmp_path,
+        env=_clean_env(),
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert result.returncode == 2
     assert "a shipped target of the installed warp-hair package" in result.stderr and "cp -r" in result.stderr

@@ -32,9 +32,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .renderer.camera import camera_rays
-from .geometry.tubes import FiberBVH
 from .geometry.rays import occluded
+from .geometry.tubes import FiberBVH
 from .model.params import (
     ALBEDO_INVERSION_DEGREE,
     ALBEDO_INVERSION_KEY,
@@ -43,6 +42,7 @@ from .model.params import (
     check_albedo_inversion,
     effective_beta,
 )
+from .renderer.camera import camera_rays
 from .renderer.render import render
 from .scene import DirectionalLight, EnvironmentLight, Scene, scene_from_dict
 
@@ -81,8 +81,13 @@ def block_scene(
                 "resolution": [resolution, resolution],
             },
             "lights": [{"type": "environment", "radiance": [1.0, 1.0, 1.0]}],
-            "fibers": {"generator": "swatch", "count": layers * per_layer, "layers": layers, "length": length,
-                       "segments": 1},
+            "fibers": {
+                "generator": "swatch",
+                "count": layers * per_layer,
+                "layers": layers,
+                "length": length,
+                "segments": 1,
+            },
             "hair": {"sigma_a": 0.0},
             "card": {"albedo": [0.0, 0.0, 0.0]},
             "render": {"spp": spp, "max_depth": max_depth},
@@ -128,7 +133,7 @@ def measured_pixels(scene: Scene) -> np.ndarray:
     jitter = np.stack(np.meshgrid(offsets, offsets, indexing="ij"), axis=-1).reshape(-1, 2)
     shape = (height, width, len(jitter))
     px, py = np.broadcast_to(px[..., None], shape), np.broadcast_to(py[..., None], shape)
-    origins, directions = camera_rays(scene.camera, px, py, np.broadcast_to(jitter, shape + (2,)))
+    origins, directions = camera_rays(scene.camera, px, py, np.broadcast_to(jitter, (*shape, 2)))
     hit = occluded(FiberBVH(scene.fibers), origins.reshape(-1, 3), directions.reshape(-1, 3))
     return hit.reshape(height, width, -1).all(axis=-1)
 
@@ -220,8 +225,10 @@ def check_grid(sigma_a, beta_n) -> tuple:
     beta_n = tuple(float(b) for b in beta_n)
     for s in sigma_a:
         if not (math.isfinite(s) and s > 0):
-            raise ValueError(f"--sigma-a {s:g}: grid values must be finite and > 0 (σ_a = 0 gives albedo 1, which "
-                             "says nothing about P)")
+            raise ValueError(
+                f"--sigma-a {s:g}: grid values must be finite and > 0 (σ_a = 0 gives albedo 1, which "
+                "says nothing about P)"
+            )
     lo, hi = ALBEDO_INVERSION_RANGE
     for b in beta_n:
         if not lo <= b <= hi:
@@ -242,12 +249,15 @@ def measure_points(scene: Scene, points, spp=None, seed=None, threads=None, prog
     seed = scene.render.seed if seed is None else int(seed)
     mask = measured_pixels(scene)
     if not mask.any():
-        raise ValueError("no pixel of the image is covered by fibers everywhere: calibrate measures the albedo "
-                         "where the assembly hides the background; frame the camera on it")
+        raise ValueError(
+            "no pixel of the image is covered by fibers everywhere: calibrate measures the albedo "
+            "where the assembly hides the background; frame the camera on it"
+        )
     white = white_radiance(scene)
     if not np.sum(white) > 0:
-        raise ValueError("the lights give no light to a surface facing the camera; nothing to measure the albedo "
-                         "against")
+        raise ValueError(
+            "the lights give no light to a surface facing the camera; nothing to measure the albedo against"
+        )
     measured = []
     for k, (s, b) in enumerate(points):
         moved = dataclasses.replace(scene, hair=scene.hair.replace(sigma_a=[s, s, s], beta_n=b))
@@ -265,8 +275,9 @@ def measure_points(scene: Scene, points, spp=None, seed=None, threads=None, prog
     return albedo, stderr
 
 
-def calibrate(scene: Scene, sigma_a=DEFAULT_SIGMA_A, beta_n=DEFAULT_BETA_N, spp=None, seed=None, threads=None,
-              progress=None) -> Calibration:
+def calibrate(
+    scene: Scene, sigma_a=DEFAULT_SIGMA_A, beta_n=DEFAULT_BETA_N, spp=None, seed=None, threads=None, progress=None
+) -> Calibration:
     """Render the grid (σ_a × β_n, grey σ_a, render k with seed + k), measure each albedo, fit P; see the module
     docstring. `progress(done, total)` counts renders. Raises ValueError when nothing can be measured, a
     measured albedo lies outside (0, 1), or the fitted P is not positive over [0.01, 1]."""
@@ -278,8 +289,10 @@ def calibrate(scene: Scene, sigma_a=DEFAULT_SIGMA_A, beta_n=DEFAULT_BETA_N, spp=
     try:
         check_albedo_inversion(coefficients, "the fitted albedo_inversion")
     except ValueError as error:
-        raise ValueError(f"{error}; the grid's β_n do not pin P down over [0.01, 1]: add β_n values nearer the "
-                         "ends of that range or more σ_a values") from None
+        raise ValueError(
+            f"{error}; the grid's β_n do not pin P down over [0.01, 1]: add β_n values nearer the "
+            "ends of that range or more σ_a values"
+        ) from None
     return Calibration(s_values, b_values, albedo, stderr, coefficients, int(measured_pixels(scene).sum()))
 
 

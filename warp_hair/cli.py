@@ -64,13 +64,23 @@ def add_hair_controls(parser: argparse.ArgumentParser) -> None:
     for name, c in CONTROLS.items():
         where = f"in {c.interval}" + (f" ({c.unit})" if c.unit else "")
         if c.size == 3:
-            group.add_argument(f"--{flag(name)}", nargs="+", type=float, metavar="X",
-                               help=f"{c.doc}; {where}: one value (grey) or three (R G B)")
+            group.add_argument(
+                f"--{flag(name)}",
+                nargs="+",
+                type=float,
+                metavar="X",
+                help=f"{c.doc}; {where}: one value (grey) or three (R G B)",
+            )
         elif c.colour_input is not None:  # unset unless given: the colour input is the one given
             group.add_argument(f"--{flag(name)}", type=float, metavar="X", help=f"{c.doc}; {where}")
         else:
-            group.add_argument(f"--{flag(name)}", type=float, default=c.default, metavar="X",
-                               help=f"{c.doc}; {where} (default {c.default:g})")
+            group.add_argument(
+                f"--{flag(name)}",
+                type=float,
+                default=c.default,
+                metavar="X",
+                help=f"{c.doc}; {where} (default {c.default:g})",
+            )
 
 
 def flag(name: str) -> str:
@@ -95,10 +105,17 @@ def add_plot_bsdf(subparsers) -> None:
     )
     parser.add_argument("-o", "--output", required=True, type=Path, metavar="PNG", help="the PNG file to write")
     add_hair_controls(parser)
-    parser.add_argument("--theta-o", nargs="+", type=float, default=[0.0, 30.0, 60.0], metavar="DEG",
-                        help="viewing angles from the fiber's normal plane, in (-90, 90) (default 0 30 60)")
-    parser.add_argument("--h", type=float, metavar="H",
-                        help="fiber offset in [-1, 1] (default: averaged over h, the far-field look)")
+    parser.add_argument(
+        "--theta-o",
+        nargs="+",
+        type=float,
+        default=[0.0, 30.0, 60.0],
+        metavar="DEG",
+        help="viewing angles from the fiber's normal plane, in (-90, 90) (default 0 30 60)",
+    )
+    parser.add_argument(
+        "--h", type=float, metavar="H", help="fiber offset in [-1, 1] (default: averaged over h, the far-field look)"
+    )
     parser.set_defaults(run=plot_bsdf)
 
 
@@ -119,7 +136,9 @@ def add_render(subparsers) -> None:
     parser.add_argument("scene", type=Path, metavar="SCENE.toml", help="the scene file")
     parser.add_argument("-o", "--output", required=True, type=Path, metavar="OUT.exr", help="the EXR file to write")
     parser.add_argument("--png", type=Path, metavar="PREVIEW.png", help="also write a tone-mapped sRGB preview")
-    parser.add_argument("--exposure", type=float, default=1.0, metavar="E", help="scale applied before tone mapping the PNG (default 1)")
+    parser.add_argument(
+        "--exposure", type=float, default=1.0, metavar="E", help="scale applied before tone mapping the PNG (default 1)"
+    )
     parser.set_defaults(run=render_scene)
 
 
@@ -140,7 +159,9 @@ def render_scene(args: argparse.Namespace) -> None:
     seed = scene.render.seed if args.seed is None else args.seed
     width, height = scene.camera.resolution
     start = time.perf_counter()
-    with progress_bar(total=width * height, unit="px", desc=f"{args.scene.name} {width}x{height} {spp} spp") as progress:
+    with progress_bar(
+        total=width * height, unit="px", desc=f"{args.scene.name} {width}x{height} {spp} spp"
+    ) as progress:
         image = render(scene, spp=spp, seed=seed, threads=args.threads, progress=progress)
     seconds = time.perf_counter() - start
     write_exr(args.output, image, render_metadata(scene, spp, seed))
@@ -162,20 +183,36 @@ def add_gradcheck(subparsers) -> None:
         "renders at --spp plus the target, at the scene's own resolution; lower the resolution in the scene for quick checks.",
     )
     parser.add_argument("scene", type=Path, metavar="SCENE.toml", help="the scene file")
-    parser.add_argument("--seeds", type=int, default=4, metavar="K",
-                        help="independent seed pairs, for the standard errors; at least 2 (default 4)")
-    parser.add_argument("--params", metavar="NAMES",
-                        help="comma-separated controls to check, e.g. albedo,beta_m (default: all of the scene's)")
-    parser.add_argument("--eps", type=float, metavar="E",
-                        help="one finite-difference step for every control (default per control: "
-                        + ", ".join(f"{name} {c.gradcheck_step:g}" for name, c in CONTROLS.items()) + ")")
+    parser.add_argument(
+        "--seeds",
+        type=int,
+        default=4,
+        metavar="K",
+        help="independent seed pairs, for the standard errors; at least 2 (default 4)",
+    )
+    parser.add_argument(
+        "--params",
+        metavar="NAMES",
+        help="comma-separated controls to check, e.g. albedo,beta_m (default: all of the scene's)",
+    )
+    parser.add_argument(
+        "--eps",
+        type=float,
+        metavar="E",
+        help="one finite-difference step for every control (default per control: "
+        + ", ".join(f"{name} {c.gradcheck_step:g}" for name, c in CONTROLS.items())
+        + ")",
+    )
     parser.set_defaults(run=gradcheck_scene)
 
 
 def _gradcheck_moves() -> str:
     """How gradcheck's target moves each control, from the table: "albedo x0.9, ..., eta +0.05, ..."."""
-    return ", ".join(f"{name} {'x' if kind == 'scale' else '+'}{amount:g}"
-                     for name, c in CONTROLS.items() for kind, amount in [c.gradcheck_move])
+    return ", ".join(
+        f"{name} {'x' if kind == 'scale' else '+'}{amount:g}"
+        for name, c in CONTROLS.items()
+        for kind, amount in [c.gradcheck_move]
+    )
 
 
 def check_sampling_args(args: argparse.Namespace) -> None:
@@ -197,8 +234,9 @@ def gradcheck_scene(args: argparse.Namespace) -> None:
     names = None if args.params is None else args.params.split(",")
     width, height = scene.camera.resolution
     with progress_bar(unit="render", desc=f"{args.scene.name} {width}x{height} {args.spp} spp") as progress:
-        rows = gradcheck(scene, names, spp=args.spp, seeds=args.seeds, eps=args.eps, threads=args.threads,
-                         progress=progress)
+        rows = gradcheck(
+            scene, names, spp=args.spp, seeds=args.seeds, eps=args.eps, threads=args.threads, progress=progress
+        )
     print(format_table(rows))
     bad = [row.control for row in rows if not row.ok]
     print(f"{len(rows) - len(bad)}/{len(rows)} OK" + (f"; mismatched: {', '.join(bad)}" if bad else ""))
@@ -212,13 +250,19 @@ def add_export(subparsers) -> None:
         parents=[common_flags(threads=False)],
         help="write a look for Mitsuba 3, pbrt-v4, Blender Cycles or MaterialX",
         description="Convert a look to another renderer's hair material: Mitsuba 3's hair BSDF (XML element), "
-        "pbrt-v4's Material \"hair\", a Blender bpy script building a Principled Hair BSDF (Chiang), or a "
+        'pbrt-v4\'s Material "hair", a Blender bpy script building a Principled Hair BSDF (Chiang), or a '
         "MaterialX document with chiang_hair_bsdf. Controls a renderer cannot express are reported as warnings.",
     )
-    parser.add_argument("look", type=Path, metavar="LOOK",
-                        help="a fit's params.json, a JSON object of controls (truth.json), or a scene file ([hair])")
+    parser.add_argument(
+        "look",
+        type=Path,
+        metavar="LOOK",
+        help="a fit's params.json, a JSON object of controls (truth.json), or a scene file ([hair])",
+    )
     parser.add_argument("--to", required=True, metavar="RENDERER", help=f"one of {', '.join(RENDERERS)}")
-    parser.add_argument("-o", "--output", type=Path, metavar="FILE", help="the file to write (default: standard output)")
+    parser.add_argument(
+        "-o", "--output", type=Path, metavar="FILE", help="the file to write (default: standard output)"
+    )
     parser.set_defaults(run=export_look)
 
 
@@ -230,11 +274,16 @@ def export_look(args: argparse.Namespace) -> None:
         sys.stdout.write(text)
     else:
         print(f"wrote {args.output}")
+
+
 def add_calibrate(subparsers) -> None:
     parser = subparsers.add_parser(
         "calibrate",
-        parents=[common_flags(spp=SCENE_SPP, seed="seed of the first render, the k-th uses S + k (default: the "
-                              "scene's [render] seed)")],
+        parents=[
+            common_flags(
+                spp=SCENE_SPP, seed="seed of the first render, the k-th uses S + k (default: the scene's [render] seed)"
+            )
+        ],
         help="refit the albedo inversion for a scene's assembly and lighting",
         description="Render the scene at every point of a grid of grey sigma_a and beta_n (its other controls as "
         "they are), measure each render's albedo (the mean of the pixels the fibers cover, over the radiance of a "
@@ -243,14 +292,29 @@ def add_calibrate(subparsers) -> None:
         "[hair.albedo_inversion] table that makes HairParams use them. The scene file is never changed.",
     )
     parser.add_argument("scene", type=Path, metavar="SCENE.toml", help="the scene file (assembly, lights, camera)")
-    parser.add_argument("-o", "--output", type=Path, metavar="COPY.toml",
-                        help="write a copy of the scene with the fitted [hair.albedo_inversion] table")
-    parser.add_argument("--sigma-a", nargs="+", type=float, metavar="S",
-                        help="grey absorptions of the grid, > 0 (default: warp_hair.calibrate.DEFAULT_SIGMA_A, "
-                        "5 values; the grid is printed)")
-    parser.add_argument("--beta-n", nargs="+", type=float, metavar="B",
-                        help="azimuthal roughnesses of the grid, in [0.01, 1], at least 6 distinct (default: "
-                        "warp_hair.calibrate.DEFAULT_BETA_N, 8 values)")
+    parser.add_argument(
+        "-o",
+        "--output",
+        type=Path,
+        metavar="COPY.toml",
+        help="write a copy of the scene with the fitted [hair.albedo_inversion] table",
+    )
+    parser.add_argument(
+        "--sigma-a",
+        nargs="+",
+        type=float,
+        metavar="S",
+        help="grey absorptions of the grid, > 0 (default: warp_hair.calibrate.DEFAULT_SIGMA_A, "
+        "5 values; the grid is printed)",
+    )
+    parser.add_argument(
+        "--beta-n",
+        nargs="+",
+        type=float,
+        metavar="B",
+        help="azimuthal roughnesses of the grid, in [0.01, 1], at least 6 distinct (default: "
+        "warp_hair.calibrate.DEFAULT_BETA_N, 8 values)",
+    )
     parser.set_defaults(run=calibrate_scene)
 
 
@@ -276,8 +340,10 @@ def calibrate_scene(args: argparse.Namespace) -> None:
     total = len(sigma_a) * len(beta_n)
     with progress_bar(total=total, unit="render", desc=f"{args.scene.name} {width}x{height} {spp} spp") as progress:
         result = calibrate(scene, sigma_a, beta_n, spp=spp, seed=seed, threads=args.threads, progress=progress)
-    print(f"grid: sigma_a {' '.join(f'{s:g}' for s in sigma_a)} x beta_n {' '.join(f'{b:g}' for b in beta_n)}; "
-          f"measured over {result.pixels} fully covered pixels")
+    print(
+        f"grid: sigma_a {' '.join(f'{s:g}' for s in sigma_a)} x beta_n {' '.join(f'{b:g}' for b in beta_n)}; "
+        f"measured over {result.pixels} fully covered pixels"
+    )
     print(result.table())
     print(result.summary())
     print(inversion_toml(result.coefficients), end="")

@@ -93,10 +93,34 @@ class Control:
         return self.lo if self.floor is None else self.floor
 
 
-def _control(name, size, first_column, lo, hi, lo_open=False, hi_open=False, default=None, colour_input=None,
-             unit="", doc="", **more):
-    return Control(name, size, tuple(range(first_column, first_column + size)), lo, hi, lo_open, hi_open, default,
-                   colour_input, unit, doc, **more)
+def _control(
+    name,
+    size,
+    first_column,
+    lo,
+    hi,
+    lo_open=False,
+    hi_open=False,
+    default=None,
+    colour_input=None,
+    unit="",
+    doc="",
+    **more,
+):
+    return Control(
+        name,
+        size,
+        tuple(range(first_column, first_column + size)),
+        lo,
+        hi,
+        lo_open,
+        hi_open,
+        default,
+        colour_input,
+        unit,
+        doc,
+        **more,
+    )
 
 
 # One entry per control. Adding one: an entry here, and its physics (the mapping to the model's coefficients in
@@ -105,38 +129,136 @@ def _control(name, size, first_column, lo, hi, lo_open=False, hi_open=False, def
 CONTROLS = {
     control.name: control
     for control in (
-        _control("albedo", 3, 0, 0.0, 1.0, lo_open=True, colour_input="albedo", unit="fraction",
-                 doc="multiple-scattering albedo per channel; σ_a follows from the albedo inversion, which depends "
-                     "on β_n",
-                 fit_start=0.5, gradcheck_move=("scale", 0.9), gradcheck_step=0.04),
+        _control(
+            "albedo",
+            3,
+            0,
+            0.0,
+            1.0,
+            lo_open=True,
+            colour_input="albedo",
+            unit="fraction",
+            doc="multiple-scattering albedo per channel; σ_a follows from the albedo inversion, which depends on β_n",
+            fit_start=0.5,
+            gradcheck_move=("scale", 0.9),
+            gradcheck_step=0.04,
+        ),
         # The absorptions' upper limit guards float32, it is no bound a fit can reach: the log map suits them.
-        _control("sigma_a", 3, 0, 0.0, ABSORPTION_MAX, colour_input="sigma_a", unit="1 / fiber radius",
-                 doc="absorption coefficient per channel",
-                 fit_hi=math.inf, fit_start=1.0, gradcheck_move=("scale", 1.1), gradcheck_step=0.04),
-        _control("eumelanin", 1, 0, 0.0, ABSORPTION_MAX, default=0.0, colour_input="melanin",
-                 unit="concentration", doc="dark pigment (blonde ≈ 0.3, brown ≈ 1.3, black ≈ 8)",
-                 fit_hi=math.inf, fit_start=1.0, gradcheck_move=("scale", 1.1), gradcheck_step=0.05),
-        _control("pheomelanin", 1, 1, 0.0, ABSORPTION_MAX, default=0.0, colour_input="melanin",
-                 unit="concentration", doc="red pigment",
-                 fit_hi=math.inf, fit_start=0.3, gradcheck_move=("scale", 1.1), gradcheck_step=0.05),
-        _control("beta_m", 1, 3, 0.0, 1.0, default=0.3, unit="", floor=BETA_FLOOR,
-                 doc="longitudinal roughness (below BETA_FLOOR = 0.01 it renders as the floor)",
-                 fit_start=0.5, gradcheck_move=("add", 0.05), gradcheck_step=0.04),
-        _control("beta_n", 1, 4, 0.0, 1.0, default=0.3, unit="", floor=BETA_FLOOR,
-                 doc="azimuthal roughness (below BETA_FLOOR = 0.01 it renders as the floor)",
-                 fit_start=0.5, gradcheck_move=("add", 0.05), gradcheck_step=0.08),
-        _control("alpha", 1, 5, -30.0, 30.0, default=2.0, unit="degrees",
-                 doc="cuticle scale tilt; > 0 (human hair) moves the primary highlight toward the root",
-                 gradcheck_move=("add", 3.0), gradcheck_step=1.0),
+        _control(
+            "sigma_a",
+            3,
+            0,
+            0.0,
+            ABSORPTION_MAX,
+            colour_input="sigma_a",
+            unit="1 / fiber radius",
+            doc="absorption coefficient per channel",
+            fit_hi=math.inf,
+            fit_start=1.0,
+            gradcheck_move=("scale", 1.1),
+            gradcheck_step=0.04,
+        ),
+        _control(
+            "eumelanin",
+            1,
+            0,
+            0.0,
+            ABSORPTION_MAX,
+            default=0.0,
+            colour_input="melanin",
+            unit="concentration",
+            doc="dark pigment (blonde ≈ 0.3, brown ≈ 1.3, black ≈ 8)",
+            fit_hi=math.inf,
+            fit_start=1.0,
+            gradcheck_move=("scale", 1.1),
+            gradcheck_step=0.05,
+        ),
+        _control(
+            "pheomelanin",
+            1,
+            1,
+            0.0,
+            ABSORPTION_MAX,
+            default=0.0,
+            colour_input="melanin",
+            unit="concentration",
+            doc="red pigment",
+            fit_hi=math.inf,
+            fit_start=0.3,
+            gradcheck_move=("scale", 1.1),
+            gradcheck_step=0.05,
+        ),
+        _control(
+            "beta_m",
+            1,
+            3,
+            0.0,
+            1.0,
+            default=0.3,
+            unit="",
+            floor=BETA_FLOOR,
+            doc="longitudinal roughness (below BETA_FLOOR = 0.01 it renders as the floor)",
+            fit_start=0.5,
+            gradcheck_move=("add", 0.05),
+            gradcheck_step=0.04,
+        ),
+        _control(
+            "beta_n",
+            1,
+            4,
+            0.0,
+            1.0,
+            default=0.3,
+            unit="",
+            floor=BETA_FLOOR,
+            doc="azimuthal roughness (below BETA_FLOOR = 0.01 it renders as the floor)",
+            fit_start=0.5,
+            gradcheck_move=("add", 0.05),
+            gradcheck_step=0.08,
+        ),
+        _control(
+            "alpha",
+            1,
+            5,
+            -30.0,
+            30.0,
+            default=2.0,
+            unit="degrees",
+            doc="cuticle scale tilt; > 0 (human hair) moves the primary highlight toward the root",
+            gradcheck_move=("add", 3.0),
+            gradcheck_step=1.0,
+        ),
         # Above 1 (a fiber that refracts), in float32 too: at η = 1 the BSDF is not finite. 10 is beyond every
         # dielectric in visible light (diamond 2.4, silicon ~4).
-        _control("eta", 1, 6, 1.0, 10.0, lo_open=True, default=1.55, unit="", doc="index of refraction",
-                 float32=True, gradcheck_move=("add", 0.05), gradcheck_step=0.04),
+        _control(
+            "eta",
+            1,
+            6,
+            1.0,
+            10.0,
+            lo_open=True,
+            default=1.55,
+            unit="",
+            doc="index of refraction",
+            float32=True,
+            gradcheck_move=("add", 0.05),
+            gradcheck_step=0.04,
+        ),
         # 1e-6 to 1e6 spans any species by far, and the lobes are tested finite there. The fit bounds it below
         # only: its upper limit is far beyond any fit, and the log map suits a scale.
-        _control("r_roughness_scale", 1, 7, 1e-6, 1e6, default=1.0, unit="factor",
-                 doc="the species control: a factor on the R lobe's longitudinal variance only",
-                 fit_hi=math.inf, gradcheck_move=("add", 0.1), gradcheck_step=0.4),
+        _control(
+            "r_roughness_scale",
+            1,
+            7,
+            1e-6,
+            1e6,
+            default=1.0,
+            unit="factor",
+            doc="the species control: a factor on the R lobe's longitudinal variance only",
+            fit_hi=math.inf,
+            gradcheck_move=("add", 0.1),
+            gradcheck_step=0.4,
+        ),
     )
 }
 
@@ -182,7 +304,7 @@ def named_theta(colour_input: str, theta) -> dict:
     named = {}
     for name in controls_of(colour_input):
         first, *rest = CONTROLS[name].columns
-        named[name] = theta[..., first:first + 1 + len(rest)] if rest else theta[..., first]
+        named[name] = theta[..., first : first + 1 + len(rest)] if rest else theta[..., first]
     return named
 
 

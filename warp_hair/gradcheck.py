@@ -226,8 +226,9 @@ def gradcheck(
         if progress is not None:
             progress(done, total)
 
-    target = render(prepared.with_hair(target_hair(hair, names)), spp=target_spp, seed=scene.render.seed,
-                    threads=threads).astype(np.float64)
+    target = render(
+        prepared.with_hair(target_hair(hair, names)), spp=target_spp, seed=scene.render.seed, threads=threads
+    ).astype(np.float64)
     tick()
     n = target.size
 
@@ -249,8 +250,9 @@ def gradcheck(
         # difference per seed pair has a far smaller spread than either.
         image_a = render(prepared, spp=spp, seed=seed_a, threads=threads).astype(np.float64)
         tick()
-        g_ab, image_b = render_grad(prepared, (image_a - target) / n, spp=spp, seed=seed_b, threads=threads,
-                                    return_image=True)
+        g_ab, image_b = render_grad(
+            prepared, (image_a - target) / n, spp=spp, seed=seed_b, threads=threads, return_image=True
+        )
         tick()
         g_ba = render_grad(prepared, (image_b.astype(np.float64) - target) / n, spp=spp, seed=seed_a, threads=threads)
         tick()
@@ -292,7 +294,11 @@ def format_table(rows: list[GradcheckRow]) -> str:
     widths = [max(len(line[i]) for line in lines) for i in range(len(header))]
     out = []
     for i, line in enumerate(lines):
-        out.append("  ".join(cell.ljust(w) if j == 0 else cell.rjust(w) for j, (cell, w) in enumerate(zip(line, widths))).rstrip())
+        out.append(
+            "  ".join(
+                cell.ljust(w) if j == 0 else cell.rjust(w) for j, (cell, w) in enumerate(zip(line, widths))
+            ).rstrip()
+        )
         if i == 0:
             out.append("  ".join("-" * w for w in widths))
     return "\n".join(out)

@@ -46,11 +46,27 @@ from PIL import ExifTags, Image, ImageCms, ImageOps, UnidentifiedImageError
 
 TRANSFERS = ("auto", "srgb", "linear")
 PHOTO_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff")
-RAW_SUFFIXES = (".dng", ".cr2", ".cr3", ".nef", ".nrw", ".arw", ".raf", ".orf", ".rw2", ".pef", ".srw", ".3fr",
-                ".iiq", ".x3f")
-RAW_HINT = ("camera raw is not read here: convert it with your raw converter to a 16-bit TIFF with a linear "
-            "transfer curve (dcraw -4 -T, RawTherapee or darktable with a linear output profile; white balance "
-            "as shot) and list that with transfer = \"linear\"")
+RAW_SUFFIXES = (
+    ".dng",
+    ".cr2",
+    ".cr3",
+    ".nef",
+    ".nrw",
+    ".arw",
+    ".raf",
+    ".orf",
+    ".rw2",
+    ".pef",
+    ".srw",
+    ".3fr",
+    ".iiq",
+    ".x3f",
+)
+RAW_HINT = (
+    "camera raw is not read here: convert it with your raw converter to a 16-bit TIFF with a linear "
+    "transfer curve (dcraw -4 -T, RawTherapee or darktable with a linear output profile; white balance "
+    'as shot) and list that with transfer = "linear"'
+)
 # A JPEG code at or above this (of 255) counts as clipped: compression ringing leaves codes below 255 around a
 # clipped highlight (measured on Pillow's JPEGs at quality 90: up to 4 codes below the top).
 CLIP_CODE_JPEG = 250
@@ -168,8 +184,10 @@ def _read_pillow(path: Path):
             gamma = im.info.get("gamma") if not (icc or "srgb" in im.info) else None
             mode = im.mode
             if mode == "P" or mode == "PA":
-                raise ValueError(f"{path}: a palette image (its colours quantised to a table of at most 256): "
-                                 "save the photo as RGB, not indexed colour")
+                raise ValueError(
+                    f"{path}: a palette image (its colours quantised to a table of at most 256): "
+                    "save the photo as RGB, not indexed colour"
+                )
             if mode == "CMYK":
                 raise ValueError(f"{path}: a CMYK image (print separations, not a camera's light): save it as RGB")
             if mode in ("RGB", "RGBA", "RGBX"):
@@ -185,8 +203,9 @@ def _read_pillow(path: Path):
                 return np.repeat(grey.astype(np.uint16)[..., None], 3, -1), 16, icc, exif, notes, fmt, gamma
             raise ValueError(f"{path}: image mode {mode!r} is not read; save it as 8- or 16-bit RGB")
     except (UnidentifiedImageError, OSError, SyntaxError) as error:
-        raise ValueError(f"{path}: damaged, truncated or unsupported {path.suffix.lstrip('.').upper()} file: "
-                         f"{error}") from None
+        raise ValueError(
+            f"{path}: damaged, truncated or unsupported {path.suffix.lstrip('.').upper()} file: {error}"
+        ) from None
 
 
 def _read_tiff(path: Path):
@@ -282,18 +301,21 @@ def _from_icc(path: Path, values: np.ndarray, icc: bytes, bits: int, notes: list
     if "linear" in lowered or "gamma 1.0" in lowered or "g10" in lowered:
         return values, "linear"
     if name == "unreadable":
-        raise ValueError(f"{path}: its embedded ICC profile cannot be read; set transfer = \"srgb\" or \"linear\"")
+        raise ValueError(f'{path}: its embedded ICC profile cannot be read; set transfer = "srgb" or "linear"')
     if bits != 8:
-        raise ValueError(f"{path}: a {bits}-bit image with the ICC profile {name!r}, which is neither sRGB nor "
-                         "linear: convert it to sRGB or linear in your editor, or set transfer = \"srgb\" or "
-                         "\"linear\" to say which it is")
+        raise ValueError(
+            f"{path}: a {bits}-bit image with the ICC profile {name!r}, which is neither sRGB nor "
+            'linear: convert it to sRGB or linear in your editor, or set transfer = "srgb" or '
+            '"linear" to say which it is'
+        )
     source = ImageCms.ImageCmsProfile(io.BytesIO(icc))
     image = Image.fromarray(np.round(values * 255).astype(np.uint8), "RGB")
     try:
         converted = ImageCms.profileToProfile(image, source, ImageCms.createProfile("sRGB"), outputMode="RGB")
     except ImageCms.PyCMSError as error:
-        raise ValueError(f"{path}: cannot convert from its ICC profile {name!r}: {error}; set transfer = \"srgb\" "
-                         "or \"linear\"") from None
+        raise ValueError(
+            f'{path}: cannot convert from its ICC profile {name!r}: {error}; set transfer = "srgb" or "linear"'
+        ) from None
     notes.append(f"converted from its ICC profile {name!r} to sRGB (LittleCMS, 8 bits)")
     return np.asarray(converted).astype(np.float64) / 255.0, f"icc:{name} → srgb"
 

@@ -206,7 +206,7 @@ def _draw_azimuthal(ax, dphi: np.ndarray, lobes: np.ndarray, theta_o: float) -> 
     ax.set_rlabel_position(67.5)
     ax.tick_params(axis="y", labelsize=7)
     for label in ax.get_yticklabels():
-        label.set_bbox(dict(facecolor="white", alpha=0.8, edgecolor="none", pad=0.3))
+        label.set_bbox({"facecolor": "white", "alpha": 0.8, "edgecolor": "none", "pad": 0.3})
     heading = f"azimuthal, θ_o = {theta_o:g}°, θ_i = {-theta_o + 0.0:g}°"  # + 0.0 turns −0 into 0
     ax.set_title(f"{heading}\nS (1/sr, log radius) against Δφ = φ_i − φ_o", fontsize=10)
 

@@ -15,20 +15,20 @@ import copy
 import inspect
 import math
 import numbers
-import tomllib
 from dataclasses import MISSING, dataclass, field, fields
 from pathlib import Path
 
 import numpy as np
+import tomllib
 
 from . import geometry as fiber_module
 from . import validate
+from .controls import CONTROL_NAMES
 from .geometry.assembly import FiberAssembly
 from .geometry.curves import DEFAULT_TOLERANCE, catmull_rom
 from .geometry.formats import load_fibers
 from .geometry.interpenetration import warn_interpenetration
 from .geometry.usd import SUFFIXES as USD_SUFFIXES
-from .controls import CONTROL_NAMES
 from .io import read_exr, read_text
 from .model.params import ALBEDO_INVERSION_KEY, HairParams
 
@@ -165,7 +165,9 @@ def _resolution(value):
         raise ValueError(f"resolution must be two positive integers, got {value!r}")
     width, height = int(value[0]), int(value[1])
     if width * height > validate.INT32_MAX:
-        raise ValueError(f"resolution {width}x{height} has more than {validate.INT32_MAX} pixels, the most a render indexes")
+        raise ValueError(
+            f"resolution {width}x{height} has more than {validate.INT32_MAX} pixels, the most a render indexes"
+        )
     return (width, height)
 
 
@@ -443,7 +445,7 @@ def _as_curve(fibers, options, prefix):
     if kind not in CURVE_KINDS:
         raise ValueError(f"{prefix} curve must be one of {list(CURVE_KINDS)}, got {kind!r}")
     if "tolerance" in options and kind != "catmull-rom":
-        raise ValueError(f"{prefix} tolerance applies to curve = \"catmull-rom\" (and to USD cubic curves)")
+        raise ValueError(f'{prefix} tolerance applies to curve = "catmull-rom" (and to USD cubic curves)')
     if kind == "polyline":
         return fibers
     try:

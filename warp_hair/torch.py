@@ -146,7 +146,7 @@ def _control_gradients(ctx, theta_gradient):
             continue
         g = np.asarray(named[name], dtype=np.float64)
         out.append(torch.as_tensor(g, dtype=dtype, device=device).reshape((3,) if name in RGB_CONTROLS else ()))
-    return (None, None) + tuple(out)
+    return (None, None, *tuple(out))
 
 
 def _begin(ctx, scene, names, tensors):
@@ -199,7 +199,9 @@ class _PairFunction(torch.autograd.Function):
         scene = _begin(ctx, scene, names, tensors)
         images, ctx.jacobians = [], []
         for seed in seeds:
-            jacobian, image, _ = render_jacobian(scene, spp=spp, seed=seed, threads=threads, device="cpu", pixels=pixels)
+            jacobian, image, _ = render_jacobian(
+                scene, spp=spp, seed=seed, threads=threads, device="cpu", pixels=pixels
+            )
             images.append(image)
             ctx.jacobians.append(jacobian)
         return _as_image(np.stack(images), tensors)
@@ -220,7 +222,9 @@ def _checked_seed(name, seed):
     return seed
 
 
-def render_torch(scene: Scene | PreparedScene, controls: dict, spp=None, seed=0, grad_seed=None, threads=None) -> torch.Tensor:
+def render_torch(
+    scene: Scene | PreparedScene, controls: dict, spp=None, seed=0, grad_seed=None, threads=None
+) -> torch.Tensor:
     """The image (H, W, 3) float32 of `scene` with `controls` substituted, differentiable in the controls.
 
     controls: {name: tensor}, "albedo"/"sigma_a" (3,) or the 0-d scalars (see the module docstring); not
@@ -236,8 +240,9 @@ def render_torch(scene: Scene | PreparedScene, controls: dict, spp=None, seed=0,
     return _RenderFunction.apply(config, tuple(checked), *checked.values())
 
 
-def render_torch_pair(scene: Scene | PreparedScene, controls: dict, spp=None, seed=0, threads=None,
-                      pixels=None) -> torch.Tensor:
+def render_torch_pair(
+    scene: Scene | PreparedScene, controls: dict, spp=None, seed=0, threads=None, pixels=None
+) -> torch.Tensor:
     """Two independent renders (2, H, W, 3) of `scene` with `controls`, each at `spp`, in one pass each.
 
     For losses that add a term per image, ℓ(pair[0]) + ℓ(pair[1]): the backward pass contracts each image's

@@ -71,8 +71,10 @@ def execute(job, payload, threads: int, version: str) -> dict:
     """Run `job` with `threads` Warp (and torch) threads, the CPUs its task declared; {"files": {name: bytes}}
     or {"error": message}."""
     if version != warp_hair.__version__:
-        return {"error": f"this worker has warp-hair {warp_hair.__version__}, the driver {version}: install the "
-                f"same version on every node"}
+        return {
+            "error": f"this worker has warp-hair {warp_hair.__version__}, the driver {version}: install the "
+            f"same version on every node"
+        }
     import torch
 
     torch.set_num_threads(threads)
@@ -131,7 +133,8 @@ def _thumbnails(folder: Path, image, fitted) -> None:
         pixels = Image.fromarray(np.round(255 * picture).astype(np.uint8))
         scale = max(1, THUMBNAIL_PX // max(pixels.size))
         pixels.resize((pixels.width * scale, pixels.height * scale), Image.NEAREST).save(
-            folder / f"{kind}_{image.name}.png")
+            folder / f"{kind}_{image.name}.png"
+        )
 
 
 def render_sampling(job, scene) -> tuple:
@@ -159,13 +162,23 @@ def _calibrate(job, scene, threads: int) -> dict:
 
     from warp_hair.calibrate import DEFAULT_BETA_N, DEFAULT_SIGMA_A, calibrate, inversion_toml
 
-    result = calibrate(scene, job.spec.get("sigma_a", DEFAULT_SIGMA_A), job.spec.get("beta_n", DEFAULT_BETA_N),
-                       spp=job.spec.get("spp"), seed=job.spec.get("seed"), threads=threads)
+    result = calibrate(
+        scene,
+        job.spec.get("sigma_a", DEFAULT_SIGMA_A),
+        job.spec.get("beta_n", DEFAULT_BETA_N),
+        spp=job.spec.get("spp"),
+        seed=job.spec.get("seed"),
+        threads=threads,
+    )
     record = {
         "coefficients": [float(p) for p in result.coefficients],
-        "sigma_a": result.sigma_a.tolist(), "beta_n": result.beta_n.tolist(),
-        "albedo": result.albedo.tolist(), "stderr": result.stderr.tolist(), "fitted": result.fitted.tolist(),
-        "pixels": result.pixels, "chi2_per_dof": result.chi2_per_dof,
+        "sigma_a": result.sigma_a.tolist(),
+        "beta_n": result.beta_n.tolist(),
+        "albedo": result.albedo.tolist(),
+        "stderr": result.stderr.tolist(),
+        "fitted": result.fitted.tolist(),
+        "pixels": result.pixels,
+        "chi2_per_dof": result.chi2_per_dof,
     }
     text = f"{result.table()}\n{result.summary()}\n\n{inversion_toml(result.coefficients)}"
     return {"calibration.json": (json.dumps(record, indent=2) + "\n").encode(), "calibration.txt": text.encode()}

@@ -33,9 +33,10 @@ from __future__ import annotations
 import hashlib
 import json
 import re
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
+
+import tomllib
 
 import warp_hair
 
@@ -43,8 +44,23 @@ from ..latents import SPECS
 
 KINDS = ("fit", "render", "calibrate")
 BATCH_KEYS = {"output", "cpus_per_job", "retries"}
-FIT_KEYS = {"name", "target", "fit", "iters", "spp", "loss", "lr", "seed", "patience", "refine", "batch",
-            "model_error", "init", "fix", "export"}
+FIT_KEYS = {
+    "name",
+    "target",
+    "fit",
+    "iters",
+    "spp",
+    "loss",
+    "lr",
+    "seed",
+    "patience",
+    "refine",
+    "batch",
+    "model_error",
+    "init",
+    "fix",
+    "export",
+}
 RENDER_KEYS = {"name", "scene", "spp", "seed", "split", "exposure"}
 CALIBRATE_KEYS = {"name", "scene", "sigma_a", "beta_n", "spp", "seed"}
 KEYS = {"fit": FIT_KEYS, "render": RENDER_KEYS, "calibrate": CALIBRATE_KEYS}
@@ -93,15 +109,20 @@ def load_manifest(path, output=None) -> Manifest:
         raise ValueError(f"{path}: TOML syntax error: {error}") from None
     unknown = sorted(set(data) - {"batch", "defaults", *KINDS})
     if unknown:
-        raise ValueError(f"{path}: unknown table(s) {unknown}; a manifest has [batch], [defaults.fit|render|calibrate] "
-                         "and [[fit]], [[render]], [[calibrate]] entries")
+        raise ValueError(
+            f"{path}: unknown table(s) {unknown}; a manifest has [batch], [defaults.fit|render|calibrate] "
+            "and [[fit]], [[render]], [[calibrate]] entries"
+        )
     batch = _table(data.get("batch", {}), f"{path} [batch]")
     _check_keys(batch, BATCH_KEYS, f"{path} [batch]")
     base = path.parent
     out = Path(output) if output is not None else base / batch.get("output", f"{path.stem}_out")
-    manifest = Manifest(path=path, output=out,
-                        cpus_per_job=_integer(batch.get("cpus_per_job", 1), f"{path} [batch] cpus_per_job", 1),
-                        retries=_integer(batch.get("retries", DEFAULT_RETRIES), f"{path} [batch] retries", 0))
+    manifest = Manifest(
+        path=path,
+        output=out,
+        cpus_per_job=_integer(batch.get("cpus_per_job", 1), f"{path} [batch] cpus_per_job", 1),
+        retries=_integer(batch.get("retries", DEFAULT_RETRIES), f"{path} [batch] retries", 0),
+    )
     defaults = _table(data.get("defaults", {}), f"{path} [defaults]")
     _check_keys(defaults, set(KINDS), f"{path} [defaults]")
     for kind in KINDS:
@@ -116,8 +137,10 @@ def load_manifest(path, output=None) -> Manifest:
             _check_keys(entry, KEYS[kind], where)
             jobs = _jobs(kind, entry, base, where)
             if jobs[0].group in {job.group for job in manifest.jobs}:
-                raise ValueError(f"{where}: another entry is named {jobs[0].group!r} too (names default to the "
-                                 "target's or scene's); give one of them another name = \"...\"")
+                raise ValueError(
+                    f"{where}: another entry is named {jobs[0].group!r} too (names default to the "
+                    "target's or scene's); give one of them another name = \"...\""
+                )
             manifest.jobs.extend(jobs)
     if not manifest.jobs:
         raise ValueError(f"{path}: the manifest lists no work: add [[fit]], [[render]] or [[calibrate]] entries")

@@ -46,25 +46,35 @@ def write_report(manifest) -> Path:
     """Write OUT/report.html from what the batch's folder holds now; its path."""
     table = rows(manifest)
     counts = {s: sum(r["status"] == s for r in table) for s in ("done", "failed", "pending")}
-    parts = [f"<h1>warp-hair batch: {_e(manifest.path.name)}</h1>",
-             f"<p>{counts['done']} done, {counts['failed']} failed, {counts['pending']} pending; written "
-             f"{datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M} UTC. The table is also in "
-             "summary.csv and summary.json beside this page.</p>",
-             _overview(table)]
+    parts = [
+        f"<h1>warp-hair batch: {_e(manifest.path.name)}</h1>",
+        f"<p>{counts['done']} done, {counts['failed']} failed, {counts['pending']} pending; written "
+        f"{datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M} UTC. The table is also in "
+        "summary.csv and summary.json beside this page.</p>",
+        _overview(table),
+    ]
     groups = manifest.groups()
     for row in table:
         folder = store.job_dir(manifest.output, row["name"])
-        parts.append(f'<section id="{_e(row["name"])}"><h2>{_e(row["name"])} '
-                     f'<small class="{row["status"]}">({row["kind"]}, {row["status"]})</small></h2>')
+        parts.append(
+            f'<section id="{_e(row["name"])}"><h2>{_e(row["name"])} '
+            f'<small class="{row["status"]}">({row["kind"]}, {row["status"]})</small></h2>'
+        )
         if row["status"] == "failed":
             parts.append(f'<p class="failed">{_e(row["error"])}</p>')
         elif row["status"] == "done":
-            parts.append({"fit": _fit, "render": _render, "calibrate": _calibrate}[row["kind"]](
-                row, folder, groups[row["name"]][0]))
+            parts.append(
+                {"fit": _fit, "render": _render, "calibrate": _calibrate}[row["kind"]](
+                    row, folder, groups[row["name"]][0]
+                )
+            )
         parts.append("</section>")
-    page = ("<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\">"
-            f"<title>warp-hair batch {_e(manifest.path.name)}</title><style>{STYLE}</style></head><body>\n"
-            + "\n".join(parts) + "\n</body></html>\n")
+    page = (
+        '<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8">'
+        f"<title>warp-hair batch {_e(manifest.path.name)}</title><style>{STYLE}</style></head><body>\n"
+        + "\n".join(parts)
+        + "\n</body></html>\n"
+    )
     path = manifest.output / "report.html"
     path.write_text(page, encoding="utf-8")
     return path
@@ -74,38 +84,48 @@ def _overview(table) -> str:
     lines = ['<table><tr><th class="name">job</th><th>kind</th><th>status</th><th>seconds</th></tr>']
     for row in table:
         seconds = "" if row["seconds"] is None else f"{row['seconds']:.1f}"
-        lines.append(f'<tr><td class="name"><a href="#{_e(row["name"])}">{_e(row["name"])}</a></td><td>{row["kind"]}'
-                     f'</td><td class="{row["status"]}">{row["status"]}</td><td>{seconds}</td></tr>')
+        lines.append(
+            f'<tr><td class="name"><a href="#{_e(row["name"])}">{_e(row["name"])}</a></td><td>{row["kind"]}'
+            f'</td><td class="{row["status"]}">{row["status"]}</td><td>{seconds}</td></tr>'
+        )
     return "\n".join(lines) + "</table>"
 
 
 def _fit(row, folder: Path, job) -> str:
-    out = [f"<p>target {_e(row['target'])}: {row['iterations']} iterations ({_e(row['stop_reason'])}), "
-           f"loss {row['loss']:.4g}, {row['seconds']:.1f} s</p>"]
+    out = [
+        f"<p>target {_e(row['target'])}: {row['iterations']} iterations ({_e(row['stop_reason'])}), "
+        f"loss {row['loss']:.4g}, {row['seconds']:.1f} s</p>"
+    ]
     for name in _image_names(folder):
         figures = "".join(
             f'<figure><img class="thumb" src="{_data(folder / f"{kind}_{name}.png")}" alt="{kind} {_e(name)}">'
             f"<figcaption>{caption}</figcaption></figure>"
-            for kind, caption in (("target", f"target: {_e(name)}"), ("fit", "fit"), ("diff", "fit − target")))
+            for kind, caption in (("target", f"target: {_e(name)}"), ("fit", "fit"), ("diff", "fit − target"))
+        )
         out.append(f"<div>{figures}</div>")
     out.append(_controls_table(row))
     out.append(f'<img class="plot" src="{_data(folder / "convergence.png")}" alt="convergence of {_e(row["name"])}">')
     if row["warnings"]:
         out.append("<ul>" + "".join(f'<li class="warning">{_e(w)}</li>' for w in row["warnings"]) + "</ul>")
     for path in sorted(folder.glob("hair_*")):
-        out.append(f"<details open><summary>{_e(path.name)}</summary><pre>{_e(path.read_text(encoding='utf-8'))}"
-                   "</pre></details>")
+        out.append(
+            f"<details open><summary>{_e(path.name)}</summary><pre>{_e(path.read_text(encoding='utf-8'))}"
+            "</pre></details>"
+        )
     return "\n".join(out)
 
 
 def _image_names(folder: Path) -> list:
-    return sorted(p.name[len("target_"):-len(".png")] for p in folder.glob("target_*.png"))
+    return sorted(p.name[len("target_") : -len(".png")] for p in folder.glob("target_*.png"))
 
 
 def _controls_table(row) -> str:
     has_truth = bool(row["true"])
-    header = "<tr><th class=\"name\">control</th><th>fitted</th><th>± 1σ</th>" + (
-        "<th>true</th><th>error</th>" if has_truth else "") + "</tr>"
+    header = (
+        '<tr><th class="name">control</th><th>fitted</th><th>± 1σ</th>'
+        + ("<th>true</th><th>error</th>" if has_truth else "")
+        + "</tr>"
+    )
     lines = ["<table>", header]
     for name, value in row["fitted"].items():
         values = value if isinstance(value, list) else [value]
@@ -127,16 +147,20 @@ def _component(value, k):
 
 
 def _render(row, folder: Path, job) -> str:
-    return (f"<p>{row['spp']} spp, seed {row['seed']}, in {row['parts']} part(s), {row['seconds']:.1f} s of "
-            f"tasks; image.exr and stderr.exr beside this page's jobs/{_e(row['name'])}/</p>"
-            f'<img class="plot" src="{_data(folder / "preview.png")}" alt="render {_e(row["name"])}">')
+    return (
+        f"<p>{row['spp']} spp, seed {row['seed']}, in {row['parts']} part(s), {row['seconds']:.1f} s of "
+        f"tasks; image.exr and stderr.exr beside this page's jobs/{_e(row['name'])}/</p>"
+        f'<img class="plot" src="{_data(folder / "preview.png")}" alt="render {_e(row["name"])}">'
+    )
 
 
 def _calibrate(row, folder: Path, job) -> str:
     record = json.loads((folder / "calibration.json").read_text(encoding="utf-8"))
     coefficients = ", ".join(f"{p:.6g}" for p in record["coefficients"])
-    return (f"<p>P(β_n) coefficients p_0..p_5: {coefficients}; χ²/dof {record['chi2_per_dof']:.2f}; "
-            f"{row['seconds']:.1f} s</p><pre>{_e((folder / 'calibration.txt').read_text(encoding='utf-8'))}</pre>")
+    return (
+        f"<p>P(β_n) coefficients p_0..p_5: {coefficients}; χ²/dof {record['chi2_per_dof']:.2f}; "
+        f"{row['seconds']:.1f} s</p><pre>{_e((folder / 'calibration.txt').read_text(encoding='utf-8'))}</pre>"
+    )
 
 
 def _data(path: Path) -> str:

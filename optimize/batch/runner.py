@@ -58,8 +58,13 @@ def run_batch(manifest, address: str | None = None, cpus: int | None = None, pro
             outcome.skipped.append(job.name)
         else:
             todo.append(job)
-    bar = tqdm(total=len(manifest.jobs), initial=len(outcome.skipped), unit="job", desc=f"batch {manifest.path.name}",
-               disable=not progress)
+    bar = tqdm(
+        total=len(manifest.jobs),
+        initial=len(outcome.skipped),
+        unit="job",
+        desc=f"batch {manifest.path.name}",
+        disable=not progress,
+    )
     started = False
     pending = {}
     try:
@@ -100,8 +105,9 @@ def connect(address: str | None, cpus: int | None) -> bool:
     try:
         import ray
     except ImportError:
-        raise ValueError("warp-hair batch needs Ray: pip install -e \".[cluster]\" (or pip install 'ray>=2.60')") \
-            from None
+        raise ValueError(
+            "warp-hair batch needs Ray: pip install -e \".[cluster]\" (or pip install 'ray>=2.60')"
+        ) from None
     if ray.is_initialized():
         return False
     # Under `ray job submit`, or wherever a cluster is named in the environment, join it as Ray's own tools do.
@@ -130,9 +136,9 @@ def _submit(manifest, todo, outcome, bar) -> dict:
             outcome.failed.append(job.name)
             bar.update()
             continue
-        ref = task.options(num_cpus=manifest.cpus_per_job, max_retries=manifest.retries,
-                           name=f"warp-hair {job.kind} {job.name}").remote(job, payloads[job.group],
-                                                                           warp_hair.__version__)
+        ref = task.options(
+            num_cpus=manifest.cpus_per_job, max_retries=manifest.retries, name=f"warp-hair {job.kind} {job.name}"
+        ).remote(job, payloads[job.group], warp_hair.__version__)
         pending[ref] = (job, time.time())
     return pending
 
@@ -146,8 +152,13 @@ def _task(job, payload, version: str) -> dict:
     threads = max(1, int(ray.get_runtime_context().get_assigned_resources().get("CPU", 1)))
     start = time.time()
     result = execute(job, payload, threads, version)
-    result.update(started=start, seconds=time.time() - start, threads=threads, pid=os.getpid(),
-                  node=ray.get_runtime_context().get_node_id())
+    result.update(
+        started=start,
+        seconds=time.time() - start,
+        threads=threads,
+        pid=os.getpid(),
+        node=ray.get_runtime_context().get_node_id(),
+    )
     return result
 
 
@@ -199,8 +210,16 @@ def _assemble_render(manifest, outcome, group: str) -> None:
         _failed(manifest, job, str(error), outcome)
         return
     seconds = sum(store.read_status(manifest.output, part.name).get("seconds", 0.0) for part in jobs)
-    store.write_done(manifest.output, group, job.key, files, kind="render", group=group, seconds=seconds,
-                     parts=[part.name for part in jobs])
+    store.write_done(
+        manifest.output,
+        group,
+        job.key,
+        files,
+        kind="render",
+        group=group,
+        seconds=seconds,
+        parts=[part.name for part in jobs],
+    )
 
 
 def _assembled(manifest, jobs) -> dict:

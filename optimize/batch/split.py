@@ -35,6 +35,8 @@ def assemble(resolution, pieces) -> tuple:
         stderr[pixels] = errors
         np.add.at(count, pixels, 1)
     if not np.all(count == 1):
-        raise ValueError(f"the render's parts cover {int(np.sum(count > 0))} of {count.size} pixels "
-                         f"({int(np.sum(count > 1))} more than once): they are not parts of one split")
+        raise ValueError(
+            f"the render's parts cover {int(np.sum(count > 0))} of {count.size} pixels "
+            f"({int(np.sum(count > 1))} more than once): they are not parts of one split"
+        )
     return image.reshape(height, width, 3), stderr.reshape(height, width, 3)

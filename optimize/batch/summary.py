@@ -42,8 +42,11 @@ def entry_status(manifest, group: str, jobs) -> dict | None:
         return status
     if jobs[0].kind == "render":
         parts = [store.read_status(manifest.output, part.name) for part in jobs]
-        errors = [f"{part.name}: {s['error']}" for part, s in zip(jobs, parts)
-                  if s is not None and s.get("key") == part.key and s["status"] == "failed"]
+        errors = [
+            f"{part.name}: {s['error']}"
+            for part, s in zip(jobs, parts)
+            if s is not None and s.get("key") == part.key and s["status"] == "failed"
+        ]
         if errors:
             return {"status": "failed", "error": "; ".join(errors)}
     return None
@@ -52,11 +55,17 @@ def entry_status(manifest, group: str, jobs) -> dict | None:
 def _details(job, folder: Path) -> dict:
     if job.kind == "fit":
         params = json.loads((folder / "params.json").read_text(encoding="utf-8"))
-        return {"target": Path(job.spec["target"]).name, "fitted": params["fitted"],
-                "sigma": params.get("uncertainty"), "true": params.get("true", {}),
-                "error_vs_true": params.get("error", {}),
-                "iterations": params["iterations"], "stop_reason": params["stop_reason"], "loss": params["loss"],
-                "warnings": params.get("warnings", [])}
+        return {
+            "target": Path(job.spec["target"]).name,
+            "fitted": params["fitted"],
+            "sigma": params.get("uncertainty"),
+            "true": params.get("true", {}),
+            "error_vs_true": params.get("error", {}),
+            "iterations": params["iterations"],
+            "stop_reason": params["stop_reason"],
+            "loss": params["loss"],
+            "warnings": params.get("warnings", []),
+        }
     if job.kind == "render":
         from warp_hair.io import read_exr
 

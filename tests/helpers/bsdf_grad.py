@@ -57,8 +57,13 @@ from warp_hair.controls import SCALAR_CONTROLS as SCALAR_NAMES
 from warp_hair.model.bsdf import check_directions, check_offsets, check_params, launch_batch
 from warp_hair.model.hair_bsdf import HairCoefficients, hair_value_pdf, lobe_setup
 from warp_hair.model.jacobian import controls_vec
-from warp_hair.model.params import (ALBEDO_INVERSION_DEGREE, BETA_FLOOR, EUMELANIN_SIGMA_A, PHEOMELANIN_SIGMA_A,
-                                    HairParams)
+from warp_hair.model.params import (
+    ALBEDO_INVERSION_DEGREE,
+    BETA_FLOOR,
+    EUMELANIN_SIGMA_A,
+    PHEOMELANIN_SIGMA_A,
+    HairParams,
+)
 from warp_hair.numerics import PI
 
 # wp.grad runs forward only: the kernels here need no backward pass of their own.
@@ -204,7 +209,7 @@ def value_pdf_dot(
 @wp.func
 def hair_value_pdf_vjp(controls: HairControls, wo: wp.vec3, wi: wp.vec3, h: float, seed: wp.vec4):
     """Σ_r seed_r ∂(S_r, S_g, S_b, pdf)_r / ∂θ: one reverse pass."""
-    d_theta, d_mode, d_inversion, d_wo, d_wi, d_h, d_seed = wp.grad(value_pdf_dot)(
+    d_theta, _d_mode, _d_inversion, _d_wo, _d_wi, _d_h, _d_seed = wp.grad(value_pdf_dot)(
         controls.theta, controls.colour_mode, controls.albedo_inversion, wo, wi, h, seed
     )
     return d_theta
@@ -221,7 +226,7 @@ def hair_value_pdf_jacobian(controls: HairControls, wo: wp.vec3, wi: wp.vec3, h:
     for r in range(4):
         seed = wp.vec4(0.0)
         seed[r] = 1.0
-        d_theta, d_mode, d_inversion, d_wo, d_wi, d_h, d_seed = wp.grad(value_pdf_dot)(
+        d_theta, _d_mode, _d_inversion, _d_wo, _d_wi, _d_h, _d_seed = wp.grad(value_pdf_dot)(
             controls.theta, controls.colour_mode, controls.albedo_inversion, wo, wi, h, seed
         )
         J[r] = d_theta
@@ -247,7 +252,7 @@ def _gradients(params, wo, wi, h, rows, threads, device) -> np.ndarray:
     """(N, len(rows), 8): the chosen rows of the Jacobian per item, after the checks of `bsdf.eval`."""
     check_params(params)  # the type check; the coefficients are rebuilt in the kernel from the controls
     seeds = wp.array(np.eye(4, dtype=np.float32)[list(rows)], dtype=wp.vec4, device=device)
-    items = dict(wo=check_directions("wo", wo), wi=check_directions("wi", wi), h=check_offsets(h))
+    items = {"wo": check_directions("wo", wo), "wi": check_directions("wi", wi), "h": check_offsets(h)}
     leading = [hair_controls(params), seeds]
     return launch_batch(_vjp_kernel, leading, items, [((len(rows),), controls_vec)], threads, device)[0]
 

@@ -29,7 +29,7 @@ def dense_curve(cv, basis, per_span=400):
     form, step = FORMS[basis]
     spans = span_count(basis, "nonperiodic", len(cv))
     t = np.linspace(0.0, 1.0, per_span)[:, None]
-    return np.concatenate([form(cv[s * step:s * step + 4], t) for s in range(spans)])
+    return np.concatenate([form(cv[s * step : s * step + 4], t) for s in range(spans)])
 
 
 def distance_to_polyline(points, polyline):

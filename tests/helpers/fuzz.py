@@ -20,28 +20,63 @@ import shutil
 import signal
 import struct
 import time
-import tomllib
 from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+import tomllib
 
 ROOT = Path(__file__).resolve().parents[2]
-SCENES = sorted(ROOT.glob("targets/*/scene_*.toml")) + [ROOT / "examples" / "swatch.toml", ROOT / "benchmarks" / "standard_swatch.toml"]
+SCENES = [*sorted(ROOT.glob("targets/*/scene_*.toml")), ROOT / "examples" / "swatch.toml", ROOT / "benchmarks" / "standard_swatch.toml"]
 TARGETS = sorted(p.parent for p in ROOT.glob("targets/*/target.toml"))
 AREAS = ("scene", "scene text", "text fibers", ".hair fibers", "hair controls", "target")
 # Outcomes that pass; every other one is a failure.
 BLACK_ABSORBING = "image (black: the hair absorbs everything)"
-PASSING = ("error naming the input", "image", "image (black: geometry, light or camera changed)", BLACK_ABSORBING,
-           "finite BSDF", "loaded")
+PASSING = (
+    "error naming the input",
+    "image",
+    "image (black: geometry, light or camera changed)",
+    BLACK_ABSORBING,
+    "finite BSDF",
+    "loaded",
+)
 # Renders of valid mutants are kept tiny: the fuzz is after failures, not pictures.
 RENDER_PIXELS, RENDER_SPP, RENDER_DEPTH = 16, 2, 6
 
 HOSTILE_NUMBERS = [
-    0, -0.0, -1, 0.5, 2, 1e-320, 1e-40, 1e-15, 1e-6, 1e6, 1e15, 1e20, 1e39, 1e300, math.nan, math.inf, -math.inf,
-    2**31, 2**32, 2**63 - 1, 10**30, True, False, "0.5", "", [], [1.0, 2.0], [1e39, 1e39, 1e39], {}, [0.0, 0.0, 0.0],
-    [1e-320, 0.0, 0.0], [1e308, 1e308, 1e308],
+    0,
+    -0.0,
+    -1,
+    0.5,
+    2,
+    1e-320,
+    1e-40,
+    1e-15,
+    1e-6,
+    1e6,
+    1e15,
+    1e20,
+    1e39,
+    1e300,
+    math.nan,
+    math.inf,
+    -math.inf,
+    2**31,
+    2**32,
+    2**63 - 1,
+    10**30,
+    True,
+    False,
+    "0.5",
+    "",
+    [],
+    [1.0, 2.0],
+    [1e39, 1e39, 1e39],
+    {},
+    [0.0, 0.0, 0.0],
+    [1e-320, 0.0, 0.0],
+    [1e308, 1e308, 1e308],
 ]
 FACTORS = [0.0, -1.0, 1e-6, 0.1, 0.5, 2.0, 10.0, 1e6, 1e30]
 HAIR_KEYS = ("albedo", "sigma_a", "eumelanin", "pheomelanin", "beta_m", "beta_n", "alpha", "eta", "r_roughness_scale")
@@ -65,10 +100,10 @@ def _paths(value, prefix=()):
     """Every (path, leaf) in a TOML-like dict, lists of numbers counted as leaves."""
     if isinstance(value, dict):
         for key, item in value.items():
-            yield from _paths(item, prefix + (key,))
+            yield from _paths(item, (*prefix, key))
     elif isinstance(value, list) and value and all(isinstance(v, dict) for v in value):
         for k, item in enumerate(value):
-            yield from _paths(item, prefix + (k,))
+            yield from _paths(item, (*prefix, k))
     else:
         yield prefix, value
 
@@ -112,8 +147,13 @@ def _scene_case(index, rng):
     source = rng.choice(SCENES)
     data = tomllib.loads(source.read_text())
     mutant, path, what = _mutate_dict(data, rng)
-    return Case("scene", index, source.relative_to(ROOT).as_posix(), what,
-                {"scene": mutant, "key": str(path[-1]), "table": str(path[0]), "base": str(source.parent)})
+    return Case(
+        "scene",
+        index,
+        source.relative_to(ROOT).as_posix(),
+        what,
+        {"scene": mutant, "key": str(path[-1]), "table": str(path[0]), "base": str(source.parent)},
+    )
 
 
 def _scene_text_case(index, rng):
@@ -133,8 +173,13 @@ def _scene_text_case(index, rng):
     else:
         lines[k] = lines[k].replace("=", "= [", 1)
         what = f"break line {k + 1}"
-    return Case("scene text", index, source.relative_to(ROOT).as_posix(), what,
-                {"text": "\n".join(lines) + "\n", "base": str(source.parent)})
+    return Case(
+        "scene text",
+        index,
+        source.relative_to(ROOT).as_posix(),
+        what,
+        {"text": "\n".join(lines) + "\n", "base": str(source.parent)},
+    )
 
 
 def _fiber_strands(rng):
@@ -180,8 +225,13 @@ def _text_fiber_case(index, rng):
 
 
 # Byte offsets of the .hair header's fields (Cem Yuksel's format, little-endian).
-HAIR_FIELDS = {"strands": (4, "<I"), "points": (8, "<I"), "flags": (12, "<I"), "default segments": (16, "<I"),
-               "default thickness": (20, "<f")}
+HAIR_FIELDS = {
+    "strands": (4, "<I"),
+    "points": (8, "<I"),
+    "flags": (12, "<I"),
+    "default segments": (16, "<I"),
+    "default thickness": (20, "<f"),
+}
 
 
 def _hair_fiber_case(index, rng):
@@ -196,8 +246,11 @@ def _hair_fiber_case(index, rng):
     if choice < 0.4:
         name = rng.choice(list(HAIR_FIELDS))
         offset, fmt = HAIR_FIELDS[name]
-        value = rng.choice([0, 1, 2, 3, 7, 31, 2**16, 2**31, 2**32 - 1]) if fmt == "<I" else rng.choice(
-            [0.0, -1.0, 1e-40, 1e38, math.inf, math.nan, 1e20])
+        value = (
+            rng.choice([0, 1, 2, 3, 7, 31, 2**16, 2**31, 2**32 - 1])
+            if fmt == "<I"
+            else rng.choice([0.0, -1.0, 1e-40, 1e38, math.inf, math.nan, 1e20])
+        )
         struct.pack_into(fmt, raw, offset, value)
         what = f"header {name} = {value!r}"
     elif choice < 0.65:
@@ -227,7 +280,7 @@ def _hair_controls_case(index, rng):
     for key in rng.sample(HAIR_KEYS[4:], rng.randint(0, 3)):
         controls[key] = rng.choice([0.0, 0.01, 0.3, 1.0, 1.5, 30.0, 1 + 1e-9, 10.0])
     key = rng.choice(HAIR_KEYS)
-    value = copy.deepcopy(rng.choice(HOSTILE_NUMBERS + [1 + 1e-9, 1e-40, 1e40, 3.5e38, 1e-7]))
+    value = copy.deepcopy(rng.choice([*HOSTILE_NUMBERS, 1 + 1e-09, 1e-40, 1e+40, 3.5e+38, 1e-07]))
     controls[key] = value
     return Case("hair controls", index, "HairParams", f"{controls!r}", {"controls": controls, "key": key})
 
@@ -242,7 +295,7 @@ def _target_case(index, rng):
         what = f"truth.json: {what}"
     elif choice < 0.8:
         spec = tomllib.loads((source / "target.toml").read_text())
-        mutant, path, what = _mutate_dict(spec, rng)
+        mutant, _path, what = _mutate_dict(spec, rng)
         data = {"target.toml": _toml(mutant)}
         what = f"target.toml: {what}"
     else:
@@ -276,8 +329,14 @@ def _plain(value):
     return not isinstance(value, dict) and text != "null"
 
 
-MAKERS = {"scene": _scene_case, "scene text": _scene_text_case, "text fibers": _text_fiber_case,
-          ".hair fibers": _hair_fiber_case, "hair controls": _hair_controls_case, "target": _target_case}
+MAKERS = {
+    "scene": _scene_case,
+    "scene text": _scene_text_case,
+    "text fibers": _text_fiber_case,
+    ".hair fibers": _hair_fiber_case,
+    "hair controls": _hair_controls_case,
+    "target": _target_case,
+}
 # Relative frequency of each area.
 WEIGHTS = {"scene": 4, "scene text": 1, "text fibers": 2, ".hair fibers": 2, "hair controls": 3, "target": 1}
 
@@ -307,7 +366,7 @@ def run_case(case: Case, workdir: Path) -> tuple[str, str]:
             return ("unnamed error", f"{type(error).__name__}: {error}")
         except MemoryError as error:
             return ("MemoryError", str(error))
-        except Exception as error:  # noqa: BLE001 - every other exception is what the fuzz looks for
+        except Exception as error:
             return ("crash", f"{type(error).__name__}: {error}")
 
 
@@ -326,8 +385,11 @@ def _rendered(scene, may_be_black) -> tuple[str, str]:
     width, height = scene.camera.resolution
     shrink = max(1, math.ceil(max(width, height) / RENDER_PIXELS))
     camera = dataclasses.replace(scene.camera, resolution=(max(1, width // shrink), max(1, height // shrink)))
-    settings = dataclasses.replace(scene.render, max_depth=min(scene.render.max_depth, RENDER_DEPTH),
-                                   rr_depth=min(scene.render.rr_depth, RENDER_DEPTH))
+    settings = dataclasses.replace(
+        scene.render,
+        max_depth=min(scene.render.max_depth, RENDER_DEPTH),
+        rr_depth=min(scene.render.rr_depth, RENDER_DEPTH),
+    )
     scene = dataclasses.replace(scene, camera=camera, render=settings)
     image = wh.render(scene, spp=RENDER_SPP, threads=1)
     if not np.isfinite(image).all():
@@ -387,8 +449,14 @@ def _run_fibers(case, workdir):
         except (ValueError, OSError) as error:
             return _named(error, str(path))
         scene = {
-            "camera": {"type": "orthographic", "origin": [0.0, 0.0, 3.0], "target": [0.0, 0.0, 0.0],
-                       "up": [0.0, 1.0, 0.0], "width": 0.2, "resolution": [16, 16]},
+            "camera": {
+                "type": "orthographic",
+                "origin": [0.0, 0.0, 3.0],
+                "target": [0.0, 0.0, 0.0],
+                "up": [0.0, 1.0, 0.0],
+                "width": 0.2,
+                "resolution": [16, 16],
+            },
             "lights": [{"type": "directional", "direction": [0.3, -0.4, -1.0], "irradiance": [3.0, 3.0, 3.0]}],
             "fibers": {"file": str(path)},
             "hair": {"eumelanin": 1.3},
@@ -403,7 +471,9 @@ def _run_fibers(case, workdir):
 
 
 # Directions at the edges of the sphere and a few inside, for the BSDF checks.
-_AXES = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1], [0.6, 0.8, 0], [0.3, 0.4, 0.866]])
+_AXES = np.array(
+    [[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1], [0.6, 0.8, 0], [0.3, 0.4, 0.866]]
+)
 
 
 def _run_hair_controls(case, workdir):
@@ -451,8 +521,14 @@ def _run_target(case, workdir):
         shutil.rmtree(directory, ignore_errors=True)
 
 
-RUNNERS = {"scene": _run_scene, "scene text": _run_scene_text, "text fibers": _run_fibers,
-           ".hair fibers": _run_fibers, "hair controls": _run_hair_controls, "target": _run_target}
+RUNNERS = {
+    "scene": _run_scene,
+    "scene text": _run_scene_text,
+    "text fibers": _run_fibers,
+    ".hair fibers": _run_fibers,
+    "hair controls": _run_hair_controls,
+    "target": _run_target,
+}
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -480,7 +556,7 @@ def start_isolated(case: Case, workdir: Path, memory: int, seconds: int):
             resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
             resource.setrlimit(resource.RLIMIT_CPU, (seconds, seconds + 1))
             outcome = run_case(case, workdir)
-        except BaseException as error:  # noqa: BLE001
+        except BaseException as error:
             outcome = ("crash", f"{type(error).__name__}: {error}")
         os.write(write_end, json.dumps(outcome).encode()[:60000])
         os._exit(0)
@@ -550,5 +626,7 @@ def table(results) -> str:
         row = [counts[(area, o)] for o in outcomes]
         if sum(row):
             lines.append(f"| {area} | {sum(row)} | " + " | ".join(str(v) for v in row) + " |")
-    lines.append(f"| all | {len(results)} | " + " | ".join(str(sum(counts[(a, o)] for a in AREAS)) for o in outcomes) + " |")
+    lines.append(
+        f"| all | {len(results)} | " + " | ".join(str(sum(counts[(a, o)] for a in AREAS)) for o in outcomes) + " |"
+    )
     return "\n".join(lines)

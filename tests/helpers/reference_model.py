@@ -4,12 +4,13 @@ Written from /work/shared/reference/MODEL.md (pbrt-v4 frame) and the project's f
 conventions only, never from the Warp code it tests.  Everything is float64 and vectorized
 over N directions.  Lobe order everywhere: [R, TT, TRT, residual] (p = 0..3).
 """
+
 import numpy as np
 from scipy.special import i0e
 
-_EU = np.array([0.419, 0.697, 1.37])    # docs/MODEL.md "From artist controls": eumelanin
-_PHEO = np.array([0.187, 0.4, 1.05])    # ... and pheomelanin absorption per unit radius
-_BETA_MIN = 0.01                        # project convention: roughness floor
+_EU = np.array([0.419, 0.697, 1.37])  # docs/MODEL.md "From artist controls": eumelanin
+_PHEO = np.array([0.187, 0.4, 1.05])  # ... and pheomelanin absorption per unit radius
+_BETA_MIN = 0.01  # project convention: roughness floor
 
 
 def _rgb(x):
@@ -32,8 +33,7 @@ def coefficients(controls):
         if "albedo_inversion" in c:
             poly = sum(float(p) * bn**k for k, p in enumerate(c["albedo_inversion"]))
         else:
-            poly = (5.969 - 0.215 * bn + 2.532 * bn**2 - 10.73 * bn**3
-                    + 5.574 * bn**4 + 0.245 * bn**5)
+            poly = 5.969 - 0.215 * bn + 2.532 * bn**2 - 10.73 * bn**3 + 5.574 * bn**4 + 0.245 * bn**5
         sigma_a = (np.log(_rgb(c["albedo"])) / poly) ** 2
     elif kinds[0] == "sigma_a":
         sigma_a = _rgb(c["sigma_a"])
@@ -44,8 +44,13 @@ def coefficients(controls):
     v_lobes = np.array([v * float(c.get("r_roughness_scale", 1.0)), 0.25 * v, 4.0 * v, 4.0 * v])
     # Azimuthal logistic scale, with pbrt/Mitsuba/Cycles' sqrt(pi/8) factor.
     s = np.sqrt(np.pi / 8.0) * (0.265 * bn + 1.194 * bn**2 + 5.372 * bn**22)
-    return dict(sigma_a=sigma_a, eta=float(c.get("eta", 1.55)), v=v_lobes, s=float(s),
-                alpha=np.deg2rad(float(c.get("alpha", 2.0))))
+    return {
+        "sigma_a": sigma_a,
+        "eta": float(c.get("eta", 1.55)),
+        "v": v_lobes,
+        "s": float(s),
+        "alpha": np.deg2rad(float(c.get("alpha", 2.0))),
+    }
 
 
 def _angles(w):
@@ -64,8 +69,8 @@ def _fiber(co, wo, h):
     # Written as h cos / sqrt(.) so that cos theta_o = 0 gives 0 instead of h / inf.
     sin_gt = h * cos_o / np.sqrt(eta**2 - sin_o**2)
     cos_gt = np.sqrt(np.maximum(0.0, 1.0 - sin_gt**2))
-    cos_tt = np.sqrt(1.0 - (sin_o / eta) ** 2)              # eta > 1: never zero
-    T = np.exp(-co["sigma_a"][None, :] * (2.0 * cos_gt / cos_tt)[:, None])   # (N,3)
+    cos_tt = np.sqrt(1.0 - (sin_o / eta) ** 2)  # eta > 1: never zero
+    T = np.exp(-co["sigma_a"][None, :] * (2.0 * cos_gt / cos_tt)[:, None])  # (N,3)
     # Unpolarized dielectric Fresnel at cos_i = cos theta_o sqrt(1 - h^2), entering index eta.
     ci = cos_o * np.sqrt(np.maximum(0.0, 1.0 - h**2))
     ct = np.sqrt(np.maximum(0.0, 1.0 - (1.0 - ci**2) / eta**2))
@@ -98,8 +103,7 @@ def _M(sin_i, cos_i, sin_o, cos_o, v):
     log I0(x) = log i0e(x) + x, and log(2 v sinh(1/v)) = log v + 1/v + log(1 - e^(-2/v)).
     The x and 1/v terms are combined as (cos_i cos_o - sin_i sin_o - 1) / v <= 0."""
     x = cos_i * cos_o / v
-    log_m = (np.log(i0e(x)) + (cos_i * cos_o - sin_i * sin_o - 1.0) / v
-             - np.log(v) - np.log(-np.expm1(-2.0 / v)))
+    log_m = np.log(i0e(x)) + (cos_i * cos_o - sin_i * sin_o - 1.0) / v - np.log(v) - np.log(-np.expm1(-2.0 / v))
     return np.exp(log_m)
 
 
@@ -122,9 +126,9 @@ def lobe_terms(co, wo, wi, h):
     MN = _M(sin_i[:, None], cos_i[:, None], sin_p, cos_p, co["v"][None, :])
     dphi = phi_i - phi_o
     for p in range(3):
-        x = np.mod(dphi - _Phi(p, g_o, g_t) + np.pi, 2.0 * np.pi) - np.pi   # wrap to [-pi, pi)
+        x = np.mod(dphi - _Phi(p, g_o, g_t) + np.pi, 2.0 * np.pi) - np.pi  # wrap to [-pi, pi)
         MN[:, p] *= _trimmed_logistic(x, co["s"])
-    MN[:, 3] /= 2.0 * np.pi                                                # isotropic residual
+    MN[:, 3] /= 2.0 * np.pi  # isotropic residual
     return MN, A
 
 
@@ -161,7 +165,7 @@ def sample(controls, wo, h, u):
     A, g_o, g_t = _fiber(co, wo, h)
     prob = lobe_probs(A)
     # 1. Lobe choice: smallest p with u0 < cdf_{p+1}; fallback to the last lobe with prob > 0.
-    cdf = np.concatenate([np.zeros((n, 1)), np.cumsum(prob, axis=1)], axis=1)   # (N,5)
+    cdf = np.concatenate([np.zeros((n, 1)), np.cumsum(prob, axis=1)], axis=1)  # (N,5)
     below = u[:, :1] < cdf[:, 1:]
     last_pos = 3 - np.argmax(prob[:, ::-1] > 0.0, axis=1)
     p = np.where(below.any(axis=1), np.argmax(below, axis=1), last_pos)

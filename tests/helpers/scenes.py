@@ -26,13 +26,15 @@ def toml_text(data: dict) -> str:
 
 
 # The command-line tests' scene (the `tiny_scene` fixture writes it to a file): 12×8 pixels, 40 fibers, 2 spp.
-TINY_SCENE = toml_text({
-    "camera": front_camera(0.2, (12, 8)),
-    "lights": [{"type": "directional", "direction": [0.3, -0.4, -1.0], "irradiance": [3.0, 3.0, 3.0]}],
-    "fibers": {"generator": "swatch", "count": 40, "layers": 2},
-    "hair": {"eumelanin": 1.3},
-    "render": {"spp": 2, "max_depth": 8, "seed": 4},
-})
+TINY_SCENE = toml_text(
+    {
+        "camera": front_camera(0.2, (12, 8)),
+        "lights": [{"type": "directional", "direction": [0.3, -0.4, -1.0], "irradiance": [3.0, 3.0, 3.0]}],
+        "fibers": {"generator": "swatch", "count": 40, "layers": 2},
+        "hair": {"eumelanin": 1.3},
+        "render": {"spp": 2, "max_depth": 8, "seed": 4},
+    }
+)
 
 
 def swatch_scene(hair, lights, resolution=(24, 24), render_table=None, card=None):
@@ -50,8 +52,14 @@ def swatch_scene(hair, lights, resolution=(24, 24), render_table=None, card=None
 
 
 # The gradient checks' hair, with every scalar control away from its default.
-SPARSE_HAIR = {"albedo": [0.7, 0.5, 0.3], "beta_m": 0.3, "beta_n": 0.35, "alpha": 2.0, "eta": 1.55,
-               "r_roughness_scale": 1.5}
+SPARSE_HAIR = {
+    "albedo": [0.7, 0.5, 0.3],
+    "beta_m": 0.3,
+    "beta_n": 0.35,
+    "alpha": 2.0,
+    "eta": 1.55,
+    "r_roughness_scale": 1.5,
+}
 
 
 def sparse_scene_dict(hair, resolution=(16, 16), spp=128) -> dict:
@@ -85,6 +93,7 @@ def write_front_back_target(directory, scene_text):
     each scene file; target.toml lists them (the images are left to `make_target`)."""
     for name, direction in FRONT_BACK:
         (directory / f"scene_{name}.toml").write_text(scene_text(direction))
-    (directory / "target.toml").write_text("".join(
-        f'[[images]]\nscene = "scene_{name}.toml"\nimage = "{name}.exr"\n\n' for name, _ in FRONT_BACK))
+    (directory / "target.toml").write_text(
+        "".join(f'[[images]]\nscene = "scene_{name}.toml"\nimage = "{name}.exr"\n\n' for name, _ in FRONT_BACK)
+    )
     return directory

@@ -15,8 +15,9 @@ differently; each module converts (its docstring says from which source code), a
 from __future__ import annotations
 
 import json
-import tomllib
 from pathlib import Path
+
+import tomllib
 
 from ..controls import CONTROL_NAMES
 from ..io import read_text
@@ -40,7 +41,7 @@ def renderer(name: str):
 
 
 def parse_renderers(names: str) -> list[str]:
-    """"mitsuba,cycles" → ["mitsuba", "cycles"], each checked."""
+    """ "mitsuba,cycles" → ["mitsuba", "cycles"], each checked."""
     chosen = [n.strip() for n in names.split(",") if n.strip()]
     if not chosen:
         raise ValueError(f"no renderer to export to; choose from {', '.join(RENDERERS)}")
@@ -74,14 +75,18 @@ def load_look(path) -> HairParams:
         raise ValueError(f"{path}: a JSON look must be an object of controls, got {type(data).__name__}")
     if LOOK_KEY in data:
         if not isinstance(data[LOOK_KEY], dict):
-            raise ValueError(f"{path}: \"{LOOK_KEY}\" must be an object of controls")
-        return _controls(data[LOOK_KEY], f"{path} \"{LOOK_KEY}\"")
+            raise ValueError(f'{path}: "{LOOK_KEY}" must be an object of controls')
+        return _controls(data[LOOK_KEY], f'{path} "{LOOK_KEY}"')
     if "fitted" in data:
-        raise ValueError(f"{path}: this params.json has no \"{LOOK_KEY}\" (every control of the fitted look); "
-                         "it was written by an older warp-hair: refit, or export the target's scene file")
+        raise ValueError(
+            f'{path}: this params.json has no "{LOOK_KEY}" (every control of the fitted look); '
+            "it was written by an older warp-hair: refit, or export the target's scene file"
+        )
     if not set(data) <= set(CONTROL_NAMES):
-        raise ValueError(f"{path}: neither a fit's params.json (no \"{LOOK_KEY}\") nor an object of hair controls "
-                         f"(unknown keys {sorted(set(data) - set(CONTROL_NAMES))})")
+        raise ValueError(
+            f'{path}: neither a fit\'s params.json (no "{LOOK_KEY}") nor an object of hair controls '
+            f"(unknown keys {sorted(set(data) - set(CONTROL_NAMES))})"
+        )
     return _controls(data, str(path))
 
 

@@ -11,8 +11,6 @@ from __future__ import annotations
 import math
 import warnings
 
-import numpy as np
-
 from ..model.params import HairParams, effective_beta
 
 # The sign each renderer's tilt parameter takes relative to ours (see the module docstring).
@@ -52,5 +50,8 @@ def fmt(x: float) -> str:
 
 def no_r_roughness_scale(params: HairParams, renderer: str) -> None:
     if params.r_roughness_scale != 1.0:
-        lossy(renderer, f"it has no R-roughness scale: r_roughness_scale = {params.r_roughness_scale:g} is "
-              "dropped (its R lobe gets the longitudinal roughness of β_m unscaled)")
+        lossy(
+            renderer,
+            f"it has no R-roughness scale: r_roughness_scale = {params.r_roughness_scale:g} is "
+            "dropped (its R lobe gets the longitudinal roughness of β_m unscaled)",
+        )

@@ -47,14 +47,20 @@ def coat_from_r_roughness_scale(beta_m: float, scale: float) -> float:
     if scale == 1.0:
         return 0.0
     if scale > 1.0:
-        lossy(NAME, f"Coat can only make the R lobe smoother: r_roughness_scale = {scale:g} > 1 becomes Coat 0 "
-              "(R as rough as β_m)")
+        lossy(
+            NAME,
+            f"Coat can only make the R lobe smoother: r_roughness_scale = {scale:g} > 1 becomes Coat 0 "
+            "(R as rough as β_m)",
+        )
         return 0.0
     target = math.sqrt(scale) * longitudinal_polynomial(beta_m)
     if target <= longitudinal_polynomial(lo):
         coat = 1.0 - lo / beta_m
-        lossy(NAME, f"r_roughness_scale = {scale:g} asks for an R roughness below Cycles' clamp {lo:g}; "
-              f"Coat {coat:.6g} renders the clamp")
+        lossy(
+            NAME,
+            f"r_roughness_scale = {scale:g} asks for an R roughness below Cycles' clamp {lo:g}; "
+            f"Coat {coat:.6g} renders the clamp",
+        )
         return coat
     # poly is increasing on [0, 1]: bisect for β_R with poly(β_R) = target.
     a, b = lo, beta_m
@@ -74,14 +80,16 @@ def node_settings(params: HairParams) -> dict:
     else:
         parametrization = "ABSORPTION"
         inputs["Absorption Coefficient"] = sigma_a(params)
-    inputs.update({
-        "Roughness": beta_m,
-        "Radial Roughness": beta_n,
-        "Coat": coat_from_r_roughness_scale(beta_m, params.r_roughness_scale),
-        "IOR": float(params.eta),
-        "Offset": math.radians(tilt_degrees(params, NAME)),
-        "Random Roughness": 0.0,
-    })
+    inputs.update(
+        {
+            "Roughness": beta_m,
+            "Radial Roughness": beta_n,
+            "Coat": coat_from_r_roughness_scale(beta_m, params.r_roughness_scale),
+            "IOR": float(params.eta),
+            "Offset": math.radians(tilt_degrees(params, NAME)),
+            "Random Roughness": 0.0,
+        }
+    )
     return {"model": "CHIANG", "parametrization": parametrization, "inputs": inputs}
 
 
@@ -135,8 +143,13 @@ def _literal(value) -> str:
 def script_text(params: HairParams) -> str:
     settings = node_settings(params)
     inputs = "\n".join(f"    {name!r}: {_literal(v)}," for name, v in settings["inputs"].items())
-    return _SCRIPT.format(controls=params.to_dict(), material=MATERIAL_NAME, model=settings["model"],
-                          parametrization=settings["parametrization"], inputs=inputs)
+    return _SCRIPT.format(
+        controls=params.to_dict(),
+        material=MATERIAL_NAME,
+        model=settings["model"],
+        parametrization=settings["parametrization"],
+        inputs=inputs,
+    )
 
 
 export_text = script_text

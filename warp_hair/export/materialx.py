@@ -45,8 +45,11 @@ def lobe_roughness(params: HairParams) -> dict:
     for name, (lv, ls) in lobes.items():
         for what, x in (("longitudinal variance", lv), ("logistic scale", ls)):
             if not lo <= x <= hi:
-                lossy(NAME, f"the {name} lobe's {what} {x:.4g} is outside chiang_hair_bsdf's clamp [{lo:g}, {hi:g}]; "
-                      f"MaterialX renders {min(max(x, lo), hi):g}")
+                lossy(
+                    NAME,
+                    f"the {name} lobe's {what} {x:.4g} is outside chiang_hair_bsdf's clamp [{lo:g}, {hi:g}]; "
+                    f"MaterialX renders {min(max(x, lo), hi):g}",
+                )
     return lobes
 
 

@@ -174,10 +174,7 @@ class FiberAssembly:
         return self.num_strands
 
     def __repr__(self):
-        return (
-            f"FiberAssembly({self.num_strands} strands, {self.num_vertices} vertices, "
-            f"{self.num_segments} segments)"
-        )
+        return f"FiberAssembly({self.num_strands} strands, {self.num_vertices} vertices, {self.num_segments} segments)"
 
 
 def _frozen(array):

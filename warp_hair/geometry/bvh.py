@@ -83,8 +83,14 @@ def leaf_range(code):
     return code >> LEAF_BITS, code & MAX_LEAF_SIZE
 
 
-def build_bvh(lowers, uppers, max_leaf: int = 4, width: int = 2, traversal_cost: float = TRAVERSAL_COST,
-              threads: int | None = None) -> Tree:
+def build_bvh(
+    lowers,
+    uppers,
+    max_leaf: int = 4,
+    width: int = 2,
+    traversal_cost: float = TRAVERSAL_COST,
+    threads: int | None = None,
+) -> Tree:
     """The tree of the given `width` (2 or 4) over the boxes (lowers, uppers) (M, 3); see the module docstring.
     The ranges of a level are split by `threads` threads (default: one per core); the tree does not depend on
     their number."""
@@ -161,8 +167,24 @@ def _build_binary(lowers, uppers, max_leaf, traversal_cost, threads=None) -> Tre
         # by the centre for a median split.
         mode = np.where(leaf, 0, np.where(median, 2, 1)).astype(np.int32)
         n_left = wp.zeros(k, dtype=wp.int32, device=device)
-        _launch(_partition_kernel, k, [prims, wp_start, wp_count, wp.array(mode, dtype=wp.int32, device=device),
-                                       out["axis"], out["bin"], out["c_lo"], out["c_extent"], nb, scratch, n_left], threads)
+        _launch(
+            _partition_kernel,
+            k,
+            [
+                prims,
+                wp_start,
+                wp_count,
+                wp.array(mode, dtype=wp.int32, device=device),
+                out["axis"],
+                out["bin"],
+                out["c_lo"],
+                out["c_extent"],
+                nb,
+                scratch,
+                n_left,
+            ],
+            threads,
+        )
         n_left = n_left.numpy().astype(np.int64)
         medians = np.flatnonzero(median)
         if len(medians):
@@ -228,8 +250,14 @@ def _widen(tree: Tree) -> Tree:
     """The 4-wide tree of a binary one: its nodes at even depth, each with its grandchildren as children."""
     n = len(tree.child)
     if n == 0:
-        return Tree(tree.order, np.zeros((0, 4, 3), np.float32), np.zeros((0, 4, 3), np.float32),
-                    np.zeros((0, 4), np.int32), 0, tree.level)
+        return Tree(
+            tree.order,
+            np.zeros((0, 4, 3), np.float32),
+            np.zeros((0, 4, 3), np.float32),
+            np.zeros((0, 4), np.int32),
+            0,
+            tree.level,
+        )
     keep = np.flatnonzero(tree.level % 2 == 0)
     index = np.full(n, -1, dtype=np.int64)
     index[keep] = np.arange(len(keep))
@@ -254,8 +282,15 @@ def _widen(tree: Tree) -> Tree:
 # Per-bin values of all three axes (axis · BINS + bin).
 BinValues = wp.types.vector(length=3 * BINS, dtype=wp.float64)
 BinCounts = wp.types.vector(length=3 * BINS, dtype=wp.int32)
-_SPLIT_OUTPUTS = (("box_lo", wp.vec3d), ("box_hi", wp.vec3d), ("c_lo", wp.vec3d), ("c_extent", wp.vec3d),
-                  ("cost", wp.float64), ("axis", wp.int32), ("bin", wp.int32))
+_SPLIT_OUTPUTS = (
+    ("box_lo", wp.vec3d),
+    ("box_hi", wp.vec3d),
+    ("c_lo", wp.vec3d),
+    ("c_extent", wp.vec3d),
+    ("cost", wp.float64),
+    ("axis", wp.int32),
+    ("bin", wp.int32),
+)
 
 
 @wp.struct

@@ -56,7 +56,7 @@ def span_count(basis, wrap, n):
 def control_points(cv, basis, wrap):
     """The control points the spans step over: periodic curves wrap around, pinned ones get phantom ends."""
     if wrap == "periodic":
-        return np.concatenate([cv, cv[:4 - VSTEP[basis]]])
+        return np.concatenate([cv, cv[: 4 - VSTEP[basis]]])
     if wrap == "pinned" and basis != "bezier":
         return np.concatenate([2 * cv[:1] - cv[1:2], cv, 2 * cv[-1:] - cv[-2:-1]])
     return cv
@@ -79,8 +79,10 @@ def span_pieces(windows, basis, max_deviation):
     worst = int(np.argmax(pieces))
     if pieces[worst] > MAX_PIECES_PER_SPAN:
         deviation = np.broadcast_to(max_deviation, pieces.shape)[worst]
-        raise ValueError(f"a curve span would need {pieces[worst]:.0f} straight pieces to stay within {deviation:g} "
-                         f"of the curve (at most {MAX_PIECES_PER_SPAN}): raise the tolerance")
+        raise ValueError(
+            f"a curve span would need {pieces[worst]:.0f} straight pieces to stay within {deviation:g} "
+            f"of the curve (at most {MAX_PIECES_PER_SPAN}): raise the tolerance"
+        )
     return pieces.astype(np.int64)
 
 
@@ -120,10 +122,12 @@ def tessellate(cv, basis, wrap, *, max_deviation=None, segments=None, values=Non
     windows = _windows(control_points(cv, basis, wrap), spans, VSTEP[basis])
     extra = None
     if values is not None:
-        extra = _windows(control_points(np.asarray(values, dtype=np.float64).reshape(len(cv), -1), basis, wrap),
-                         spans, VSTEP[basis])
-    pieces = (np.full(spans, segments, dtype=np.int64) if segments is not None
-              else span_pieces(windows, basis, max_deviation))
+        extra = _windows(
+            control_points(np.asarray(values, dtype=np.float64).reshape(len(cv), -1), basis, wrap), spans, VSTEP[basis]
+        )
+    pieces = (
+        np.full(spans, segments, dtype=np.int64) if segments is not None else span_pieces(windows, basis, max_deviation)
+    )
     closes = (np.arange(spans) == spans - 1).astype(np.int64)  # the last span keeps its end point
     return _evaluate(windows, basis, pieces, closes, extra)
 

@@ -14,7 +14,6 @@ from .assembly import FiberAssembly, FiberDataError
 from .usd import SUFFIXES as USD_SUFFIXES
 
 
-
 def load_fibers(path, **options):
     """Load a fiber file, choosing the format by extension: `.hair` (Cem Yuksel's binary), `.txt` (text), or a USD
     stage (`.usd`, `.usda`, `.usdc`: BasisCurves, `warp_hair.geometry.usd`, which takes `options` prim, radius, segments)."""

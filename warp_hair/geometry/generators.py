@@ -12,7 +12,6 @@ import numpy as np
 from .. import validate
 from .assembly import FiberAssembly
 
-
 # A swatch fiber wanders sideways by up to this fraction of jitter × spacing. With the ±jitter/2 root jitter,
 # neighbours in a layer then stay at least spacing × (1 − (1 + 2·_WANDER)·jitter) apart.
 _WANDER = 0.125
@@ -191,9 +190,12 @@ def fur(
     # Each segment points along the fiber's lean at its midpoint, which grows linearly from root to tip.
     midpoint = (np.arange(segments) + 0.5) / segments
     tilt = root_lean[:, None] + np.radians(bend) * midpoint
-    steps = np.stack(
-        [np.sin(tilt) * np.cos(azimuth)[:, None], np.sin(tilt) * np.sin(azimuth)[:, None], np.cos(tilt)], axis=-1
-    ) * (lengths / segments)[:, None, None]
+    steps = (
+        np.stack(
+            [np.sin(tilt) * np.cos(azimuth)[:, None], np.sin(tilt) * np.sin(azimuth)[:, None], np.cos(tilt)], axis=-1
+        )
+        * (lengths / segments)[:, None, None]
+    )
     offsets = np.concatenate([np.zeros((count, 1, 3)), np.cumsum(steps, axis=1)], axis=1)
     radii = np.linspace(root_radius, tip_radius, segments + 1)
     return FiberAssembly.from_arrays(roots[:, None, :] + offsets, np.broadcast_to(radii, (count, segments + 1)))
@@ -241,7 +243,9 @@ def _check_size(count, segments):
             f"{count} fibers of {segments} segments make {vertices} vertices, more than the {validate.INT32_MAX} a "
             "fiber assembly indexes"
         )
-    validate.memory(f"{count} fibers of {segments} segments ({vertices} vertices)", vertices * _GENERATOR_BYTES_PER_VERTEX)
+    validate.memory(
+        f"{count} fibers of {segments} segments ({vertices} vertices)", vertices * _GENERATOR_BYTES_PER_VERTEX
+    )
 
 
 def _swatch_axes(y, count, layers, radius, spacing, width, jitter, layer_gap, rng):
@@ -307,7 +311,9 @@ def _swatch_assembly(x, y, z, radius, drape=None):
         _check_positive(drape=drape)
         half_angle = np.abs(y).max() / drape
         if half_angle >= np.pi / 2:
-            raise ValueError(f"drape = {drape} is too tight for the swatch's length: it must exceed length / π = {2 * np.abs(y).max() / np.pi:.4g}")
+            raise ValueError(
+                f"drape = {drape} is too tight for the swatch's length: it must exceed length / π = {2 * np.abs(y).max() / np.pi:.4g}"
+            )
         if (z <= -drape).any():
             raise ValueError(f"drape = {drape} is smaller than the swatch's depth {-z.min():.4g}")
         bent = drape + z

@@ -70,7 +70,7 @@ class InterpenetrationReport:
         return (
             f"{self.pairs} pairs of strands interpenetrate ({self.strands} of {self.num_strands} strands; the "
             f"deepest overlap is {self.deepest:.0%} of the two radii): renderers disagree there. Here {how} "
-            f"([render] interpenetration = \"{rule}\"; docs/scenes.md, \"Interpenetrating strands\")"
+            f'([render] interpenetration = "{rule}"; docs/scenes.md, "Interpenetrating strands")'
         )
 
 
@@ -198,9 +198,20 @@ def points_inside_other_strands(assembly, points, strands, device: str = "cpu") 
         (p0, p1, lo, hi), radius, strand, _ = _segment_arrays(assembly)
         bvh = wp.Bvh(lo, hi)
         inside = wp.zeros(len(points), dtype=wp.int32)
-        wp.launch(_inside_other, dim=len(points), inputs=[bvh.id, p0, p1, radius, strand,
-                                                          wp.array(points, dtype=wp.vec3),
-                                                          wp.array(own, dtype=wp.int32), inside])
+        wp.launch(
+            _inside_other,
+            dim=len(points),
+            inputs=[
+                bvh.id,
+                p0,
+                p1,
+                radius,
+                strand,
+                wp.array(points, dtype=wp.vec3),
+                wp.array(own, dtype=wp.int32),
+                inside,
+            ],
+        )
         return inside.numpy().astype(bool)
 
 
@@ -220,9 +231,25 @@ def interpenetration(assembly, device: str = "cpu") -> InterpenetrationReport:
             partners = wp.full((n, slots), -1, dtype=wp.int32)
             overflow, pairs = wp.zeros(n, dtype=wp.int32), wp.zeros(n, dtype=wp.int32)
             depth = wp.zeros(n, dtype=float)
-            launch_ranges(_overlaps, n, [bvh.id, *arrays[:2], wp_radius, wp_strand, *arrays[2:],
-                                         wp.array(todo, dtype=wp.int32), slots, partners, overflow, pairs, depth],
-                          device=device, chunk=4096)
+            launch_ranges(
+                _overlaps,
+                n,
+                [
+                    bvh.id,
+                    *arrays[:2],
+                    wp_radius,
+                    wp_strand,
+                    *arrays[2:],
+                    wp.array(todo, dtype=wp.int32),
+                    slots,
+                    partners,
+                    overflow,
+                    pairs,
+                    depth,
+                ],
+                device=device,
+                chunk=4096,
+            )
             partners, again = partners.numpy(), overflow.numpy().astype(bool)
             done = ~again
             segment_pairs += int(pairs.numpy()[done].sum(dtype=np.int64))
@@ -242,7 +269,7 @@ def interpenetration(assembly, device: str = "cpu") -> InterpenetrationReport:
 
 # Reports of assemblies already checked, and whether they were warned of: an assembly never changes, and a fit
 # loads and prepares its scenes many times.
-_checked: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
+_checked: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
 def checked_interpenetration(assembly) -> InterpenetrationReport:

@@ -472,7 +472,7 @@ def _any_hit(g: FiberGeometry, origin: wp.vec3, direction: wp.vec3, t_max: float
                     if _entry_distance(g.tubes[i], origin, direction, t_hi) < t_hi:
                         return True
                 elif g.strand[i] != skip_strand:
-                    t, leaving = _crossing_distance(g.tubes[i], origin, direction, t_hi)
+                    t, _leaving = _crossing_distance(g.tubes[i], origin, direction, t_hi)
                     if t < t_hi:
                         return True
         ref = DONE

@@ -125,8 +125,9 @@ def intersect(bvh: FiberBVH, origins, directions, t_max=np.inf, rule="enter", sk
         "exit": wp.zeros(n, dtype=wp.int32, device=device),
     }
     if n:
-        wp.launch(_intersect_kernel, dim=n, inputs=[bvh.geometry, o, d, limit, exits, skip, *out.values()],
-                  device=device)
+        wp.launch(
+            _intersect_kernel, dim=n, inputs=[bvh.geometry, o, d, limit, exits, skip, *out.values()], device=device
+        )
     result = {key: value.numpy() for key, value in out.items()}
     result["t"] = np.where(result["segment"] >= 0, result["t"].astype(np.float64), np.inf)
     result["exit"] = result["exit"].astype(bool)
@@ -139,6 +140,7 @@ def occluded(bvh: FiberBVH, origins, directions, t_max=np.inf, rule="enter", ski
     o, d, limit = _rays(bvh, origins, directions, t_max)
     blocked = wp.zeros(len(o), dtype=wp.int32, device=bvh.device)
     if len(o):
-        wp.launch(_occluded_kernel, dim=len(o), inputs=[bvh.geometry, o, d, limit, exits, skip, blocked],
-                  device=bvh.device)
+        wp.launch(
+            _occluded_kernel, dim=len(o), inputs=[bvh.geometry, o, d, limit, exits, skip, blocked], device=bvh.device
+        )
     return blocked.numpy().astype(bool)

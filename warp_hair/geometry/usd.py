@@ -44,6 +44,7 @@ from .curves import BASIS_MATRICES, DEFAULT_TOLERANCE, WRAPS, check_tolerance, s
 SUFFIXES = (".usd", ".usda", ".usdc")
 WRITE_PRIM = "/Groom/hair"
 
+
 class UsdCurveError(ValueError):
     """A problem with a USD groom, naming the file and (where known) the prim."""
 
@@ -57,7 +58,7 @@ def _pxr(path):
         from pxr import Usd, UsdGeom
     except ImportError:
         raise ImportError(
-            f"{path}: reading and writing USD needs usd-core: install the `usd` extra (pip install -e \".[usd]\")"
+            f'{path}: reading and writing USD needs usd-core: install the `usd` extra (pip install -e ".[usd]")'
         ) from None
     return Usd, UsdGeom
 
@@ -93,14 +94,17 @@ def read_usd(path, *, prim=None, radius=None, tolerance=None, segments=None):
     else:
         start = stage.GetPrimAtPath(prim) if isinstance(prim, str) and prim.startswith("/") else None
         if start is None or not start.IsValid():
-            raise UsdCurveError(path, f"no prim at {prim!r} (give an absolute prim path, e.g. \"/Groom/hair\")")
+            raise UsdCurveError(path, f'no prim at {prim!r} (give an absolute prim path, e.g. "/Groom/hair")')
     strands = []
     found = 0
     for node in Usd.PrimRange(start):
         if not node.IsA(UsdGeom.BasisCurves):
             continue
         imageable = UsdGeom.Imageable(node)
-        if imageable.ComputeVisibility() == UsdGeom.Tokens.invisible or imageable.ComputePurpose() == UsdGeom.Tokens.guide:
+        if (
+            imageable.ComputeVisibility() == UsdGeom.Tokens.invisible
+            or imageable.ComputePurpose() == UsdGeom.Tokens.guide
+        ):
             continue
         found += 1
         strands.extend(_curves(path, UsdGeom.BasisCurves(node), Usd, UsdGeom, radius, tolerance, segments))
@@ -137,8 +141,9 @@ def _curves(path, curves, Usd, UsdGeom, radius, tolerance, segments):
     if kind not in ("linear", "cubic") or basis not in BASIS_MATRICES or wrap not in WRAPS:
         raise fail(f"unsupported curve type {kind!r} / basis {basis!r} / wrap {wrap!r}")
 
-    matrix = np.array(UsdGeom.Xformable(curves.GetPrim()).ComputeLocalToWorldTransform(Usd.TimeCode.EarliestTime()),
-                      dtype=np.float64)
+    matrix = np.array(
+        UsdGeom.Xformable(curves.GetPrim()).ComputeLocalToWorldTransform(Usd.TimeCode.EarliestTime()), dtype=np.float64
+    )
     # USD transforms row vectors: p_world = [p 1] · M.
     world = points @ matrix[:3, :3] + matrix[3, :3]
     scale = abs(np.linalg.det(matrix[:3, :3])) ** (1.0 / 3.0)
@@ -158,10 +163,16 @@ def _curves(path, curves, Usd, UsdGeom, radius, tolerance, segments):
     spans = [_span_count(kind, basis, wrap, int(n)) for n in counts]
     for k, (n, s) in enumerate(zip(counts, spans)):
         if s < 1:
-            raise fail(f"curve {k} has {int(n)} control points, too few for a {wrap} {kind} "
-                       f"{basis if kind == 'cubic' else ''} curve".replace("  ", " "))
-    expected = {"constant": 1, "uniform": len(counts), "vertex": len(points),
-                "varying": sum(s + (0 if wrap == "periodic" else 1) for s in spans)}
+            raise fail(
+                f"curve {k} has {int(n)} control points, too few for a {wrap} {kind} "
+                f"{basis if kind == 'cubic' else ''} curve".replace("  ", " ")
+            )
+    expected = {
+        "constant": 1,
+        "uniform": len(counts),
+        "vertex": len(points),
+        "varying": sum(s + (0 if wrap == "periodic" else 1) for s in spans),
+    }
     expected["faceVarying"] = expected["varying"]
     if interpolation not in expected:
         raise fail(f"unsupported widths interpolation {interpolation!r}")
@@ -170,13 +181,13 @@ def _curves(path, curves, Usd, UsdGeom, radius, tolerance, segments):
 
     varying_start = 0
     for k, n in enumerate(counts):
-        cv = world[starts[k]:starts[k + 1]]
+        cv = world[starts[k] : starts[k + 1]]
         if interpolation == "constant":
             cv_width = np.full(len(cv), widths[0])
         elif interpolation == "uniform":
             cv_width = np.full(len(cv), widths[k])
         elif interpolation == "vertex":
-            cv_width = widths[starts[k]:starts[k + 1]]
+            cv_width = widths[starts[k] : starts[k + 1]]
         else:
             cv_width = None
         if kind == "linear":
@@ -186,16 +197,15 @@ def _curves(path, curves, Usd, UsdGeom, radius, tolerance, segments):
                 w = None if w is None else np.concatenate([w, w[:1]])
             if w is None:
                 count = spans[k] + (0 if wrap == "periodic" else 1)
-                w = widths[varying_start:varying_start + count]
+                w = widths[varying_start : varying_start + count]
                 w = np.concatenate([w, w[:1]]) if wrap == "periodic" else w
         else:
             count = spans[k] + (0 if wrap == "periodic" else 1)
-            ends = widths[varying_start:varying_start + count]
+            ends = widths[varying_start : varying_start + count]
             smallest = cv_width.min() if cv_width is not None else ends.min()
             deviation = None if segments is not None else tolerance * 0.5 * scale * smallest
             try:
-                p, params, w = tessellate(cv, basis, wrap, max_deviation=deviation, segments=segments,
-                                          values=cv_width)
+                p, params, w = tessellate(cv, basis, wrap, max_deviation=deviation, segments=segments, values=cv_width)
             except ValueError as error:  # a span that would need more pieces than a span may have
                 raise fail(f"curve {k}: {error}") from None
             if w is None:

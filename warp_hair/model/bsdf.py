@@ -20,6 +20,7 @@ import numpy as np
 import warp as wp
 
 from ..numerics import FLOAT32_MIN_NORMAL
+from ..parallel import launch_ranges
 from .hair_bsdf import (
     HairCoefficients,
     hair_coefficients,
@@ -30,7 +31,6 @@ from .hair_bsdf import (
     lobe_densities,
     lobe_setup,
 )
-from ..parallel import launch_ranges
 from .params import HairParams
 
 # The batch API only runs forward; gradients have their own kernels.
@@ -214,13 +214,13 @@ def launch_batch(kernel, leading: list, items: dict, outputs: list, threads, dev
 
 def eval(params: HairParams, wo, wi, h, threads: int | None = None, device: str = "cpu") -> np.ndarray:
     """S(wo, wi, h) per item, RGB: the cosine-weighted value (pbrt's f·|cos θ_i|, Mitsuba's eval)."""
-    items = dict(wo=check_directions("wo", wo), wi=check_directions("wi", wi), h=check_offsets(h))
+    items = {"wo": check_directions("wo", wo), "wi": check_directions("wi", wi), "h": check_offsets(h)}
     return launch_batch(_eval_kernel, [check_params(params)], items, [((), wp.vec3)], threads, device)[0]
 
 
 def pdf(params: HairParams, wo, wi, h, threads: int | None = None, device: str = "cpu") -> np.ndarray:
     """The solid-angle density with which `sample` draws wi."""
-    items = dict(wo=check_directions("wo", wo), wi=check_directions("wi", wi), h=check_offsets(h))
+    items = {"wo": check_directions("wo", wo), "wi": check_directions("wi", wi), "h": check_offsets(h)}
     return launch_batch(_pdf_kernel, [check_params(params)], items, [((), float)], threads, device)[0]
 
 
@@ -230,7 +230,7 @@ def sample(params: HairParams, wo, h, u, threads: int | None = None, device: str
     u[:, 0] chooses the lobe (and its remainder the rotation about the longitudinal cone), u[:, 1] the
     longitudinal angle, u[:, 2] the azimuth.
     """
-    items = dict(wo=check_directions("wo", wo), h=check_offsets(h), u=_uniforms(u))
+    items = {"wo": check_directions("wo", wo), "h": check_offsets(h), "u": _uniforms(u)}
     outputs = [((), wp.vec3), ((), wp.vec3), ((), float)]
     wi, weight, density = launch_batch(_sample_kernel, [check_params(params)], items, outputs, threads, device)
     return wi, weight, density
@@ -238,11 +238,11 @@ def sample(params: HairParams, wo, h, u, threads: int | None = None, device: str
 
 def eval_lobes(params: HairParams, wo, wi, h, threads: int | None = None, device: str = "cpu") -> np.ndarray:
     """The four terms of S (R, TT, TRT, residual), shape (N, 4, 3); they sum to `eval`."""
-    items = dict(wo=check_directions("wo", wo), wi=check_directions("wi", wi), h=check_offsets(h))
+    items = {"wo": check_directions("wo", wo), "wi": check_directions("wi", wi), "h": check_offsets(h)}
     return launch_batch(_lobes_kernel, [check_params(params)], items, [((4,), wp.vec3)], threads, device)[0]
 
 
 def attenuation(params: HairParams, wo, h, threads: int | None = None, device: str = "cpu") -> np.ndarray:
     """A_p of each lobe (R, TT, TRT, residual), shape (N, 4, 3); with σ_a = 0 they sum to 1."""
-    items = dict(wo=check_directions("wo", wo), h=check_offsets(h))
+    items = {"wo": check_directions("wo", wo), "h": check_offsets(h)}
     return launch_batch(_attenuation_kernel, [check_params(params)], items, [((4,), wp.vec3)], threads, device)[0]

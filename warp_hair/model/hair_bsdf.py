@@ -117,7 +117,9 @@ def lobe_setup(c: HairCoefficients, wo: wp.vec3, h: float):
     # angle in [−π/2, π/2] when the rotation passes the pole.
     sa = c.sin_2k_alpha
     ca = c.cos_2k_alpha
-    L.sin_o = wp.vec4(sin_o * ca[1] + cos_o * sa[1], sin_o * ca[0] - cos_o * sa[0], sin_o * ca[2] - cos_o * sa[2], sin_o)
+    L.sin_o = wp.vec4(
+        sin_o * ca[1] + cos_o * sa[1], sin_o * ca[0] - cos_o * sa[0], sin_o * ca[2] - cos_o * sa[2], sin_o
+    )
     L.cos_o = wp.vec4(
         wp.abs(cos_o * ca[1] - sin_o * sa[1]),
         wp.abs(cos_o * ca[0] + sin_o * sa[0]),

@@ -39,8 +39,8 @@ import numpy as np
 import warp as wp
 
 from ..controls import COLOUR_CONTROL_NAMES, CONTROLS, SCALAR_CONTROLS, THETA_SIZE, column
-from .hair_bsdf import LobeSetup
 from ..numerics import INV_TWO_PI, cos_from_sin
+from .hair_bsdf import LobeSetup
 from .lobes import (
     attenuation_partials,
     fresnel_dielectric_d_eta,
@@ -111,6 +111,7 @@ def coefficient_derivatives(params: HairParams) -> CoefficientDerivatives:
     d_beta_n = np.zeros(3)
     if mode == "albedo":
         albedo = np.asarray(params.albedo, dtype=np.float64)
+
         def polynomial(beta_n):
             return albedo_denominator(beta_n, params.albedo_inversion)
 

@@ -161,8 +161,11 @@ def _checked(name, value):
 
 def _given_colour(controls: dict) -> str:
     """The one colour input among the given controls, or a ValueError listing what was given."""
-    given = [colour_input for colour_input, names in COLOUR_CONTROLS.items()
-             if any(controls.get(name) is not None for name in names)]
+    given = [
+        colour_input
+        for colour_input, names in COLOUR_CONTROLS.items()
+        if any(controls.get(name) is not None for name in names)
+    ]
     if len(given) != 1:
         found = ", ".join("/".join(COLOUR_CONTROLS[g]) for g in given) if given else "none"
         *first, last = ("/".join(names) for names in COLOUR_CONTROLS.values())
@@ -269,7 +272,7 @@ class HairParams:
         unknown = sorted(set(controls) - set(CONTROL_NAMES) - {ALBEDO_INVERSION_KEY})
         if unknown:
             raise ValueError(
-                f"unknown key(s) {unknown} in {where}; allowed: {list(CONTROL_NAMES) + [ALBEDO_INVERSION_KEY]}"
+                f"unknown key(s) {unknown} in {where}; allowed: {[*list(CONTROL_NAMES), ALBEDO_INVERSION_KEY]}"
             )
         controls = dict(controls)
         if ALBEDO_INVERSION_KEY in controls:
@@ -305,7 +308,9 @@ def _inversion_table(table, where) -> tuple:
 HairParams.__doc__ = HairParams.__doc__.replace("{table}", describe().replace("\n", "\n    "))
 # help() and editors show the keywords the table gives (the constructor takes them as **controls).
 HairParams.__signature__ = inspect.Signature(
-    [inspect.Parameter(name, inspect.Parameter.KEYWORD_ONLY, default=None if c.colour_input else c.default)
-     for name, c in CONTROLS.items()]
+    [
+        inspect.Parameter(name, inspect.Parameter.KEYWORD_ONLY, default=None if c.colour_input else c.default)
+        for name, c in CONTROLS.items()
+    ]
     + [inspect.Parameter(ALBEDO_INVERSION_KEY, inspect.Parameter.KEYWORD_ONLY, default=TALK_ALBEDO_INVERSION)]
 )

@@ -87,7 +87,7 @@ def camera_rays(camera: Camera, px, py, jitter=(0.5, 0.5), device=None):
     """
     px, py = np.broadcast_arrays(np.asarray(px), np.asarray(py))
     shape = px.shape
-    jitter = np.broadcast_to(np.asarray(jitter, dtype=np.float32), shape + (2,))
+    jitter = np.broadcast_to(np.asarray(jitter, dtype=np.float32), (*shape, 2))
     n = px.size
     origins = wp.empty(n, dtype=wp.vec3, device=device)
     directions = wp.empty(n, dtype=wp.vec3, device=device)
@@ -104,4 +104,4 @@ def camera_rays(camera: Camera, px, py, jitter=(0.5, 0.5), device=None):
         ],
         device=device,
     )
-    return origins.numpy().reshape(shape + (3,)), directions.numpy().reshape(shape + (3,))
+    return origins.numpy().reshape((*shape, 3)), directions.numpy().reshape((*shape, 3))

@@ -178,7 +178,7 @@ def _cdf(weights: np.ndarray) -> np.ndarray:
     uniform = np.broadcast_to(np.arange(1, weights.shape[-1] + 1) / weights.shape[-1], weights.shape)
     cdf = np.where(total > 0.0, np.cumsum(weights, axis=-1) / np.where(total > 0.0, total, 1.0), uniform)
     cdf[..., -1] = 1.0
-    return np.concatenate([np.zeros(weights.shape[:-1] + (1,)), cdf], axis=-1)
+    return np.concatenate([np.zeros((*weights.shape[:-1], 1)), cdf], axis=-1)
 
 
 def _sampling_tables(image: np.ndarray):

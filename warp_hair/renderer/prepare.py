@@ -75,7 +75,7 @@ class PreparedScene:
         data.exits = int(self.scene.render.interpenetration == "exit")
         return data
 
-    def with_hair(self, hair: HairParams) -> "PreparedScene":
+    def with_hair(self, hair: HairParams) -> PreparedScene:
         """This prepared scene with other hair controls; the geometry, lights and camera are shared, not rebuilt."""
         if not isinstance(hair, HairParams):
             raise TypeError(

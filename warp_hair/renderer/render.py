@@ -82,7 +82,7 @@ def make_pixel_kernel(differentiable: bool):
         total_sq = wp.vec3(0.0)
         if wp.static(differentiable):
             total_jacobian = value_jacobian_mat()
-        for s in range(spp):
+        for _s in range(spp):
             jitter, rng = rand2(rng)
             origin, direction = generate_ray(scene.camera, px, py, jitter)
             radiance, path_jacobian, rng = trace(scene, origin, direction, rng, derivs)
