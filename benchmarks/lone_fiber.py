@@ -103,7 +103,8 @@ def main(argv=None):
             exact = quadrature(scene.hair, direction, args.columns)
             ours = render(scene).mean(axis=0)
             line = (
-                f"[{name}] exact mean {fmt(exact.mean(axis=0))}; warp-hair / exact {fmt(ours.mean(axis=0) / exact.mean(axis=0))}"
+                f"[{name}] exact mean {fmt(exact.mean(axis=0))}; warp-hair / exact "
+                f"{fmt(ours.mean(axis=0) / exact.mean(axis=0))}"
                 f", worst column {np.max(np.abs(ours - exact)) / exact.max():.2%} of the peak"
             )
             if mi is not None:

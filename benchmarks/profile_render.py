@@ -198,7 +198,7 @@ def mitsuba_ray_rates(scene, rays) -> dict:
     out = {}
     for kind, (o, d) in rays.items():
 
-        def trace(o, d):
+        def trace(o, d, kind=kind):
             ray = mi.Ray3f(
                 mi.Point3f(*(o[:, k].astype(np.float32) for k in range(3))),
                 mi.Vector3f(*(d[:, k].astype(np.float32) for k in range(3))),
@@ -292,7 +292,8 @@ def main() -> None:
         seconds = count * per_ray
         traversal += seconds
         print(
-            f"| {kind} | {count:.3g} | {per_ray * 1e6:.2f} | {1 / per_ray:.3g} | {seconds:.2f} | {seconds / c.cpu:.0%} |"
+            f"| {kind} | {count:.3g} | {per_ray * 1e6:.2f} | {1 / per_ray:.3g} | {seconds:.2f} | "
+            f"{seconds / c.cpu:.0%} |"
         )
     rest = c.cpu - traversal
     print(f"| shading, sampling, the loop (the rest) | | | | {rest:.2f} | {rest / c.cpu:.0%} |")

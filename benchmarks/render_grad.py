@@ -159,7 +159,8 @@ def mitsuba_gradient(mi, scene, spp, threads, repeat):
 
     dr.set_thread_count(threads)
     mi_scene = mitsuba_scene(mi, scene, spp)
-    # Same translation as render_swatch.py (mitsuba_peer), but the prb integrator (path replay backpropagation): its backward
+    # Same translation as render_swatch.py (mitsuba_peer), but the prb integrator (path replay backpropagation): its
+    # backward
     # pass re-traces the paths, so forward+backward is a primal plus an adjoint pass, like ours.
     integrator = mi.load_dict(
         {"type": "prb", "max_depth": scene.render.max_depth + 1, "rr_depth": scene.render.rr_depth}

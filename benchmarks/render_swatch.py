@@ -66,8 +66,10 @@ def reversed_tangents(mi, mi_scene, fibers):
     angles = np.linspace(0.0, 2.0 * np.pi, 16, endpoint=False)[:, None, None]
     toward = -(np.cos(angles) * u + np.sin(angles) * v).reshape(-1, 3)  # (16·S, 3)
     origins = np.tile(0.5 * (p0 + p1), (16, 1)) - toward
+
     def vec(a):
         return mi.Vector3f(*(np.ascontiguousarray(a[:, k], dtype=np.float32) for k in range(3)))
+
     si = mi_scene.ray_intersect(mi.Ray3f(mi.Point3f(vec(origins)), vec(toward)))
     # Mitsuba numbers the segments of all strands in order; strand k's first one follows k earlier strands.
     target = np.tile(first - np.arange(len(first)), 16)

@@ -10,7 +10,8 @@ Writes OUT/scaling.md (the tables) and OUT/scaling.png (log-log plots), and prin
   bounce 8, the scene's default).
 * segments: a draped wavy swatch in the same view at every size (brown_wavy's shape, 40 segments per strand),
   filled with more and thinner strands from 10³ to 10⁶ segments (√(strands / 10) layers, the spacing 3 radii:
-  the same volume, ever more finely); 128×128, 8 spp, depth 16. Each size runs in its own process, so that its peak resident memory (ru_maxrss: the
+  the same volume, ever more finely); 128×128, 8 spp, depth 16. Each size runs in its own process, so that its peak
+  resident memory (ru_maxrss: the
   interpreter, Warp and the kernels included, about 0.2 GiB) is its own; "BVH bytes" is what the render reads
   (nodes, tubes, segment and strand indices), "SAH" the tree's surface area heuristic cost (node visits at cost
   1 plus tube tests, each weighted by its box's area over the root's: the expected work of a ray through the
@@ -76,7 +77,7 @@ def sweep_swatch(threads) -> list:
     for name, value in tqdm(jobs, desc="swatch sweeps", unit="render"):
         settings = {**BASE, name: value}
         prepared = prepare(with_settings(swatch, settings["resolution"], settings["depth"]))
-        _, wall, cpu = timed(lambda: render(prepared, spp=settings["spp"], threads=threads))
+        _, wall, cpu = timed(lambda prepared=prepared, spp=settings["spp"]: render(prepared, spp=spp, threads=threads))
         rows.append((name, value, wall, cpu))
     return rows
 

@@ -343,7 +343,8 @@ def main(argv=None):
             write_exr(args.out / f"warp_hair_{lighting}.exr", images["smooth"])
             print(f"[{lighting}] noise level (two warp-hair seeds): block RMSE {noise:.2%}")
             print(
-                f"[{lighting}] smooth vs segment tangents: block RMSE {block_rmse(images['segment'], images['smooth']):.2%}"
+                f"[{lighting}] smooth vs segment tangents: block RMSE "
+                f"{block_rmse(images['segment'], images['smooth']):.2%}"
             )
             peers = {}
             for sampler in SAMPLERS if mi is not None else ():

@@ -348,7 +348,6 @@ def _vector(text: str) -> tuple:
 def _add_photo(actions) -> None:
     from warp_hair.photo import TRANSFERS
 
-
     photo = actions.add_parser(
         "photo",
         parents=[render_cli.common_flags(threads=False)],

@@ -4,20 +4,21 @@
     result = fit(load_target("targets/blonde_straight"))          # albedo, beta_m, beta_n from a neutral guess
     result.values, result.uncertainties, result.warnings
 
-Each iteration renders every image of the target at the current controls as two independent renders of spp/2
-each (`warp_hair.torch.render_torch_pair`: one gradient pass per render gives its image and its Jacobian, and
-each render's adjoint meets the other's Jacobian, so the gradient is unbiased without `render_torch`'s separate
-forward render, which would cost a forward pass more per iteration), sums the image losses, and takes one torch.optim.Adam step on the controls' latents (`latents.py`: no step
-leaves a control's range). Fresh seeds every iteration, so the Monte Carlo noise averages out over the
-iterations instead of biasing every step alike. An image larger than `batch` pixels is rendered on a random
-mini-batch of its loss blocks each iteration (`Batches`), so an iteration costs the same whatever the size.
+Each iteration renders every image of the target at the current controls as two independent renders of spp/2 each
+(`warp_hair.torch.render_torch_pair`: one gradient pass per render gives its image and its Jacobian, and each
+render's adjoint meets the other's Jacobian, so the gradient is unbiased without `render_torch`'s separate forward
+render, which would cost a forward pass more per iteration), sums the image losses, and takes one torch.optim.Adam
+step on the controls' latents (`latents.py`: no step leaves a control's range). Fresh seeds every iteration, so the
+Monte Carlo noise averages out over the iterations instead of biasing every step alike. An image larger than `batch`
+pixels is rendered on a random mini-batch of its loss blocks each iteration (`Batches`), so an iteration costs the
+same whatever the size.
 
-Schedules: the samples per pixel grow from spp/4 over the first quarter of the iterations to spp/2 and then
-spp (noisy, cheap steps while far away; precise ones near the optimum), and the learning rate stays at lr for
-the first 60% of the iterations, then decays on a cosine to lr/20. The estimate is the mean of the controls over the last fifth of the iterations run (averaging
-the iterates of a noisy descent reduces their spread further than a smaller step would). The fit stops early
-when the smoothed loss has not improved by 0.1% for `patience` iterations at the final spp; Ctrl-C stops it
-too, and the estimate so far is returned (stop_reason "interrupted").
+Schedules: the samples per pixel grow from spp/4 over the first quarter of the iterations to spp/2 and then spp
+(noisy, cheap steps while far away; precise ones near the optimum), and the learning rate stays at lr for the first
+60% of the iterations, then decays on a cosine to lr/20. The estimate is the mean of the controls over the last
+fifth of the iterations run (averaging the iterates of a noisy descent reduces their spread further than a smaller
+step would). The fit stops early when the smoothed loss has not improved by 0.1% for `patience` iterations at the
+final spp; Ctrl-C stops it too, and the estimate so far is returned (stop_reason "interrupted").
 
 Then a few Gauss–Newton (Levenberg–Marquardt) steps from that estimate (`refine.py`: Adam crawls along the
 valleys where controls trade off, Gauss–Newton crosses them), and from the loss linearised at the result, at
@@ -191,7 +192,8 @@ def check_settings(target: Target, settings: FitSettings) -> tuple:
     unknown = sorted(set(settings.init) - set(names))
     if unknown:
         raise ValueError(
-            f"init gives control(s) {unknown} that are not fitted (fitted: {list(names)}); the scene files set the others"
+            f"init gives control(s) {unknown} that are not fitted (fitted: {list(names)}); the scene files set the "
+            f"others"
         )
     return names
 

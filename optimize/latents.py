@@ -8,7 +8,8 @@ control may take, so no step can leave the valid range and nothing is clipped:
     albedo, in (0, 1)     a = exp(−e^(z/2) · P(β_n))          z = log σ_a, the absorption it stands for
 
 The albedo's latent is the log of the absorption σ_a = (ln a / P(β_n))² the renderer derives from it (talk,
-"Controllability"; P with the target's own inversion coefficients, HairParams.albedo_inversion). Albedo and β_n are coupled through that inversion: at fixed albedo a change of β_n changes
+"Controllability"; P with the target's own inversion coefficients, HairParams.albedo_inversion). Albedo and β_n are
+coupled through that inversion: at fixed albedo a change of β_n changes
 σ_a too, so in (albedo, β_n) the loss has a long diagonal valley that plain Adam crawls along. In (log σ_a, β_n)
 each latent has its own effect on the images (absorption; azimuthal spread), and the fit converges in a fraction
 of the iterations. The result is still reported, and its uncertainty estimated, as albedo.

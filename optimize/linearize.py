@@ -12,8 +12,10 @@ a residual and a Jacobian then take them from different passes (`gradient`): fro
 errors would correlate and bias the product, as in the fit's own gradients. The L1 loss is treated as L2 here.
 
 A Jacobian estimated from one render is noisy where a control's effect is faint next to the noise, and that
-noise times our residuals' noise moves every Gauss–Newton step. Near a fit's end the refinement's points lie so close together that their
-Jacobians estimate the same matrix, so a linearisation may take earlier renders' Jacobians (`earlier_jacobians`), which are
+noise times our residuals' noise moves every Gauss–Newton step. Near a fit's end the refinement's points lie so close
+together that their
+Jacobians estimate the same matrix, so a linearisation may take earlier renders' Jacobians (`earlier_jacobians`), which
+are
 independent of its residuals: each residual pass then meets the mean of every Jacobian but its own
 (docs/fitting.md measures what that does to the steps' scatter).
 """
@@ -176,7 +178,7 @@ def linearize(target, values: dict, settings, spp: int, seed: int, threads=None,
     hair, gain = hair_and_gain(values)
     scenes = [prepare(image.scene) for image in target.images] if scenes is None else scenes
     renders = []  # per image, its two passes' (Jacobian, image, standard error)
-    for k, image in enumerate(target.images):
+    for k in range(len(target.images)):
         scene = scene_with_controls(scenes[k], hair)
         renders.append(
             [

@@ -7,7 +7,8 @@
 All are means over the unmasked pixels and the three channels, and L2 and L1 are divided by the target's own
 scale, so losses of differently sized and differently bright images add up on one scale. That matters for a
 target's joint fit: a back-lit swatch can be ten times brighter than the front-lit one, and unnormalised its
-noise would drown the signal of the front image, which carries the colour. The mask (H, W) of booleans marks the pixels that count (e.g. the fibers, not the background).
+noise would drown the signal of the front image, which carries the colour. The mask (H, W) of booleans marks the pixels
+that count (e.g. the fibers, not the background).
 
 `pool` k > 1 compares the images averaged over k×k blocks (masked pixels left out of the averages): the loss
 then measures appearance at the scale of a few fibers rather than per pixel. Why it matters: a target rendered

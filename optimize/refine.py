@@ -22,7 +22,8 @@ common seeds every step would converge to the same noisy point). The result is t
 the kept points after the first, which scatter around the optimum as Adam's last iterates do;
 `mean_covariance` is its Monte Carlo error. From a start far from the optimum, in a curved valley, the steps
 can creep: while the averaged points still follow a trend (`drift_statistic`), the refinement takes more steps,
-up to MAX_EXTENSION times as many, and says so if they never settle. L2 and relative L2 are sums of squares as they stand; the L1 loss
+up to MAX_EXTENSION times as many, and says so if they never settle. L2 and relative L2 are sums of squares as they
+stand; the L1 loss
 is not, and is not refined.
 """
 

@@ -87,7 +87,13 @@ def format_table(result: FitResult, truth: dict, renderer: str | None = None) ->
             sigma += (_fmt(parts["noise"][name]), _fmt(parts["model"][name]))
         true = truth.get(name)
         rows.append(
-            (name, _fmt(value), *sigma, "" if true is None else _fmt(true), "" if true is None else _fmt(np.asarray(value) - np.asarray(true), 3))
+            (
+                name,
+                _fmt(value),
+                *sigma,
+                "" if true is None else _fmt(true),
+                "" if true is None else _fmt(np.asarray(value) - np.asarray(true), 3),
+            )
         )
     widths = [max(len(r[k]) for r in [*rows, header]) for k in range(len(header))]
     lines = ["  ".join(cell.ljust(w) for cell, w in zip(row, widths)).rstrip() for row in [header, *rows]]

@@ -99,7 +99,13 @@ def compare_mode(mode: str, seed: int = 7) -> dict:
             if excess[i, o] > r["excess"]:
                 r["excess"] = float(excess[i, o])
                 r["where"] = {
-                    "controls": controls, "wo": wo[i], "wi": wi[i], "h": h[i], "output": int(o), "warp": g[i, o], "reference": d[i, o]
+                    "controls": controls,
+                    "wo": wo[i],
+                    "wi": wi[i],
+                    "h": h[i],
+                    "output": int(o),
+                    "warp": g[i, o],
+                    "reference": d[i, o],
                 }
     return results
 

@@ -217,7 +217,7 @@ def test_malformed_hair_names_file_and_strand(tmp_path, case):
     data, expected = MALFORMED_HAIR[case]
     path = tmp_path / "bad_model.hair"
     path.write_bytes(data)
-    with pytest.raises(ValueError, match="bad_model.hair") as raised:
+    with pytest.raises(ValueError, match=r"bad_model.hair") as raised:
         load_fibers(path)
     assert expected in str(raised.value)
 
@@ -266,28 +266,28 @@ def test_text_writer_format(tmp_path):
 def test_malformed_text_names_file_line_and_strand(tmp_path, replacement):
     path = tmp_path / "bad_curves.txt"
     path.write_text(GOOD_TEXT.replace("1 1 0 0.1", replacement))
-    with pytest.raises(ValueError, match="bad_curves.txt: line 6: strand 1"):
+    with pytest.raises(ValueError, match=r"bad_curves.txt: line 6: strand 1"):
         load_fibers(path)
 
 
 def test_text_strand_of_one_vertex(tmp_path):
     path = tmp_path / "short.txt"
     path.write_text(GOOD_TEXT.replace("2 1 0 0.1\n", ""))
-    with pytest.raises(ValueError, match="short.txt: line 9: strand 2: has 1 vertex"):
+    with pytest.raises(ValueError, match=r"short.txt: line 9: strand 2: has 1 vertex"):
         load_fibers(path)
 
 
 def test_binary_file_with_text_extension(tmp_path):
     path = tmp_path / "binary.txt"
     path.write_bytes(b"\xff\xfe\x00HAIR")
-    with pytest.raises(ValueError, match="binary.txt"):
+    with pytest.raises(ValueError, match=r"binary.txt"):
         load_fibers(path)
 
 
 def test_unknown_extension(tmp_path):
-    with pytest.raises(ValueError, match="unknown fiber file extension '.obj'"):
+    with pytest.raises(ValueError, match=r"unknown fiber file extension '.obj'"):
         load_fibers(tmp_path / "model.obj")
-    with pytest.raises(ValueError, match="model.ply"):
+    with pytest.raises(ValueError, match=r"model.ply"):
         save_fibers(mixed_assembly(), tmp_path / "model.ply")
 
 
@@ -443,5 +443,5 @@ def test_draped_swatch_lies_on_its_cylinder():
         arc = np.linalg.norm(np.diff(points, axis=0), axis=1).sum()
         z_flat = flat.strand(k)[0][0, 2]
         assert arc == pytest.approx(0.5 * (0.25 + z_flat) / 0.25, rel=1e-3)  # chords of a 48-segment arc
-    with pytest.raises(ValueError, match="drape = 0.1 is too tight"):
+    with pytest.raises(ValueError, match=r"drape = 0.1 is too tight"):
         swatch(count=12, layers=2, length=0.5, width=0.2, drape=0.1)

@@ -23,7 +23,10 @@ from warp_hair.model.params import HairParams
         ({"albedo": 0.5, "alpha": 45.0}, r"alpha = 45.0 is outside the allowed range \[-30.0, 30.0\]"),
         ({"albedo": 0.5, "eta": 1.0}, r"eta = 1.0 is outside the allowed range \(1.0, 10.0\]"),
         # Above 1 in float64 but 1 in float32, where the kernels evaluate the BSDF.
-        ({"albedo": 0.5, "eta": 1.000000001}, r"eta = 1.000000001 is outside .*\(1.0, 10.0\] in float32.*rounds to 1.0"),
+        (
+            {"albedo": 0.5, "eta": 1.000000001},
+            r"eta = 1.000000001 is outside .*\(1.0, 10.0\] in float32.*rounds to 1.0",
+        ),
         # Nested lists are not flattened: the key is named.
         ({"albedo": [[0.5, 0.5, 0.5]]}, r"albedo must be one number or three \(RGB\), in a flat list"),
         ({"sigma_a": [[0.5], [0.5], [0.5]]}, r"sigma_a must be one number or three \(RGB\), in a flat list"),

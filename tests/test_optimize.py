@@ -285,7 +285,8 @@ def test_curvature_is_unbiased_where_the_jacobian_is_mostly_noise():
 def test_earlier_jacobians_take_the_jacobian_noise_out_of_the_steps():
     """A column whose Jacobian noise is twice its signal (fur_patch's β_n): met with the other pass's residual,
     that noise moves every step, and the steps along it scatter over four times as widely (in variance) as a
-    noise-free Jacobian's would. With 30 earlier renders' Jacobians pooled in, they scatter nearly as the noise-free one's,
+    noise-free Jacobian's would. With 30 earlier renders' Jacobians pooled in, they scatter nearly as the noise-free
+    one's,
     still around the truth, and the pooled curvature is unbiased."""
     rng = np.random.default_rng(8)
     n, noise, jacobian_noise = 3999, 0.2, np.array([0.05, 0.2])

@@ -103,7 +103,7 @@ def test_bad_photos_are_clear_errors(tmp_path):
     Image.fromarray(codes, "RGB").save(tmp_path / "whole.jpg", quality=90)
     data = (tmp_path / "whole.jpg").read_bytes()
     (tmp_path / "cut.jpg").write_bytes(data[: len(data) // 2])
-    with pytest.raises(ValueError, match="cut.jpg: damaged, truncated"):
+    with pytest.raises(ValueError, match=r"cut.jpg: damaged, truncated"):
         read_photo(tmp_path / "cut.jpg")
     Image.fromarray(codes, "RGB").convert("CMYK").save(tmp_path / "cmyk.jpg")
     with pytest.raises(ValueError, match="CMYK"):
@@ -140,20 +140,20 @@ def test_photo_target_bad_input(tmp_path):
     def all_clipped(directory):
         Image.fromarray(np.full((64, 64, 3), 255, np.uint8), "RGB").save(directory / "front.png")
 
-    with pytest.raises(ValueError, match="front.png: every pixel is clipped"):
+    with pytest.raises(ValueError, match=r"front.png: every pixel is clipped"):
         load_target(_photo_target(tmp_path / "a", edit=all_clipped))
 
     def wrong_size(directory):
         Image.fromarray(np.full((40, 64, 3), 100, np.uint8), "RGB").save(directory / "front.png")
 
-    with pytest.raises(ValueError, match="front.png: the image is 64x40 pixels but scene_front.toml's camera renders"):
+    with pytest.raises(ValueError, match=r"front.png: the image is 64x40 pixels but scene_front.toml's camera renders"):
         load_target(_photo_target(tmp_path / "b", edit=wrong_size))
 
     def exif_gains(directory):
         spec = directory / "target.toml"
         spec.write_text('gains = "exif"\n' + spec.read_text())
 
-    with pytest.raises(ValueError, match='gains = "exif" but front.png has no EXIF exposure'):
+    with pytest.raises(ValueError, match=r'gains = "exif" but front.png has no EXIF exposure'):
         load_target(_photo_target(tmp_path / "c", edit=exif_gains))
 
 

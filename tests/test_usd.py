@@ -10,9 +10,9 @@ pxr = pytest.importorskip("pxr", reason="usd-core is the `usd` extra")
 from helpers.curves import FORMS, dense_curve, distance_to_polyline  # noqa: E402
 from pxr import Gf, Usd, UsdGeom  # noqa: E402
 
-from warp_hair.geometry.formats import load_fibers, save_fibers
-from warp_hair.geometry.generators import swatch
-from warp_hair.geometry.usd import UsdCurveError, read_usd
+from warp_hair.geometry.formats import load_fibers, save_fibers  # noqa: E402
+from warp_hair.geometry.generators import swatch  # noqa: E402
+from warp_hair.geometry.usd import UsdCurveError, read_usd  # noqa: E402
 from warp_hair.scene import load_scene  # noqa: E402
 
 RNG = np.random.default_rng(7)
@@ -215,7 +215,7 @@ def test_bad_curves_name_file_and_prim(tmp_path, edit, message):
 def test_unreadable_stage_and_bad_options(tmp_path):
     path = tmp_path / "junk.usda"
     path.write_text('#usda 1.0\ndef Xform "oops" {{{\n')
-    with pytest.raises(UsdCurveError, match="junk.usda: cannot open the USD stage"):
+    with pytest.raises(UsdCurveError, match=r"junk.usda: cannot open the USD stage"):
         load_fibers(path)
     with pytest.raises(UsdCurveError, match="radius must be a positive number, got 'thin'"):
         load_fibers(path, radius="thin")
@@ -228,7 +228,7 @@ def test_no_basis_curves(tmp_path):
     stage = Usd.Stage.CreateNew(str(path))
     UsdGeom.Xform.Define(stage, "/World")
     stage.GetRootLayer().Save()
-    with pytest.raises(UsdCurveError, match="empty.usda: no .*BasisCurves prim under the stage"):
+    with pytest.raises(UsdCurveError, match=r"empty.usda: no .*BasisCurves prim under the stage"):
         load_fibers(path)
 
 

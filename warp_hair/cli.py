@@ -180,7 +180,8 @@ def add_gradcheck(subparsers) -> None:
         "central finite differences of render (common random numbers, Richardson-extrapolated from eps and "
         "eps/2), over K seed pairs, one row per control component. The target is the scene rendered at 16x "
         f"the spp with the checked controls moved ({_gradcheck_moves()}). Cost: about (2 + 8 x components) x K "
-        "renders at --spp plus the target, at the scene's own resolution; lower the resolution in the scene for quick checks.",
+        "renders at --spp plus the target, at the scene's own resolution; lower the resolution in the scene for quick "
+        "checks.",
     )
     parser.add_argument("scene", type=Path, metavar="SCENE.toml", help="the scene file")
     parser.add_argument(

@@ -257,7 +257,11 @@ def gradcheck(
         g_ba = render_grad(prepared, (image_b.astype(np.float64) - target) / n, spp=spp, seed=seed_a, threads=threads)
         tick()
         for label, name, c in components:
-            pick = (lambda g: float(g[name])) if c is None else (lambda g: float(np.asarray(g[name])[c]))
+            pick = (
+                (lambda g, name=name: float(g[name]))
+                if c is None
+                else (lambda g, name=name, c=c: float(np.asarray(g[name])[c]))
+            )
             grads[label].append(0.5 * (pick(g_ab) + pick(g_ba)))
             d = {}
             for scale in (1.0, 0.5):

@@ -138,7 +138,8 @@ class Camera:
         sine = np.linalg.norm(np.cross(forward, up))
         if not sine >= PARALLEL_TOLERANCE:
             raise ValueError(
-                f"up {list(self.up)} must not be parallel to the view direction {np.subtract(self.target, self.origin).tolist()}"
+                f"up {list(self.up)} must not be parallel to the view direction "
+                f"{np.subtract(self.target, self.origin).tolist()}"
             )
 
     def _directions(self):

@@ -150,7 +150,8 @@ def scene_scale(fibers, camera) -> None:
     thinnest = float(fibers.radii.min())
     if extent > RESOLUTION_LIMIT * thinnest:
         raise ValueError(
-            f"the fibers and camera extend to {extent:.3g} scene units from the origin, {extent / thinnest:.3g} times its "
+            f"the fibers and camera extend to {extent:.3g} scene units from the origin, {extent / thinnest:.3g} times "
+            f"its "
             f"thinnest fiber radius {thinnest:.3g}; float32 resolves positions to 6e-8 of their size, so keep "
             f"that ratio below {RESOLUTION_LIMIT:g} (centre the fibers and the camera near the origin, or "
             "scale the scene)"

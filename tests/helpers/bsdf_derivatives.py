@@ -80,7 +80,8 @@ def lobe_factors(controls, wo, wi, h):
 
 
 def reference_derivative(controls, name, component, wo, wi, h):
-    """(d, terms, out), each (N, 4) over (S_r, S_g, S_b, pdf): the derivative, Σ of its terms' magnitudes, the output."""
+    """(d, terms, out), each (N, 4) over (S_r, S_g, S_b, pdf): the derivative, Σ of its terms' magnitudes, the
+    output."""
     value = controls[name] if component is None else controls[name][component]
     step = FD_STEP * max(abs(value), STEP_FLOOR.get(name, 0.0))
     at = {j: lobe_factors(shifted(controls, name, component, j * step), wo, wi, h) for j in (-2, -1, 1, 2)}

@@ -28,7 +28,11 @@ import numpy as np
 import tomllib
 
 ROOT = Path(__file__).resolve().parents[2]
-SCENES = [*sorted(ROOT.glob("targets/*/scene_*.toml")), ROOT / "examples" / "swatch.toml", ROOT / "benchmarks" / "standard_swatch.toml"]
+SCENES = [
+    *sorted(ROOT.glob("targets/*/scene_*.toml")),
+    ROOT / "examples" / "swatch.toml",
+    ROOT / "benchmarks" / "standard_swatch.toml",
+]
 TARGETS = sorted(p.parent for p in ROOT.glob("targets/*/target.toml"))
 AREAS = ("scene", "scene text", "text fibers", ".hair fibers", "hair controls", "target")
 # Outcomes that pass; every other one is a failure.
@@ -280,7 +284,7 @@ def _hair_controls_case(index, rng):
     for key in rng.sample(HAIR_KEYS[4:], rng.randint(0, 3)):
         controls[key] = rng.choice([0.0, 0.01, 0.3, 1.0, 1.5, 30.0, 1 + 1e-9, 10.0])
     key = rng.choice(HAIR_KEYS)
-    value = copy.deepcopy(rng.choice([*HOSTILE_NUMBERS, 1 + 1e-09, 1e-40, 1e+40, 3.5e+38, 1e-07]))
+    value = copy.deepcopy(rng.choice([*HOSTILE_NUMBERS, 1 + 1e-09, 1e-40, 1e40, 3.5e38, 1e-07]))
     controls[key] = value
     return Case("hair controls", index, "HairParams", f"{controls!r}", {"controls": controls, "key": key})
 
@@ -290,7 +294,7 @@ def _target_case(index, rng):
     choice = rng.random()
     if choice < 0.5:
         truth = json.loads((source / "truth.json").read_text())
-        mutant, path, what = _mutate_dict({"truth": truth}, rng)
+        mutant, _, what = _mutate_dict({"truth": truth}, rng)
         data = {"truth.json": json.dumps(mutant.get("truth", {}))}
         what = f"truth.json: {what}"
     elif choice < 0.8:
@@ -547,7 +551,8 @@ def start_isolated(case: Case, workdir: Path, memory: int, seconds: int):
     pid = os.fork()
     if pid == 0:  # the child
         os.close(read_end)
-        # Libraries (OpenEXR) print their own complaints, on stdout and stderr, about damaged files; the outcome says what happened.
+        # Libraries (OpenEXR) print their own complaints, on stdout and stderr, about damaged files; the outcome says
+        # what happened.
         devnull = os.open(os.devnull, os.O_WRONLY)
         os.dup2(devnull, 1)
         os.dup2(devnull, 2)

@@ -90,7 +90,8 @@ def _fiber(co, wo, h):
 
 def _tilted(co, wo):
     """Cuticle tilt (docs/MODEL.md): theta_o + 2a (R), - a (TT), - 4a (TRT), unchanged (residual): the scales'
-    normals lean toward the root (-x), so R moves toward the root. Returns sin theta_o' and |cos theta_o'|, each (N,4)."""
+    normals lean toward the root (-x), so R moves toward the root. Returns sin theta_o' and |cos theta_o'|, each
+    (N,4)."""
     sin_o, cos_o, _ = _angles(wo)
     d = co["alpha"] * np.array([2.0, -1.0, -4.0, 0.0])
     sin_p = sin_o[:, None] * np.cos(d) + cos_o[:, None] * np.sin(d)

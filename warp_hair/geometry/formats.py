@@ -16,7 +16,8 @@ from .usd import SUFFIXES as USD_SUFFIXES
 
 def load_fibers(path, **options):
     """Load a fiber file, choosing the format by extension: `.hair` (Cem Yuksel's binary), `.txt` (text), or a USD
-    stage (`.usd`, `.usda`, `.usdc`: BasisCurves, `warp_hair.geometry.usd`, which takes `options` prim, radius, segments)."""
+    stage (`.usd`, `.usda`, `.usdc`: BasisCurves, `warp_hair.geometry.usd`, which takes `options` prim, radius,
+    segments)."""
     path = Path(path)
     if path.suffix.lower() in USD_SUFFIXES:
         from .usd import read_usd
@@ -224,7 +225,8 @@ def read_text(path):
     """Load the plain-text fiber format (Mitsuba 3's `linearcurve` files use it).
 
     One `x y z radius` line per vertex, a blank line between strands; lines starting with `#` are comments.
-    UTF-8, with or without a byte-order mark. A malformed file raises `FiberDataError` (a ValueError) naming the file, line and strand.
+    UTF-8, with or without a byte-order mark. A malformed file raises `FiberDataError` (a ValueError) naming the file,
+    line and strand.
     """
     path = Path(path)
     try:

@@ -37,7 +37,8 @@ def swatch(
 ):
     """A flat swatch of straight, parallel fibers, like a hair swatch card.
 
-    Fibers run along +y from their roots at y = −length/2 to their tips at +length/2 and spread across x, in `layers` layers stacked
+    Fibers run along +y from their roots at y = −length/2 to their tips at +length/2 and spread across x, in `layers`
+    layers stacked
     towards −z: layer k lies near z = −k·layer_gap, so layer 0 (at z = 0) faces a camera on +z. Odd layers are
     offset by half a spacing to cover the gaps between the fibers of even ones, so the swatch has no
     see-through gaps. Strands are ordered layer by layer, left to right; when `layers` does not divide
@@ -312,7 +313,8 @@ def _swatch_assembly(x, y, z, radius, drape=None):
         half_angle = np.abs(y).max() / drape
         if half_angle >= np.pi / 2:
             raise ValueError(
-                f"drape = {drape} is too tight for the swatch's length: it must exceed length / π = {2 * np.abs(y).max() / np.pi:.4g}"
+                f"drape = {drape} is too tight for the swatch's length: it must exceed length / π = "
+                f"{2 * np.abs(y).max() / np.pi:.4g}"
             )
         if (z <= -drape).any():
             raise ValueError(f"drape = {drape} is smaller than the swatch's depth {-z.min():.4g}")

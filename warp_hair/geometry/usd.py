@@ -180,7 +180,7 @@ def _curves(path, curves, Usd, UsdGeom, radius, tolerance, segments):
         raise fail(f"has {len(widths)} widths; {interpolation} widths need {expected[interpolation]}")
 
     varying_start = 0
-    for k, n in enumerate(counts):
+    for k in range(len(counts)):
         cv = world[starts[k] : starts[k + 1]]
         if interpolation == "constant":
             cv_width = np.full(len(cv), widths[0])
