@@ -50,7 +50,7 @@ def main() -> None:
             origin=np.add(scene.camera.origin, [shift, 0, 0]).tolist(),
             target=np.add(scene.camera.target, [shift, 0, 0]).tolist(),
         )
-        moved.fibers = FiberAssembly([*points, shift, 0.0, 0.0], scene.fibers.radii, scene.fibers.strand_offsets)
+        moved.fibers = FiberAssembly(points + [shift, 0.0, 0.0], scene.fibers.radii, scene.fibers.strand_offsets)
         extent = max(np.abs(moved.fibers.points).max(), *np.abs(moved.camera.origin))
         verdict = "refused" if extent > RESOLUTION_LIMIT * radius else "accepted"
         change = render(moved, spp=args.spp).mean() / reference - 1

@@ -448,7 +448,7 @@ def test_a_tilted_end_is_cut_perpendicular_to_its_segment():
     offsets = np.array([0.03, -0.03, 0.03, -0.03])
     along = np.array([-1e-4, -1e-4, 1e-4, 1e-4])
     feet = points[2] + along[:, None] * a + offsets[:, None] * side
-    hit = intersect(bvh, [*feet, 0.0, 0.0, 1.0], np.broadcast_to([0.0, 0.0, -1.0], feet.shape))
+    hit = intersect(bvh, feet + [0.0, 0.0, 1.0], np.broadcast_to([0.0, 0.0, -1.0], feet.shape))
     assert np.isfinite(hit["t"]).tolist() == [True, True, False, False]
 
 
@@ -671,7 +671,7 @@ def rays_down_onto_the_arc(n, first, last, curve_radius=1.0):
     """Rays along −z onto the arc, at angles spread from first to last."""
     angles = np.linspace(first, last, n)
     targets = curve_radius * np.stack([np.cos(angles), np.sin(angles), np.zeros_like(angles)], axis=1)
-    origins = [*targets, 0.0, 0.0, 1.0]
+    origins = targets + [0.0, 0.0, 1.0]
     return origins, np.tile([0.0, 0.0, -1.0], (n, 1))
 
 
