@@ -23,7 +23,7 @@ import warp as wp
 import warp_hair
 from warp_hair import HairParams, bsdf
 from warp_hair.cli import exit_on_interrupt
-from warp_hair.model.bsdf import _sample_kernel
+from warp_hair.model.bsdf import sample_kernel
 from warp_hair.model.hair_bsdf import hair_coefficients
 from warp_hair.parallel import default_threads, launch_ranges
 
@@ -60,7 +60,7 @@ def kernels(wo, h, u, threads: int):
     ]
 
     def run():
-        launch_ranges(_sample_kernel, n, arrays, threads)
+        launch_ranges(sample_kernel, n, arrays, threads)
 
     return run
 

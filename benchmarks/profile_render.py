@@ -35,7 +35,7 @@ import warp as wp
 from warp_hair.geometry.bvh import TRAVERSAL_COST, build_bvh
 from warp_hair.geometry.intersect import intersect_fibers
 from warp_hair.geometry.rays import intersect, occluded
-from warp_hair.geometry.tubes import MAX_LEAF, _segment_boxes, _segment_frames
+from warp_hair.geometry.tubes import MAX_LEAF, segment_boxes, segment_frames
 from warp_hair.model.hair_bsdf import hair_sample, hair_value_pdf, lobe_setup
 from warp_hair.numerics import NO_HIT, rand2, to_local, to_world
 from warp_hair.parallel import default_threads
@@ -71,10 +71,10 @@ def preparation(scene) -> list:
         p0, p1, r0, r1, strand, _ = scene.fibers.segments()
     rows.append(("segments of the assembly", c.wall, c.cpu))
     with Clock() as c:
-        seg = _segment_frames(p0, p1, r0, r1, strand)
+        seg = segment_frames(p0, p1, r0, r1, strand)
     rows.append(("tube frames (mitre planes)", c.wall, c.cpu))
     with Clock() as c:
-        lowers, uppers = _segment_boxes(seg)
+        lowers, uppers = segment_boxes(seg)
     rows.append(("tube boxes", c.wall, c.cpu))
     with Clock() as c:
         build_bvh(lowers, uppers, max_leaf=MAX_LEAF, width=4, traversal_cost=TRAVERSAL_COST)

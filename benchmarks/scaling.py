@@ -176,10 +176,10 @@ def build_times(scene, threads) -> dict:
     from helpers import reference_bvh
 
     from warp_hair.geometry.bvh import TRAVERSAL_COST, build_bvh
-    from warp_hair.geometry.tubes import MAX_LEAF, _segment_boxes, _segment_frames
+    from warp_hair.geometry.tubes import MAX_LEAF, segment_boxes, segment_frames
 
     p0, p1, r0, r1, strand, _ = scene.fibers.segments()
-    lowers, uppers = _segment_boxes(_segment_frames(p0, p1, r0, r1, strand))
+    lowers, uppers = segment_boxes(segment_frames(p0, p1, r0, r1, strand))
     _, _, warp_cpu = timed(lambda: build_bvh(lowers, uppers, max_leaf=MAX_LEAF, width=4, threads=threads))
     _, _, numpy_cpu = timed(lambda: reference_bvh.build_binary(lowers, uppers, MAX_LEAF, TRAVERSAL_COST))
     return {"build_warp_cpu": warp_cpu, "build_numpy_cpu": numpy_cpu}

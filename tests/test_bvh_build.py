@@ -11,14 +11,14 @@ from helpers import reference_bvh
 from warp_hair.geometry import bvh
 from warp_hair.geometry.formats import load_fibers
 from warp_hair.geometry.generators import wavy
-from warp_hair.geometry.tubes import _segment_boxes, _segment_frames
+from warp_hair.geometry.tubes import segment_boxes, segment_frames
 
 BENCH_FIBERS = Path(__file__).parents[1] / "benchmarks" / "standard_swatch_fibers.txt"
 
 
 def tube_boxes(assembly):
     p0, p1, r0, r1, strand, _ = assembly.segments()
-    return _segment_boxes(_segment_frames(p0, p1, r0, r1, strand))
+    return segment_boxes(segment_frames(p0, p1, r0, r1, strand))
 
 
 def boxes(case):
@@ -52,7 +52,7 @@ def test_warp_build_is_the_numpy_reference(case):
     lowers, uppers = boxes(case)
     for max_leaf, cost in ((1, 1.0), (2, 1.0), (4, 0.5)):
         expected = reference_bvh.build_binary(lowers, uppers, max_leaf, cost)
-        assert_same_tree(bvh._build_binary(lowers, uppers, max_leaf, cost), expected)
+        assert_same_tree(bvh.build_binary(lowers, uppers, max_leaf, cost), expected)
 
 
 def test_threads_do_not_change_the_tree():

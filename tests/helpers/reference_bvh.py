@@ -5,7 +5,7 @@ import math
 
 import numpy as np
 
-from warp_hair.geometry.bvh import BINS, MAX_DEPTH, Tree, _half_area, _level_nodes, _round_down, _round_up, leaf_code
+from warp_hair.geometry.bvh import BINS, MAX_DEPTH, Tree, half_area, leaf_code, level_nodes, round_down, round_up
 
 
 def build_binary(lowers, uppers, max_leaf, traversal_cost) -> Tree:
@@ -44,10 +44,10 @@ def build_binary(lowers, uppers, max_leaf, traversal_cost) -> Tree:
         extent = np.maximum.reduceat(c, first, axis=1) - c_lo
 
         bins, best_cost, best_axis, best_bin = _best_splits(box, c, c_lo, extent, rid, count)
-        area = _half_area(range_box)
+        area = half_area(range_box)
         is_root = slot[:, 0] < 0
         # The leaf rule and the node numbering are the build's own: what is checked is the splits.
-        leaf, median, split, node_id, num_nodes = _level_nodes(
+        leaf, median, split, node_id, num_nodes = level_nodes(
             count, best_cost, area, is_root, max_leaf, traversal_cost, depth, sah_depth, num_nodes, levels
         )
         # What the parents' slots hold: this range's box, and its node or leaf.
@@ -83,7 +83,7 @@ def build_binary(lowers, uppers, max_leaf, traversal_cost) -> Tree:
     lo[slot[:, 0], slot[:, 1]] = box[:3].T
     hi[slot[:, 0], slot[:, 1]] = -box[3:].T
     child[slot[:, 0], slot[:, 1]] = np.concatenate(refs)
-    return Tree(order, _round_down(lo), _round_up(hi), child.astype(np.int32), depth - 1, np.concatenate(levels))
+    return Tree(order, round_down(lo), round_up(hi), child.astype(np.int32), depth - 1, np.concatenate(levels))
 
 
 def _best_splits(box, c, c_lo, extent, rid, count):
@@ -107,8 +107,8 @@ def _best_splits(box, c, c_lo, extent, rid, count):
             np.minimum.at(bin_box[row], key, box[row])
         bin_box = bin_box.reshape(6, nb, k)
         # Split after bin j: left = bins 0..j, right = bins j+1..nb−1.
-        left_area = _half_area(np.minimum.accumulate(bin_box, axis=1))[:-1]
-        right_area = _half_area(np.minimum.accumulate(bin_box[:, ::-1], axis=1))[-2::-1]
+        left_area = half_area(np.minimum.accumulate(bin_box, axis=1))[:-1]
+        right_area = half_area(np.minimum.accumulate(bin_box[:, ::-1], axis=1))[-2::-1]
         left_n = np.cumsum(n_bin, axis=0)[:-1]
         right_n = count - left_n
         cost = np.where((left_n > 0) & (right_n > 0), left_area * left_n + right_area * right_n, np.inf)

@@ -96,17 +96,17 @@ def build_bvh(
     their number."""
     if width not in (2, 4):
         raise ValueError(f"width must be 2 or 4, got {width}")
-    tree = _build_binary(lowers, uppers, max_leaf, traversal_cost, threads)
+    tree = build_binary(lowers, uppers, max_leaf, traversal_cost, threads)
     return tree if width == 2 else _widen(tree)
 
 
-def _half_area(box):
+def half_area(box):
     """Half the surface area of boxes stored as (lo, −hi) along the first axis (6, ...); 0 for empty ones."""
     d = np.maximum(-box[3:] - box[:3], 0.0)
     return d[0] * d[1] + d[1] * d[2] + d[2] * d[0]
 
 
-def _build_binary(lowers, uppers, max_leaf, traversal_cost, threads=None) -> Tree:
+def build_binary(lowers, uppers, max_leaf, traversal_cost, threads=None) -> Tree:
     """The binary tree, built level by level (module docstring); node ids are assigned in level order."""
     if not 1 <= max_leaf <= MAX_LEAF_SIZE:
         raise ValueError(f"max_leaf must be in [1, {MAX_LEAF_SIZE}], got {max_leaf}")
@@ -121,7 +121,7 @@ def _build_binary(lowers, uppers, max_leaf, traversal_cost, threads=None) -> Tre
         lo = np.stack([lowers[0], np.full(3, EMPTY_BOX)])[None]
         hi = np.stack([uppers[0], np.full(3, EMPTY_BOX)])[None]
         child = np.array([[leaf_code(0, 1), leaf_code(0, 0)]], dtype=np.int32)
-        return Tree(order, _round_down(lo), _round_up(hi), child, 1, np.zeros(1, np.int64))
+        return Tree(order, round_down(lo), round_up(hi), child, 1, np.zeros(1, np.int64))
     if m >= 2**31:
         raise ValueError(f"at most 2**31 - 1 boxes, got {m}")
 
@@ -152,9 +152,9 @@ def _build_binary(lowers, uppers, max_leaf, traversal_cost, threads=None) -> Tre
         box_lo, box_hi = out["box_lo"].numpy(), out["box_hi"].numpy()
         extent = out["c_extent"].numpy()
         best_cost = out["cost"].numpy()
-        area = _half_area(np.concatenate([box_lo.T, -box_hi.T]))
+        area = half_area(np.concatenate([box_lo.T, -box_hi.T]))
         is_root = slot[:, 0] < 0
-        leaf, median, split, node_id, num_nodes = _level_nodes(
+        leaf, median, split, node_id, num_nodes = level_nodes(
             count, best_cost, area, is_root, max_leaf, traversal_cost, depth, sah_depth, num_nodes, levels
         )
         # What the parents' slots hold: this range's box, and its node or leaf.
@@ -206,10 +206,10 @@ def _build_binary(lowers, uppers, max_leaf, traversal_cost, threads=None) -> Tre
     lo[slot[:, 0], slot[:, 1]] = np.concatenate([b[0] for b in slot_boxes])
     hi[slot[:, 0], slot[:, 1]] = np.concatenate([b[1] for b in slot_boxes])
     child[slot[:, 0], slot[:, 1]] = np.concatenate(refs)
-    return Tree(order, _round_down(lo), _round_up(hi), child.astype(np.int32), depth - 1, np.concatenate(levels))
+    return Tree(order, round_down(lo), round_up(hi), child.astype(np.int32), depth - 1, np.concatenate(levels))
 
 
-def _level_nodes(count, best_cost, area, is_root, max_leaf, traversal_cost, depth, sah_depth, num_nodes, levels):
+def level_nodes(count, best_cost, area, is_root, max_leaf, traversal_cost, depth, sah_depth, num_nodes, levels):
     """Which ranges of a level become leaves and which split at the median (the others at their best binned
     split), the splitting ones' indices and node ids, and the node count after them; appends their depths to
     `levels`."""
@@ -493,12 +493,12 @@ def _partition_kernel(
         prims.uppers[i] = scratch.uppers[i]
 
 
-def _round_down(x):
+def round_down(x):
     """float32 values <= x (boxes must only grow when stored in float32)."""
     y = x.astype(np.float32)
     return np.where(y > x, np.nextafter(y, np.float32(-np.inf)), y)
 
 
-def _round_up(x):
+def round_up(x):
     y = x.astype(np.float32)
     return np.where(y < x, np.nextafter(y, np.float32(np.inf)), y)

@@ -32,8 +32,8 @@ class FiberBVH:
     def __init__(self, assembly, device="cpu", smooth_tangents=True):
         self.device = device
         p0, p1, r0, r1, strand, _ = assembly.segments()
-        seg = _segment_frames(p0, p1, r0, r1, strand)
-        lowers, uppers = _segment_boxes(seg)
+        seg = segment_frames(p0, p1, r0, r1, strand)
+        lowers, uppers = segment_boxes(seg)
         if len(lowers):
             self.bounds = (lowers.min(axis=0), uppers.max(axis=0))
         else:
@@ -76,7 +76,7 @@ class FiberBVH:
         return self._geometry.num_segments
 
 
-def _segment_frames(p0, p1, r0, r1, strand):
+def segment_frames(p0, p1, r0, r1, strand):
     """Per-segment centre, unit axis, radius, clip-plane normals and offsets, in float64."""
     p0 = np.asarray(p0, dtype=np.float64)
     p1 = np.asarray(p1, dtype=np.float64)
@@ -128,7 +128,7 @@ def _segment_frames(p0, p1, r0, r1, strand):
     }
 
 
-def _segment_boxes(seg):
+def segment_boxes(seg):
     """Boxes around each clipped tube: the union of the boxes of its two end ellipses, padded for rounding."""
     axis, radius = seg["axis"], seg["radius"]
     # Rows k of the projector I − a aᵀ: the unit axis e_k with its component along the tube axis removed.

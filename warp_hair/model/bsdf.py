@@ -66,7 +66,7 @@ def _pdf_kernel(
 
 
 @wp.kernel
-def _sample_kernel(
+def sample_kernel(
     c: HairCoefficients,
     wo: wp.array(dtype=wp.vec3),
     h: wp.array(dtype=float),
@@ -232,7 +232,7 @@ def sample(params: HairParams, wo, h, u, threads: int | None = None, device: str
     """
     items = {"wo": check_directions("wo", wo), "h": check_offsets(h), "u": _uniforms(u)}
     outputs = [((), wp.vec3), ((), wp.vec3), ((), float)]
-    wi, weight, density = launch_batch(_sample_kernel, [check_params(params)], items, outputs, threads, device)
+    wi, weight, density = launch_batch(sample_kernel, [check_params(params)], items, outputs, threads, device)
     return wi, weight, density
 
 
