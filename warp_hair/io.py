@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import OpenEXR
+import tomllib
 from PIL import Image
 
 from . import validate
@@ -147,6 +148,15 @@ def read_text(path: Path, what: str, hint: str = "") -> str:
         raise FileNotFoundError(f"{path}: {what} not found{hint}") from None
     except (OSError, UnicodeDecodeError) as error:
         raise ValueError(f"{path}: cannot read the {what}: {error}") from None
+
+
+def read_toml(path: Path, what: str, hint: str = "") -> dict:
+    """A TOML file's tables, with `read_text`'s errors and a ValueError "<path>: TOML syntax error: <where>"."""
+    text = read_text(path, what, hint)
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as error:
+        raise ValueError(f"{path}: TOML syntax error: {error}") from None
 
 
 def srgb_encode(linear: np.ndarray) -> np.ndarray:

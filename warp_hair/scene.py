@@ -19,7 +19,6 @@ from dataclasses import MISSING, dataclass, field, fields
 from pathlib import Path
 
 import numpy as np
-import tomllib
 
 from . import geometry as fiber_module
 from . import validate
@@ -29,7 +28,7 @@ from .geometry.curves import DEFAULT_TOLERANCE, catmull_rom
 from .geometry.formats import load_fibers
 from .geometry.interpenetration import warn_interpenetration
 from .geometry.usd import SUFFIXES as USD_SUFFIXES
-from .io import read_exr, read_text
+from .io import read_exr, read_toml
 from .model.params import ALBEDO_INVERSION_KEY, HairParams
 
 CAMERA_TYPES = ("orthographic", "perspective")
@@ -300,11 +299,7 @@ class Scene:
 def load_scene(path) -> Scene:
     """Load and validate a TOML scene file; relative file paths in it are relative to the file."""
     path = Path(path)
-    text = read_text(path, "scene file")
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as error:
-        raise ValueError(f"{path}: TOML syntax error: {error}") from None
+    data = read_toml(path, "scene file")
     scene = scene_from_dict(data, base_dir=path.parent, where=str(path))
     scene.path = path.resolve()
     return scene

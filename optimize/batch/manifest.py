@@ -39,6 +39,7 @@ from pathlib import Path
 import tomllib
 
 import warp_hair
+from warp_hair.io import read_toml
 
 from ..latents import SPECS
 
@@ -99,14 +100,7 @@ class Manifest:
 def load_manifest(path, output=None) -> Manifest:
     """Read and check a manifest; a ValueError names the file, the entry and the key of any problem."""
     path = Path(path)
-    try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise FileNotFoundError(f"{path}: manifest not found") from None
-    except (OSError, UnicodeDecodeError) as error:
-        raise ValueError(f"{path}: cannot read the manifest: {error}") from None
-    except tomllib.TOMLDecodeError as error:
-        raise ValueError(f"{path}: TOML syntax error: {error}") from None
+    data = read_toml(path, "manifest")
     unknown = sorted(set(data) - {"batch", "defaults", *KINDS})
     if unknown:
         raise ValueError(
