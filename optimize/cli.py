@@ -150,13 +150,13 @@ def add_fit(subparsers) -> None:
         choices=GAIN_MODES,
         help="the images' exposures to fit with the hair (optimize/camera.py): per-image, exif (one "
         "gain, EXIF's t*ISO/N^2 ratios), shared, none (default: target.toml's gains, else per-image "
-        "or exif for PNG, JPEG and TIFF photos, none for EXR)",
+        "or exif for PNG, JPEG, TIFF and raw photos, none for EXR and linear TIFF)",
     )
     parser.add_argument(
         "--white-balance",
         choices=WHITE_BALANCE_MODES,
         help="fit a white balance (a gain per channel, green's 1) with the hair: fit, none (default: "
-        "target.toml's white_balance, else fit for photos, none for EXR)",
+        "target.toml's white_balance, else fit for photos, none for EXR and linear TIFF)",
     )
     parser.add_argument(
         "--export",
@@ -369,7 +369,7 @@ def _add_photo(actions) -> None:
         action="append",
         required=True,
         metavar="PHOTO",
-        help="a photo (PNG, JPEG, TIFF); repeat for each view",
+        help="a photo (PNG, JPEG, TIFF, or camera raw with the photo extra); repeat for each view",
     )
     photo.add_argument(
         "--light",

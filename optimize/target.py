@@ -221,10 +221,11 @@ def _photo_mask(photo, mask):
 
 def _camera_unknowns(spec_path: Path, spec: dict, images) -> tuple:
     """(gains, white_balance) for the fit (optimize/camera.py): target.toml's, else, where any image is
-    display-referred (a camera chose its exposure and white balance), both fitted: one gain and EXIF's ratios
-    when every image has EXIF exposure (t, N, ISO), a gain per image otherwise; for linear images (EXR), none."""
+    display-referred or camera raw (a camera chose its exposure and white balance), both fitted: one gain and
+    EXIF's ratios when every image has EXIF exposure (t, N, ISO), a gain per image otherwise; for linear images
+    (EXR, linear TIFF), none."""
     photos = [image.photo for image in images]
-    display = any(p is not None and p.display_referred for p in photos)
+    display = any(p is not None and p.camera_exposed for p in photos)
     with_exif = all(p is not None and p.relative_exposure is not None for p in photos)
     gains = spec.get("gains", ("exif" if with_exif else "per-image") if display else "none")
     white_balance = spec.get("white_balance", "fit" if display else "none")

@@ -1,4 +1,4 @@
-"""Photographs in: PNG, JPEG and TIFF decoded to linear RGB, with what the camera did to them.
+"""Photographs in: PNG, JPEG, TIFF and camera raw decoded to linear RGB, with what the camera did to them.
 
     photo = read_photo("front.jpg")            # transfer="auto": the file's ICC profile, else sRGB
     photo.image                                # float32 (H, W, 3) linear, 1.0 = the top of the file's range
@@ -18,7 +18,8 @@ Transfer functions (`transfer`):
              converted to sRGB by LittleCMS through Pillow's ImageCms first), a PNG gAMA chunk without one, and
              sRGB for everything else (IEC 61966-2-1: what an untagged display-referred file means)
     srgb     the sRGB curve, whatever the file says
-    linear   the code values are proportional to light (a linear TIFF from a raw converter)
+    linear   the code values are proportional to light (a linear TIFF from a raw converter; camera raw is
+             always linear, and "srgb" for it is an error)
 
 Decisions on odd files (each an error naming the file, or a note in `Photo.notes`):
 - JPEG, PNG and TIFF with 8 or 16 bits per channel (float TIFF too); RGB, RGBA (alpha ignored), or greyscale
@@ -29,9 +30,14 @@ Decisions on odd files (each an error naming the file, or a note in `Photo.notes
   ones at or below CRUSH_CODE_JPEG/255: its block compression rings around a clipped highlight or a black
   region and leaves codes just inside the range there. Lossless files clip and crush at their end codes exactly.
 - EXIF Orientation is applied (as a viewer shows the photo), with a note.
-- Camera raw (.dng, .cr2, .nef, ...) is not read: rawpy installs here, but no raw file can be made or fetched
-  to test a reader against. Convert it with the raw converter to a 16-bit linear TIFF and set
-  transfer = "linear" (`RAW_HINT`).
+- Camera raw (`RAW_SUFFIXES`: .dng, .cr2, .cr3, .nef, .arw, .raf, ...) is read through LibRaw (rawpy, the
+  `photo` extra; warp_hair/raw.py has its decisions): linear sRGB at half the sensor's size, white-balanced as
+  shot, no gamma and no auto-brightening; a pixel is clipped where a sensel of its 2×2 quad reached the white
+  level before white balance, crushed where one is at or below the black level. EXIF from LibRaw, and from the
+  file's Exif IFD for the tags LibRaw does not report. A raw photo is linear but `camera_exposed`: the fit
+  solves its gain and white balance as for a JPEG. A file LibRaw cannot read (a camera newer than it, a
+  damaged file, a JPEG with a raw suffix) is an error saying which, with `RAW_HINT`'s advice: convert it to a
+  16-bit linear TIFF and set transfer = "linear".
 """
 
 from __future__ import annotations
@@ -44,29 +50,10 @@ from pathlib import Path
 import numpy as np
 from PIL import ExifTags, Image, ImageCms, ImageOps, UnidentifiedImageError
 
+from .raw import RAW_SUFFIXES, read_raw
+
 TRANSFERS = ("auto", "srgb", "linear")
 PHOTO_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff")
-RAW_SUFFIXES = (
-    ".dng",
-    ".cr2",
-    ".cr3",
-    ".nef",
-    ".nrw",
-    ".arw",
-    ".raf",
-    ".orf",
-    ".rw2",
-    ".pef",
-    ".srw",
-    ".3fr",
-    ".iiq",
-    ".x3f",
-)
-RAW_HINT = (
-    "camera raw is not read here: convert it with your raw converter to a 16-bit TIFF with a linear "
-    "transfer curve (dcraw -4 -T, RawTherapee or darktable with a linear output profile; white balance "
-    'as shot) and list that with transfer = "linear"'
-)
 # A JPEG code at or above this (of 255) counts as clipped: compression ringing leaves codes below 255 around a
 # clipped highlight (measured on Pillow's JPEGs at quality 90: up to 4 codes below the top).
 CLIP_CODE_JPEG = 250
@@ -90,17 +77,25 @@ class Photo:
     image: np.ndarray  # float32 (H, W, 3) linear, 1.0 = the top of the file's code range
     clipped: np.ndarray  # (H, W) bool: a channel at the top of the range
     crushed: np.ndarray  # (H, W) bool: a channel at zero
-    format: str  # "PNG", "JPEG", "TIFF"
-    bits: int  # per channel: 8, 16, or 32 (float)
+    format: str  # "PNG", "JPEG", "TIFF", or "<SUFFIX> raw" ("DNG raw")
+    bits: int  # per channel: 8, 16 (raw: LibRaw's 16-bit output), or 32 (float)
     transfer: str  # what was undone: "srgb", "linear", "gamma 2.2", "icc:<profile> → srgb"
     exif: dict = field(default_factory=dict)  # EXIF_TAGS' values found, as floats
     notes: list = field(default_factory=list)  # decisions taken on this file, for the fit's report
+    raw: bool = False  # camera raw (warp_hair.raw): linear, but exposed and white-balanced by the camera
 
     @property
     def display_referred(self) -> bool:
         """Whether the file holds display values (anything not linear): its exposure and white balance are a
         camera's choices, not the scene's light."""
         return self.transfer != "linear"
+
+    @property
+    def camera_exposed(self) -> bool:
+        """Whether a camera's exposure and white balance set the values' scale, so that a fit solves gains and
+        a white balance: display-referred files and camera raw (linear, yet scaled by the shutter, aperture,
+        ISO and as-shot white balance). A linear TIFF is taken at its word, as an EXR is."""
+        return self.display_referred or self.raw
 
     @property
     def relative_exposure(self) -> float | None:
@@ -113,17 +108,21 @@ class Photo:
 
 
 def read_photo(path, transfer: str = "auto") -> Photo:
-    """Decode a PNG, JPEG or TIFF to linear RGB (see the module docstring); errors name the file."""
+    """Decode a PNG, JPEG, TIFF or camera raw file to linear RGB (see the module docstring); errors name the
+    file."""
     path = Path(path)
     if transfer not in TRANSFERS:
         raise ValueError(f"{path}: transfer = {transfer!r}; allowed: {list(TRANSFERS)}")
     suffix = path.suffix.lower()
-    if suffix in RAW_SUFFIXES:
-        raise ValueError(f"{path}: {RAW_HINT}")
-    if suffix not in PHOTO_SUFFIXES:
-        raise ValueError(f"{path}: not an image type warp-hair reads (EXR, or {', '.join(PHOTO_SUFFIXES)})")
+    if suffix not in PHOTO_SUFFIXES + RAW_SUFFIXES:
+        raise ValueError(
+            f"{path}: not an image type warp-hair reads (EXR, {', '.join(PHOTO_SUFFIXES)}, or camera raw: "
+            f"{', '.join(RAW_SUFFIXES)})"
+        )
     if not path.is_file():
         raise FileNotFoundError(f"{path}: image not found")
+    if suffix in RAW_SUFFIXES:
+        return _read_raw_photo(path, transfer)
     if suffix in (".tif", ".tiff"):
         codes, bits, icc, exif, notes, fmt = _read_tiff(path)
     else:
@@ -152,6 +151,52 @@ def read_photo(path, transfer: str = "auto") -> Photo:
     if (linear < 0).any():
         raise ValueError(f"{path}: negative values in the image; a photograph's values are >= 0")
     return Photo(path, linear.astype(np.float32), clipped, crushed, fmt, bits, transfer, exif, notes)
+
+
+def _read_raw_photo(path: Path, transfer: str) -> Photo:
+    """Camera raw (warp_hair.raw): linear by nature; EXIF from LibRaw, else from the file's Exif IFD where the
+    raw file is a TIFF (DNG, NEF, CR2, ARW, ...), for the tags LibRaw does not report."""
+    if transfer not in ("auto", "linear"):
+        raise ValueError(f"{path}: camera raw holds linear sensor values; transfer = {transfer!r} does not apply")
+    decoded = read_raw(path)
+    exif = dict(decoded.exif)
+    for key, value in _tiff_exif(path).items():
+        exif.setdefault(key, value)  # LibRaw's reading first: it knows makers' notes the Exif IFD may lack
+    image = decoded.image
+    if not np.isfinite(image).all():
+        raise ValueError(f"{path}: NaN or infinite values in the decoded raw image")
+    fmt = f"{path.suffix.lstrip('.').upper()} raw"
+    return Photo(
+        path,
+        image.astype(np.float32),
+        decoded.clipped,
+        decoded.crushed,
+        fmt,
+        16,
+        "linear",
+        exif,
+        decoded.notes,
+        raw=True,
+    )
+
+
+def _tiff_exif(path: Path) -> dict:
+    """EXIF_TAGS from a TIFF-based file's Exif IFD (tifffile), or {} where it is not a TIFF or has none."""
+    import tifffile
+
+    try:
+        with tifffile.TiffFile(path) as tif:
+            exif_tag = tif.pages[0].tags.get("ExifTag")
+            raw_exif = exif_tag.value if exif_tag is not None else {}
+    except Exception:  # not a TIFF (CR3, RAF, ...), or a damaged Exif IFD: LibRaw's reading stands alone
+        return {}
+    return _exif_values(raw_exif)
+
+
+def _exif_values(raw_exif: dict) -> dict:
+    """EXIF_TAGS' values from tifffile's Exif IFD dictionary, as floats."""
+    exif = {key: _number(raw_exif[tag]) for tag, key in EXIF_TAGS.items() if tag in raw_exif}
+    return {k: v for k, v in exif.items() if v is not None}
 
 
 def srgb_decode(encoded: np.ndarray) -> np.ndarray:
@@ -245,11 +290,7 @@ def _read_tiff(path: Path):
         notes.append("floating-point TIFF: linear values, not clipped")
     else:
         raise ValueError(f"{path}: {data.dtype} pixels are not read; save it as 8- or 16-bit or float RGB")
-    exif = {}
-    for tag, key in EXIF_TAGS.items():
-        if tag in raw_exif:
-            exif[key] = _number(raw_exif[tag])
-    return data, bits, icc, {k: v for k, v in exif.items() if v is not None}, notes, "TIFF"
+    return data, bits, icc, _exif_values(raw_exif), notes, "TIFF"
 
 
 def _exif(exif) -> dict:
