@@ -18,6 +18,7 @@ p(u, v) / (2π² sin θ). A constant sky, or an image with no luminance anywhere
 the sphere (density 1/4π).
 
     env, keepalive = environment_data(image=img, scale=2.0)   # or radiance=(r, g, b)
+    img = from_blender(blender_img, rotation_z=30.0)           # a Blender world's map, for the scene exported Y up
     # in a kernel:  L = env_radiance(env, d);  d, pdf = env_sample(env, u);  pdf = env_pdf(env, d)
 """
 
