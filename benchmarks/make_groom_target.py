@@ -26,6 +26,7 @@ Timings are wall-clock on whatever else the machine is doing.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import time
 from pathlib import Path
@@ -182,6 +183,32 @@ image = "back.exr"
 """
 
 
+def compare(out, spp, threads):
+    """warp-hair at the truth against the target's Cycles images: channel means, 8×8-block RMSE, two seeds' noise."""
+    from vs_peers import block_rmse, fmt
+
+    from warp_hair.io import read_exr
+    from warp_hair.renderer.render import render
+
+    for view in CAMERAS:
+        scene = load_scene(out / f"scene_{view}.toml")
+        cycles, _ = read_exr(out / f"{view}.exr")
+        images = []
+        for seed in (0, 1):
+            scene = dataclasses.replace(scene, render=dataclasses.replace(scene.render, spp=spp, seed=seed))
+            start = time.perf_counter()
+            images.append(render(scene, threads=threads))
+            print(f"[{view}] warp-hair, {spp} spp, seed {seed}: {time.perf_counter() - start:.0f} s")
+        ours = images[0]
+        write_exr(out.parent / f"groom_warp_hair_{view}.exr", ours)
+        ratio = ours.mean(axis=(0, 1)) / cycles.mean(axis=(0, 1))
+        print(
+            f"[{view}] warp-hair / Cycles: means {fmt(ours.mean(axis=(0, 1)))} / {fmt(cycles.mean(axis=(0, 1)))} = "
+            f"{fmt(ratio)}; block RMSE {block_rmse(ours, cycles):.2%} (two warp-hair seeds at {spp} spp: "
+            f"{block_rmse(images[1], ours):.2%})"
+        )
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--out", type=Path, default=HERE / "out" / "groom_target")
@@ -192,8 +219,17 @@ def main(argv=None):
     parser.add_argument("--spp", type=int, default=1024, help="Cycles' samples per pixel")
     parser.add_argument("--threads", type=int, default=None)
     parser.add_argument("--no-render", action="store_true", help="write the USD, map and scene files only")
+    parser.add_argument(
+        "--compare",
+        type=int,
+        metavar="SPP",
+        help="render the made target in warp-hair at its truth (SPP samples) "
+        "and print how it agrees with Cycles' images; makes nothing",
+    )
     args = parser.parse_args(argv)
     out = args.out
+    if args.compare:
+        return compare(out, args.compare, args.threads or default_threads())
     out.mkdir(parents=True, exist_ok=True)
     start = time.perf_counter()
     points, radii = groom(args.count, args.seed, args.segments)
