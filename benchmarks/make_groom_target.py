@@ -1,18 +1,19 @@
 """A production-sized groom as a Cycles target: 10⁴ wavy, clumped strands on a scalp-like patch, as USD.
 
     python benchmarks/make_groom_target.py [--out benchmarks/out/groom_target] [--count 10000] [--seed 23]
-                                           [--resolution 96] [--spp 1024] [--threads N] [--no-render]
-    warp-hair fit benchmarks/out/groom_target -o OUT
+                                           [--resolution 96] [--spp 256] [--threads N] [--no-render]
+    python benchmarks/make_groom_target.py --compare 128     # warp-hair at the truth against the Cycles images
+    warp-hair fit benchmarks/out/groom_target -o OUT [--refine 24]
 
 Makes, in --out, what a groom artist would bring from their own pipeline and a target directory of it:
 - `groom.usdc`: the groom as one `UsdGeom.BasisCurves` prim (/Groom/hair; cubic, catmullRom, nonperiodic, each
   strand's end points written twice so that the curve runs from root to tip as Cycles draws it; `vertex` widths;
-  Y up). Deterministic for a seed (about 8 MB at 10⁴ strands, so it is made here, not shipped).
+  Y up). Deterministic for a seed (4 MB at 10⁴ strands of 32 spans, so it is made here, not shipped).
   The groom: roots uniform on a spherical cap (the front of the crown of a head of radius 0.3, 30° across in
-  each direction from its centre) leave along the scalp's normal and fall under gravity, wave (amplitude 0.008,
-  wavelength 0.16, each clump in its own phase) and gather into 150 clumps toward the tips, each strand pulled
-  70% of the way onto its clump's guide at the tip: neighbours pass through each other, as a simulated groom's
-  do. Radius 0.0012 at the root to 0.0006 at the tip; lengths 0.45 ± 10%.
+  each direction from its centre) leave along the scalp's normal and turn to hang down over an arc length of about
+  0.12, wave (amplitude 0.006, wavelength 0.2, each clump in its own phase) and gather into 150 clumps toward the
+  tips, each strand pulled 60% of the way onto its clump's guide at the tip: neighbours pass through each other,
+  as a simulated groom's do. Radius 0.0012 at the root to 0.0006 at the tip; lengths 0.45 ± 10%.
 - `sky.exr`: benchmarks/synthetic_sky.py's lat-long map (a sun disc off every axis over coloured gradients).
 - `scene_front.toml`, `scene_back.toml`: two perspective cameras on the groom, one on the sun's side (front-lit),
   one opposite (the sun behind the hair), lit by the map only; `interpenetration = "exit"` (Cycles 4.x's CPU
@@ -216,7 +217,7 @@ def main(argv=None):
     parser.add_argument("--segments", type=int, default=32, help="Catmull-Rom spans per strand")
     parser.add_argument("--seed", type=int, default=23)
     parser.add_argument("--resolution", type=int, default=96)
-    parser.add_argument("--spp", type=int, default=1024, help="Cycles' samples per pixel")
+    parser.add_argument("--spp", type=int, default=256, help="Cycles' samples per pixel")
     parser.add_argument("--threads", type=int, default=None)
     parser.add_argument("--no-render", action="store_true", help="write the USD, map and scene files only")
     parser.add_argument(
