@@ -81,7 +81,7 @@ def _material(bpy, hair, workdir):
     return runpy.run_path(str(script))["make_material"]()
 
 
-def _lights(bpy, scene, lights):
+def _lights(bpy, scene, lights, workdir):
     world = bpy.data.worlds.new("world")
     world.use_nodes = True
     background = world.node_tree.nodes["Background"]
@@ -104,7 +104,37 @@ def _lights(bpy, scene, lights):
         elif isinstance(light, EnvironmentLight) and light.image is None:
             background.inputs["Color"].default_value = (*[float(c) for c in light.radiance], 1.0)
         else:
-            raise ValueError("the Cycles comparison does not translate environment maps")
+            _environment_map(bpy, world, light.image, workdir)
+
+
+def _environment_map(bpy, world, image, workdir):
+    """A lat-long map (warp_hair/renderer/envmap.py: +y up, u = 0 looking down −z, u = 1/4 along +x, row 0 at
+    the top) as an Environment Texture that Cycles reads at the same pixel for every direction.
+
+    Cycles (`kernel/geom/...`, `direction_to_equirectangular`, range (−2π, π, −π, π)) takes u = (π − atan2(y, x))
+    / 2π and v = 1 − acos(z) / π of the lookup vector, with v = 0 the image's bottom row: +z up, u = 1/2 along
+    +x, u = 1/4 along +y. Handing it (d.z, d.x, d.y) for the scene's direction d, a rotation, makes its u and v
+    ours: −z → u 0, +x → 1/4, +z → 1/2, and the top row at +y. Closest interpolation is our nearest-pixel lookup.
+    The image already carries the light's scale (EnvironmentLight.image), so the strength is 1.
+    """
+    from warp_hair.io import write_exr
+
+    path = Path(workdir) / "environment.exr"
+    write_exr(path, image)
+    texture = world.node_tree.nodes.new("ShaderNodeTexEnvironment")
+    texture.image = bpy.data.images.load(str(path))
+    texture.image.colorspace_settings.name = "Non-Color"  # the radiance as stored, no colour transform
+    texture.interpolation = "Closest"
+    texture.projection = "EQUIRECTANGULAR"
+    nodes, links = world.node_tree.nodes, world.node_tree.links
+    coordinates = nodes.new("ShaderNodeTexCoord")  # a world's Generated coordinate is the ray's direction
+    split = nodes.new("ShaderNodeSeparateXYZ")
+    join = nodes.new("ShaderNodeCombineXYZ")
+    links.new(coordinates.outputs["Generated"], split.inputs["Vector"])
+    for theirs, ours in zip("XYZ", "ZXY"):
+        links.new(split.outputs[ours], join.inputs[theirs])
+    links.new(join.outputs["Vector"], texture.inputs["Vector"])
+    links.new(texture.outputs["Color"], world.node_tree.nodes["Background"].inputs["Color"])
 
 
 def _card(bpy, scene, fibers):
@@ -192,15 +222,42 @@ def _settings(scene, spp, max_depth, seed, threads):
     settings.exr_codec = "ZIP"
 
 
-def render_cycles(bpy, scene, spp, threads=None, seed=0, fibers=None):
-    """The warp-hair `scene` (its fibers, or `fibers`) rendered by Cycles: float32 (H, W, 3), row 0 on top."""
+def _usd_fibers(bpy, path, material):
+    """The BasisCurves of a USD file as Blender's own USD importer reads them (a Curves object per prim, radius
+    = width / 2, the control points as they are, which Cycles draws as Catmull-Rom curves), left in the file's
+    coordinates: the importer turns a Y-up stage to Blender's Z up and scales by metersPerUnit on the object,
+    which is set back to the identity here, because the camera and the map are placed in the file's frame."""
+    from mathutils import Matrix
+
+    before = set(bpy.data.objects)
+    result = bpy.ops.wm.usd_import(filepath=str(path))
+    imported = [obj for obj in bpy.data.objects if obj not in before and obj.type == "CURVES"]
+    if result != {"FINISHED"} or not imported:
+        raise RuntimeError(f"{path}: Blender's USD importer found no curves ({result})")
+    for obj in bpy.data.objects:
+        if obj in before:
+            continue
+        obj.parent = None
+        obj.matrix_world = Matrix.Identity(4)
+        if obj.type == "CURVES":
+            obj.data.materials.clear()
+            obj.data.materials.append(material)
+    return imported
+
+
+def render_cycles(bpy, scene, spp, threads=None, seed=0, fibers=None, usd=None):
+    """The warp-hair `scene` (its fibers, or `fibers`, or the curves of the USD file `usd` as Blender imports
+    them) rendered by Cycles: float32 (H, W, 3), row 0 on top."""
     fibers = scene.fibers if fibers is None else fibers
     blender = _reset(bpy)
     _settings(blender, spp, scene.render.max_depth, seed, threads)
     _camera(bpy, blender, scene.camera)
-    _lights(bpy, blender, scene.lights)
     with tempfile.TemporaryDirectory() as tmp:
-        _fibers(bpy, fibers, _material(bpy, scene.hair, tmp))
+        _lights(bpy, blender, scene.lights, tmp)
+        if usd is None:
+            _fibers(bpy, fibers, _material(bpy, scene.hair, tmp))
+        else:
+            _usd_fibers(bpy, usd, _material(bpy, scene.hair, tmp))
         if scene.card is not None:
             _card(bpy, scene, fibers)
         path = Path(tmp) / "cycles.exr"

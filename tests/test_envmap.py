@@ -14,6 +14,7 @@ from warp_hair.renderer.envmap import (
     env_radiance,
     env_sample,
     environment_data,
+    from_blender,
     uv_to_direction,
 )
 
@@ -322,3 +323,46 @@ def test_black_constant_light(kwargs):
 def test_invalid_input_is_rejected(kwargs):
     with pytest.raises(ValueError):
         environment_data(**kwargs)
+
+
+def _cycles_pixel(direction, width, height):
+    """(row from the top, column) Cycles' Environment Texture with Closest interpolation reads for a lookup
+    direction: its u = (π − atan2(y, x)) / 2π, v = 1 − acos(z) / π with v = 0 at the bottom row
+    (kernel/geom, `direction_to_equirectangular`, range (−2π, π, −π, π))."""
+    x, y, z = direction.T
+    u = ((np.pi - np.arctan2(y, x)) / (2 * np.pi)) % 1.0
+    v = 1.0 - np.arccos(np.clip(z, -1, 1)) / np.pi
+    return height - 1 - np.minimum((v * height).astype(int), height - 1), np.minimum((u * width).astype(int), width - 1)
+
+
+@pytest.mark.parametrize("rotation_z", [0.0, 45.0, -90.0, 202.5])
+def test_from_blender_reads_what_cycles_reads_in_the_converted_scene(rotation_z):
+    """For a direction d in the Y-up scene, warp-hair's lookup of the converted map finds the pixel that Cycles
+    finds for the same direction in the Z-up Blender scene (b = (d.x, −d.z, d.y)) turned by the Mapping node's
+    Z rotation. Rotations here are whole columns (W = 64: 5.625° a column), where the conversion is exact."""
+    height, width = 32, 64
+    image = np.random.default_rng(3).uniform(0.0, 1.0, (height, width, 3)).astype(np.float32)
+    converted = from_blender(image, rotation_z)
+    d = np.random.default_rng(4).normal(size=(20_000, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    uv = wp.zeros(len(d), dtype=wp.vec2)
+    wp.launch(_direction_to_uv_kernel, dim=len(d), inputs=[wp.array(d, dtype=wp.vec3)], outputs=[uv])
+    uv = uv.numpy().astype(np.float64)
+    ours = converted[(uv[:, 1] * height).astype(int), (uv[:, 0] * width).astype(int)]
+    b = np.stack([d[:, 0], -d[:, 2], d[:, 1]], axis=1)
+    c, s = math.cos(math.radians(rotation_z)), math.sin(math.radians(rotation_z))
+    lookup = b @ np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]).T
+    row, column = _cycles_pixel(lookup, width, height)
+    # Directions within float32 rounding of a pixel edge may land either side in the two computations.
+    u_cycles = ((np.pi - np.arctan2(lookup[:, 1], lookup[:, 0])) / (2 * np.pi)) % 1.0 * width
+    v_ours = uv[:, 1] * height
+    clear = (np.abs(u_cycles - np.round(u_cycles)) > 1e-3) & (np.abs(v_ours - np.round(v_ours)) > 1e-3)
+    assert clear.mean() > 0.99
+    np.testing.assert_array_equal(ours[clear], image[row, column][clear])
+
+
+def test_from_blender_rejects_bad_input():
+    with pytest.raises(ValueError, match="rotation_z"):
+        from_blender(np.ones((4, 8, 3), np.float32), float("nan"))
+    with pytest.raises(ValueError, match="shape"):
+        from_blender(np.ones((4, 8), np.float32))

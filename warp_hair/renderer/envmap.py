@@ -18,6 +18,7 @@ p(u, v) / (2π² sin θ). A constant sky, or an image with no luminance anywhere
 the sphere (density 1/4π).
 
     env, keepalive = environment_data(image=img, scale=2.0)   # or radiance=(r, g, b)
+    img = from_blender(blender_img, rotation_z=30.0)           # a Blender world's map, for the scene exported Y up
     # in a kernel:  L = env_radiance(env, d);  d, pdf = env_sample(env, u);  pdf = env_pdf(env, d)
 """
 
@@ -231,3 +232,25 @@ def environment_data(radiance=None, image=None, scale: float = 1.0, device="cpu"
     env.marginal_cdf = wp.array(marginal.astype(np.float32), dtype=float, device=device)
     env.conditional_cdf = wp.array(conditional.astype(np.float32), dtype=float, device=device)
     return env, (env.image, env.marginal_cdf, env.conditional_cdf)
+
+
+def from_blender(image, rotation_z: float = 0.0) -> np.ndarray:
+    """A lat-long map as Blender lights a Z-up scene with it, re-indexed for that scene exported Y up.
+
+    `image` (H, W, 3), row 0 at the top, is the file an Environment Texture node reads; `rotation_z` is the Z
+    rotation in degrees of a Mapping node between the world's Generated coordinate and that texture (0 without
+    one). The scene must come over with Blender's USD export `convert_orientation` (forward −Z, up Y), which
+    maps Blender's (x, y, z) to (x, z, −y), as the camera must (README, "Bringing your own groom").
+
+    Why a column roll: Cycles looks the map up at u = (π − atan2(y, x)) / 2π, v = 1 − acos(z) / π of the
+    (rotated) direction with v = 0 the bottom row (`direction_to_equirectangular`, range (−2π, π, −π, π), in
+    Cycles' kernel/geom); this module at u = atan2(x, −z) / 2π, v = acos(y) / π with v = 0 the top row. Under
+    that change of axes both keep the same up and polar angle, so v agrees, and u differs by a constant:
+    Cycles' u = ours + 1/4 − rotation_z / 360. The result is the image turned by the nearest whole number of
+    columns, exact when rotation_z is a multiple of 360 / W degrees and within half a column's angle otherwise.
+    """
+    image = _checked_image(image)
+    if not math.isfinite(rotation_z):
+        raise ValueError(f"rotation_z must be a finite angle in degrees, got {rotation_z!r}")
+    width = image.shape[1]
+    return np.roll(image, round(width * (rotation_z / 360.0 - 0.25)) % width, axis=1)
