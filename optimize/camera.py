@@ -131,8 +131,8 @@ def gains_for(target, pairs, targets, masks, loss: str, pool: int, scales) -> Ga
 
 def columns(target, m: np.ndarray, image_residuals) -> np.ndarray:
     """(N, q): ∂r/∂(log gain, log w_R, log w_B) = the weighted render m = ω G I (N,) in the residuals each scales:
-    a gain its image's (or every image's), w_c its channel's. linearize.py passes a render independent of the
-    residuals it projects (`linearize._project_gains` says why)."""
+    a gain its image's (or every image's), w_c its channel's. linearize.py passes the weighted target, which m
+    equals at the gains' optimum up to the residual, and which our render noise does not move."""
     n_res = len(m)
     starts = np.cumsum((0, *tuple(image_residuals)))
     cols = []

@@ -50,7 +50,7 @@ class Linearization:
     jacobians: np.ndarray  # (2, N, p): ∂residual/∂x, x the fitted control components in order
     images: list  # per target image, the mean of its two renders (H, W, 3), gain applied
     loss_weights: np.ndarray  # (N,): the loss is Σ loss_weights · r² (a mean per image, then over the images)
-    targets: np.ndarray | None = None  # (N,) or per pass (2, N): the weighted, pooled target t, r = ω gain·I − t
+    targets: np.ndarray | None = None  # (N,): the weighted, pooled target values t, r = weight · (gain·I) − t
     image_residuals: tuple | None = None  # how many of the N residuals each target image gives, in order
     earlier_jacobians: np.ndarray | None = None  # (n, N, p): of earlier, independent renders near `values`
     curvature: np.ndarray | None = None  # (p, p) Gauss–Newton matrix; default: `crossed_curvature` of all Jacobians
@@ -222,9 +222,20 @@ def linearize(target, values: dict, settings, spp: int, seed: int, threads=None,
     image_residuals = tuple(len(t) for t in ts)
     projection = None
     if solved is not None:
-        residuals, jacobians, targets, projection = _project_gains(
-            target, solved, residuals, jacobians, targets, weights, image_residuals
+        # The loss minimised over the gains (camera.py): what no change of the gains makes, of each part. The
+        # gains' columns are ∂r/∂log g = ω G I, which at the gains' optimum is the weighted target t up to the
+        # residual: taken from t, the projection is the same at every linearisation and free of our render
+        # noise (from the renders, it would tie the two passes' noise together and move with each step's).
+        projection = camera.Projection(
+            solved,
+            camera.columns(target, targets, image_residuals),
+            weights,
+            jacobians.mean(axis=0),
+            camera.labels(target),
         )
+        residuals = np.stack([projection.apply(r) for r in residuals])
+        jacobians = np.stack([projection.apply(a) for a in jacobians])
+        targets = projection.apply(targets)
     return Linearization(
         values=dict(values),
         residuals=residuals,
@@ -236,31 +247,6 @@ def linearize(target, values: dict, settings, spp: int, seed: int, threads=None,
         image_residuals=image_residuals,
         camera=projection,
     )
-
-
-def _project_gains(target, solved, residuals, jacobians, targets, weights, image_residuals) -> tuple:
-    """The loss minimised over a photo's gains (camera.py): of each pass's residuals, Jacobian and target, the
-    part no change of the gains makes, P⊥ x = x − C (Cᵀ W C)⁻¹ Cᵀ W x.
-
-    The gains' columns C are ∂r/∂log g = ω G I, our weighted render, and they must not share noise with the
-    residual they project. Taken from the target t, the target's noise ε is in both: Cᵀ W r
-    then holds −εᵀ W ε, whose mean is not zero, and the gradient at the truth leans by the target's noise energy
-    over its energy along Aᵀ W t, towards a darker hair behind brighter gains (measured on chestnut_straight with
-    free gains: red albedo 0.09 low one step from the truth, docs/acceptance.md). Taken from pass k's own render,
-    our noise would do the same. So pass k's residual (and target, for `uncertainty.brightness_sensitivity`) is
-    projected with the other pass's columns C_¬k, and each pass's Jacobian with its own: the gradient crosses pass
-    k's residual with pass ¬k's Jacobian (`Linearization.crossed`), (P_¬k A_¬k)ᵀ W P_¬k r_k = A_¬kᵀ W P_¬k r_k,
-    in which C_¬k and A_¬k are independent of r_k's noise and the target's, so its mean at the truth is zero."""
-    per_pass = [camera.columns(target, r + targets, image_residuals) for r in residuals]
-    hair_jacobian, labels = jacobians.mean(axis=0), camera.labels(target)
-    projections = [camera.Projection(solved, c, weights, hair_jacobian, labels) for c in per_pass]
-    other = (1, 0)
-    residuals = np.stack([projections[other[k]].apply(r) for k, r in enumerate(residuals)])
-    jacobians = np.stack([projections[k].apply(a) for k, a in enumerate(jacobians)])
-    targets = np.stack([projections[other[k]].apply(targets) for k in range(len(residuals))])
-    # For the gains' own σ (camera.report, identify): the columns of the passes' mean render.
-    reported = camera.Projection(solved, 0.5 * (per_pass[0] + per_pass[1]), weights, hair_jacobian, labels)
-    return residuals, jacobians, targets, reported
 
 
 def loss_weights(reference: np.ndarray, loss: str) -> np.ndarray:
