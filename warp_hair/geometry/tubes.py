@@ -44,9 +44,8 @@ class FiberBVH:
             raise ValueError(f"BVH depth {tree.depth} is too deep for the traversal stack ({STACK_SIZE})")
         order = tree.order
         nodes = np.zeros(len(tree.child), dtype=BvhNode.numpy_dtype())
-        for k, axis in enumerate("xyz"):
-            nodes[f"lo_{axis}"] = tree.lo[:, :, k]
-            nodes[f"hi_{axis}"] = tree.hi[:, :, k]
+        # Rows lo_x, lo_y, lo_z, hi_x, hi_y, hi_z (intersect.NodeBounds), children in the columns.
+        nodes["bounds"] = np.concatenate([tree.lo, tree.hi], axis=2).transpose(0, 2, 1)
         nodes["child"] = tree.child
         tubes = np.zeros(len(order), dtype=Tube.numpy_dtype())
         for name in ("center", "axis", "mitre0", "mitre1", "clip", "radius"):
