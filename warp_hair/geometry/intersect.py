@@ -77,7 +77,8 @@ STACK_SIZE ints; the builder bounds the depth so that it cannot overflow) and, a
 
 `intersect_fibers` keeps the entry distance beside each pushed child (`EntryStack`) and skips, when popping,
 subtrees that the ray enters only beyond the closest hit found since: front to back, with pruning.
-`fibers_occluded` visits children in the same order and returns at the first hit. Which of two hits at the
+`fibers_occluded` returns at the first hit, which needs no order: it pushes the children the ray enters
+unsorted, as Embree's shadow rays do. Which of two hits at the
 same t wins (only possible in the 1e-3·r seam overlap of a joint, where both are valid) depends on the order
 of the visit.
 """
@@ -472,15 +473,18 @@ def _any_hit(g: FiberGeometry, origin: wp.vec3, direction: wp.vec3, t_max: float
     ref = int(0)
     while ref != DONE:
         if ref >= 0:
-            t0, t1, t2, t3, c0, c1, c2, c3 = _children_by_entry(g.nodes[ref], origin, inv, rows, t_hi)
-            stack[sp] = wp.int32(c3)
-            sp += wp.where(t3 < t_hi, 1, 0)
-            stack[sp] = wp.int32(c2)
-            sp += wp.where(t2 < t_hi, 1, 0)
-            stack[sp] = wp.int32(c1)
-            sp += wp.where(t1 < t_hi, 1, 0)
-            if t0 < t_hi:
-                ref = c0
+            # Any hit ends the search, so the order of the visit does not matter: the children the ray enters are
+            # pushed as they come, unsorted, and the last of them popped next.
+            node = g.nodes[ref]
+            entry = _child_entries(node, origin, inv, rows, t_hi)
+            stack[sp] = wp.int32(node.child[3])
+            sp += wp.where(entry[3] < t_hi, 1, 0)
+            stack[sp] = wp.int32(node.child[2])
+            sp += wp.where(entry[2] < t_hi, 1, 0)
+            stack[sp] = wp.int32(node.child[1])
+            sp += wp.where(entry[1] < t_hi, 1, 0)
+            if entry[0] < t_hi:
+                ref = node.child[0]
                 continue
         else:
             code = -1 - ref
