@@ -71,7 +71,8 @@ STACK_SIZE ints; the builder bounds the depth so that it cannot overflow) and, a
    zero direction components become TINY, since 0 · inf gives NaN for a ray exactly in a box face; the near
    and far plane of each axis picked once per ray by the sign of the direction, as rows of the bound matrix),
    giving each child's entry distance, or NO_HIT where the ray misses it before the best hit so far;
-2. sorts the four (entry, child) pairs with a 5-comparator network, pushes the second to fourth nearest that
+2. descends into the one child the ray enters, or into the nearer of two, pushing the other; for three or
+   four, sorts the (entry, child) pairs with a 5-comparator network, pushes the second to fourth nearest that
    the ray enters (farthest first, without branches: a miss is written and the stack pointer not advanced)
    and descends into the nearest.
 
@@ -299,12 +300,11 @@ def _compare_swap(ta: float, tb: float, a: int, b: int):
 
 
 @wp.func
-def _children_by_entry(node: BvhNode, origin: wp.vec3, inv: wp.vec3, rows: SlabRows, t_hi: float):
+def _sort_entries(entry: wp.vec4, child: wp.vec4i):
     """The node's four children and their entry distances, nearest first (misses, at NO_HIT, last):
     a five-comparator sorting network, no branches."""
-    entry = _child_entries(node, origin, inv, rows, t_hi)
-    t0, t1, c0, c1 = _compare_swap(entry[0], entry[1], node.child[0], node.child[1])
-    t2, t3, c2, c3 = _compare_swap(entry[2], entry[3], node.child[2], node.child[3])
+    t0, t1, c0, c1 = _compare_swap(entry[0], entry[1], child[0], child[1])
+    t2, t3, c2, c3 = _compare_swap(entry[2], entry[3], child[2], child[3])
     t0, t2, c0, c2 = _compare_swap(t0, t2, c0, c2)
     t1, t3, c1, c3 = _compare_swap(t1, t3, c1, c3)
     t1, t2, c1, c2 = _compare_swap(t1, t2, c1, c2)
@@ -407,7 +407,33 @@ def _closest_hit(g: FiberGeometry, origin: wp.vec3, direction: wp.vec3, t_max: f
     ref = int(0)
     while ref != DONE:
         if ref >= 0:
-            t0, t1, t2, t3, c0, c1, c2, c3 = _children_by_entry(g.nodes[ref], origin, inv, rows, t_best)
+            node = g.nodes[ref]
+            entry = _child_entries(node, origin, inv, rows, t_best)
+            h0 = entry[0] < t_best
+            h1 = entry[1] < t_best
+            h2 = entry[2] < t_best
+            h3 = entry[3] < t_best
+            hits = wp.where(h0, 1, 0) + wp.where(h1, 1, 0) + wp.where(h2, 1, 0) + wp.where(h3, 1, 0)
+            # Most nodes have one or two children the ray enters: no sort for one, one comparison for two (the
+            # order the sorting network gives, which keeps two equal entries in child order).
+            if hits == 1:
+                ref = wp.where(
+                    h0, node.child[0], wp.where(h1, node.child[1], wp.where(h2, node.child[2], node.child[3]))
+                )
+                continue
+            if hits == 2:
+                ia = wp.where(h0, 0, wp.where(h1, 1, 2))
+                ib = wp.where(h3, 3, wp.where(h2, 2, 1))
+                ta = entry[ia]
+                tb = entry[ib]
+                near = wp.where(tb < ta, ib, ia)
+                far = ia + ib - near
+                stack[sp] = wp.int32(node.child[far])
+                stack_t[sp] = entry[far]
+                sp += 1
+                ref = node.child[near]
+                continue
+            t0, t1, t2, t3, c0, c1, c2, c3 = _sort_entries(entry, node.child)
             # Push the children the ray enters after the nearest, farthest first (a miss is written and left) ...
             stack[sp] = wp.int32(c3)
             stack_t[sp] = t3
