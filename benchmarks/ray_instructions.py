@@ -2,6 +2,7 @@
 machine does not change (valgrind's callgrind counts instructions; wall-clock rates need a quiet machine).
 
     python benchmarks/ray_instructions.py [--scene benchmarks/standard_swatch.toml] [--rays 5000] [--record-spp 1]
+    python benchmarks/ray_instructions.py --render [--scene …]
 
 The paths of a render of the scene (`profile_render.recorded_rays`: camera rays, a shadow ray per vertex,
 BSDF-sampled continuations) are recorded once, a fixed random sample of `--rays` of each kind is kept, and each
@@ -10,6 +11,8 @@ kind is traced (`rays.intersect`, shadow rays `rays.occluded`) in a child proces
 the JIT-compiled kernel (callgrind attributes code without symbols to its caller, libffi's call into it): the
 traversal, the tube tests, and for closest hits the hit point and shading frame and the writes of the outputs.
 The rays do not depend on the BVH (its hits are the same), so the counts compare BVH and traversal designs.
+With --render, the count is instead that of a whole render, one thread, of 1024 random pixels of the scene
+at 4 spp (everything the process runs inside `render`: traversal, BSDF, sampling, libm), per path.
 Needs valgrind (`apt-get install valgrind`).
 """
 
@@ -27,6 +30,8 @@ import numpy as np
 
 HERE = Path(__file__).resolve().parent
 KINDS = ("camera", "continuation", "shadow")
+RENDER_PIXELS = 1024
+RENDER_SPP = 4
 
 
 def record(scene_path, out, spp, count, seed=7):
@@ -62,12 +67,31 @@ def trace(scene_path, rays_file, kind):
     run = occluded if kind == "shadow" else intersect
     run(bvh, o[:10], d[:10])  # load the kernel outside the count
 
-    def instrument(flag):
-        subprocess.run(["callgrind_control", "-i", flag, str(os.getpid())], check=True, capture_output=True)
-
-    instrument("on")
+    _instrument("on")
     run(bvh, o, d)
-    instrument("off")
+    _instrument("off")
+
+
+def render_pixels(scene_path, _unused, _kind):
+    """Render 1024 random pixels at 4 spp on one thread, with callgrind's instrumentation on around it only."""
+    import warp as wp
+
+    from warp_hair.renderer.prepare import prepare
+    from warp_hair.renderer.render import render
+    from warp_hair.scene import load_scene
+
+    wp.init()
+    prepared = prepare(load_scene(scene_path))
+    width, height = prepared.resolution
+    pixels = np.sort(np.random.default_rng(0).choice(width * height, RENDER_PIXELS, replace=False))
+    render(prepared, spp=1, threads=1, pixels=pixels[:4])  # load the kernels outside the count
+    _instrument("on")
+    render(prepared, spp=RENDER_SPP, seed=1, threads=1, pixels=pixels)
+    _instrument("off")
+
+
+def _instrument(flag):
+    subprocess.run(["callgrind_control", "-i", flag, str(os.getpid())], check=True, capture_output=True)
 
 
 def kernel_instructions(out_file) -> int:
@@ -84,11 +108,26 @@ def main() -> None:
     parser.add_argument("--scene", default=str(HERE / "standard_swatch.toml"), help="scene TOML")
     parser.add_argument("--rays", type=int, default=5000, help="rays of each kind (default 5000)")
     parser.add_argument("--record-spp", type=int, default=1)
+    parser.add_argument("--render", action="store_true", help="count a whole render's instructions a path instead")
     parser.add_argument("--trace", nargs=2, metavar=("RAYS_FILE", "KIND"), help=argparse.SUPPRESS)
     args = parser.parse_args()
     scene = args.scene
     if args.trace:
-        trace(scene, *args.trace)
+        (render_pixels if args.render else trace)(scene, *args.trace)
+        return
+    if args.render:
+        with tempfile.TemporaryDirectory() as tmp:
+            out = os.path.join(tmp, "render.callgrind")
+            command = [sys.executable, __file__, "--scene", scene, "--render", "--trace", "-", "-"]
+            subprocess.run(command, check=True, capture_output=True)
+            valgrind = ["valgrind", "--tool=callgrind", "--instr-atstart=no", f"--callgrind-out-file={out}"]
+            subprocess.run([*valgrind, *command], check=True, capture_output=True)
+            text = Path(out).read_text()
+            total = next(int(line.split()[1]) for line in text.splitlines() if line.startswith("totals:"))
+            per_path = total / (RENDER_PIXELS * RENDER_SPP)
+            print(
+                f"{scene}: a render of {RENDER_PIXELS} pixels at {RENDER_SPP} spp: {per_path:.0f} instructions a path"
+            )
         return
     with tempfile.TemporaryDirectory() as tmp:
         rays_file = os.path.join(tmp, "rays.npz")
