@@ -2,6 +2,7 @@
 traversal of each kind of ray, shading).
 
     python benchmarks/profile_render.py [--spp 16] [--record-spp 2] [--target brown_wavy] [--threads N] [--mitsuba]
+                                        [--rays-only]
 
 1. Preparation of a scene (`warp_hair.prepare`), split into its steps: the segments of the assembly, the
    tubes' frames and boxes, the BVH build (`bvh.build_bvh`), and the rest (tube arrays in leaf order, lights,
@@ -18,6 +19,8 @@ traversal of each kind of ray, shading).
    pixel order, are somewhat more coherent than in the render, where each thread alternates kinds: the
    traversal share is a lower bound. With --mitsuba, Mitsuba 3 (Embree) traces the same rays on one thread,
    for its rays per second per core beside ours: how much of the gap to Mitsuba the traversal explains.
+
+With --rays-only, only part 3.
 
 Timings: wall-clock and CPU seconds (time.process_time: all threads of this process). On a shared machine the
 wall times are inflated by other jobs; the CPU times much less.
@@ -254,6 +257,7 @@ def main() -> None:
     parser.add_argument("--fit-spp", type=int, default=16, help="the fit's final spp (FitSettings.spp)")
     parser.add_argument("--threads", type=int, default=None)
     parser.add_argument("--mitsuba", action="store_true", help="also time Mitsuba 3 tracing the same rays")
+    parser.add_argument("--rays-only", action="store_true", help="only the swatch render and its rays (part 3)")
     args = parser.parse_args()
     threads = args.threads or default_threads()
     wp.init()
@@ -261,6 +265,13 @@ def main() -> None:
     target_scene = load_scene(TARGETS / args.target / "scene_front.toml")
 
     print(f"threads: {threads}; wall and CPU (process_time, all threads) seconds")
+    if not args.rays_only:
+        preparation_and_fit(args, swatch, target_scene, threads)
+    swatch_rays(args, swatch, threads)
+
+
+def preparation_and_fit(args, swatch, target_scene, threads) -> None:
+    """Parts 1 and 2 of the module docstring."""
     for name, scene in (("standard swatch", swatch), (f"{args.target} front", target_scene)):
         prepare(scene)  # warm the imports and caches
         m = len(scene.fibers.segments()[0])
@@ -275,6 +286,9 @@ def main() -> None:
     for label, (wall, cpu) in fit_iteration(TARGETS / args.target, args.fit_spp, threads).items():
         print(f"| {label} | {wall:.3f} | {cpu:.3f} |")
 
+
+def swatch_rays(args, swatch, threads) -> None:
+    """Part 3 of the module docstring."""
     prepared = prepare(swatch)
     render(prepared, spp=1, threads=threads)
     with Clock() as c:

@@ -128,8 +128,8 @@ def sah_cost(nodes: np.ndarray) -> float:
     """The surface area heuristic cost of a 4-wide fiber BVH (its BvhNode records), relative to its root box."""
     from warp_hair.geometry.bvh import TRAVERSAL_COST, leaf_range
 
-    lo = np.stack([nodes[f"lo_{a}"] for a in "xyz"], axis=-1).astype(np.float64)
-    hi = np.stack([nodes[f"hi_{a}"] for a in "xyz"], axis=-1).astype(np.float64)
+    bounds = nodes["bounds"].transpose(0, 2, 1).astype(np.float64)  # (N, 4 children, lo xyz + hi xyz)
+    lo, hi = bounds[..., :3], bounds[..., 3:]
     child = nodes["child"].astype(np.int64)
     d = hi - lo
     area = d[..., 0] * d[..., 1] + d[..., 1] * d[..., 2] + d[..., 2] * d[..., 0]

@@ -62,23 +62,26 @@ consistent as the BSDF assumes. The geometry stays the mitred tubes.
 BVH traversal
 -------------
 The tubes' boxes go into a 4-wide BVH (`warp_hair.geometry.bvh`, which documents the layout and the build): each
-`BvhNode` holds the boxes of its four children as six vec4 (one per bound, children 0..3) and their
-references, and the per-tube data sits in one `Tube` struct array in leaf order, so that a leaf reads one
-contiguous block. A traversal keeps a fixed-size local stack (`NodeStack`, a Warp vector of STACK_SIZE ints;
-the builder bounds the depth so that it cannot overflow) and, at each node:
+`BvhNode` holds the boxes of its four children as a 6×4 matrix (one row per bound, children 0..3 in the
+columns) and their references, and the per-tube data sits in one `Tube` struct array in leaf order, so that a
+leaf reads one contiguous block. A traversal keeps a fixed-size local stack (`NodeStack`, a Warp vector of
+STACK_SIZE ints; the builder bounds the depth so that it cannot overflow) and, at each node:
 
 1. tests the ray against the four child boxes at once (slab test with 1/direction computed once per ray;
-   zero direction components become TINY, since 0 · inf gives NaN for a ray exactly in a box face), giving
-   each child's entry distance, or NO_HIT where the ray misses it before the best hit so far;
-2. sorts the four (entry, child) pairs with a 5-comparator network, pushes the second to fourth nearest that
-   the ray enters (farthest first, without branches: a miss is written and the stack pointer not advanced)
-   and descends into the nearest.
+   zero direction components become TINY, since 0 · inf gives NaN for a ray exactly in a box face; the near
+   and far plane of each axis picked once per ray by the sign of the direction, as rows of the bound matrix),
+   giving each child's entry distance, or NO_HIT where the ray misses it before the best hit so far;
+2. for a closest hit, descends into the one child the ray enters, or into the nearer of two, pushing the
+   other (most nodes: 1.3–1.4 children entered on average); for three or four, sorts the (entry, child) pairs
+   with a 5-comparator network, pushes the second to fourth nearest that the ray enters (farthest first,
+   without branches: a miss is written and the stack pointer not advanced) and descends into the nearest.
 
 `intersect_fibers` keeps the entry distance beside each pushed child (`EntryStack`) and skips, when popping,
 subtrees that the ray enters only beyond the closest hit found since: front to back, with pruning.
-`fibers_occluded` visits children in the same order and returns at the first hit. Which of two hits at the
-same t wins (only possible in the 1e-3·r seam overlap of a joint, where both are valid) depends on the order
-of the visit.
+`fibers_occluded` returns at the first hit, which needs no order: it pushes the children the ray enters
+unsorted, as Embree's shadow rays do. Which of two hits at the same t wins (only possible in the 1e-3·r seam
+overlap of a joint, where both are valid) depends on the order of the visit; the two-child path keeps the
+sorting network's order (equal entries in child order).
 """
 
 from __future__ import annotations
@@ -122,17 +125,19 @@ class Tube:
     radius: float
 
 
+# A node's child boxes: rows lo_x, lo_y, lo_z, hi_x, hi_y, hi_z, each with children 0..3 in its columns, so
+# that a ray picks its near and far plane of each axis by row index (`SlabRows`).
+NodeBounds = wp.types.matrix(shape=(6, 4), dtype=float)
+# Row of the near x, y, z plane and of the far ones for a ray: the lower plane where the direction is positive.
+SlabRows = wp.types.vector(length=6, dtype=wp.int32)
+
+
 @wp.struct
 class BvhNode:
-    """A node of the 4-wide fiber BVH (`warp_hair.geometry.bvh`): the boxes of its four children, one vec4 (children
-    0..3) per bound, and what the children are."""
+    """A node of the 4-wide fiber BVH (`warp_hair.geometry.bvh`): the boxes of its four children (`NodeBounds`)
+    and what the children are."""
 
-    lo_x: wp.vec4
-    lo_y: wp.vec4
-    lo_z: wp.vec4
-    hi_x: wp.vec4
-    hi_y: wp.vec4
-    hi_z: wp.vec4
+    bounds: NodeBounds
     child: wp.vec4i  # >= 0: an interior node; < 0: a leaf, −1 − child = (first tube << LEAF_SHIFT) | count
 
 
@@ -235,6 +240,16 @@ def _inverse_direction(d: wp.vec3):
 
 
 @wp.func
+def _slab_rows(inv: wp.vec3):
+    """The `NodeBounds` rows of the planes where the ray enters (near x, y, z) and leaves (far x, y, z) each slab:
+    chosen once per ray, so that the box test needs no per-axis min and max of the two planes."""
+    nx = wp.where(inv[0] < 0.0, 3, 0)
+    ny = wp.where(inv[1] < 0.0, 4, 1)
+    nz = wp.where(inv[2] < 0.0, 5, 2)
+    return SlabRows(wp.int32(nx), wp.int32(ny), wp.int32(nz), wp.int32(3 - nx), wp.int32(5 - ny), wp.int32(7 - nz))
+
+
+@wp.func
 def _lesser(a: float, b: float):
     # A plain select: wp.min also handles NaN, which costs several instructions and cannot occur here.
     return wp.where(a < b, a, b)
@@ -256,16 +271,19 @@ def _vmax(a: wp.vec4, b: wp.vec4):
 
 
 @wp.func
-def _child_entries(node: BvhNode, origin: wp.vec3, inv: wp.vec3, t_hi: float):
-    """Where the ray enters each child box of the node (0 if it starts inside), NO_HIT for a miss before t_hi."""
-    x0 = (node.lo_x - wp.vec4(origin[0])) * inv[0]
-    x1 = (node.hi_x - wp.vec4(origin[0])) * inv[0]
-    y0 = (node.lo_y - wp.vec4(origin[1])) * inv[1]
-    y1 = (node.hi_y - wp.vec4(origin[1])) * inv[1]
-    z0 = (node.lo_z - wp.vec4(origin[2])) * inv[2]
-    z1 = (node.hi_z - wp.vec4(origin[2])) * inv[2]
-    near = _vmax(_vmax(_vmin(x0, x1), _vmin(y0, y1)), _vmax(_vmin(z0, z1), wp.vec4(0.0)))
-    far = _vmin(_vmin(_vmax(x0, x1), _vmax(y0, y1)), _vmin(_vmax(z0, z1), wp.vec4(t_hi)))
+def _child_entries(node: BvhNode, origin: wp.vec3, inv: wp.vec3, rows: SlabRows, t_hi: float):
+    """Where the ray enters each child box of the node (0 if it starts inside), NO_HIT for a miss before t_hi.
+    The same values as the slab test with the min and max of each axis's two planes: (plane − o) · inv is
+    monotonic in the plane for a fixed sign of inv, and never NaN (inv is finite)."""
+    b = node.bounds
+    x0 = (b[rows[0]] - wp.vec4(origin[0])) * inv[0]
+    y0 = (b[rows[1]] - wp.vec4(origin[1])) * inv[1]
+    z0 = (b[rows[2]] - wp.vec4(origin[2])) * inv[2]
+    x1 = (b[rows[3]] - wp.vec4(origin[0])) * inv[0]
+    y1 = (b[rows[4]] - wp.vec4(origin[1])) * inv[1]
+    z1 = (b[rows[5]] - wp.vec4(origin[2])) * inv[2]
+    near = _vmax(_vmax(x0, y0), _vmax(z0, wp.vec4(0.0)))
+    far = _vmin(_vmin(x1, y1), _vmin(z1, wp.vec4(t_hi)))
     return wp.vec4(
         wp.where(near[0] <= far[0], near[0], NO_HIT),
         wp.where(near[1] <= far[1], near[1], NO_HIT),
@@ -282,12 +300,11 @@ def _compare_swap(ta: float, tb: float, a: int, b: int):
 
 
 @wp.func
-def _children_by_entry(node: BvhNode, origin: wp.vec3, inv: wp.vec3, t_hi: float):
+def _sort_entries(entry: wp.vec4, child: wp.vec4i):
     """The node's four children and their entry distances, nearest first (misses, at NO_HIT, last):
     a five-comparator sorting network, no branches."""
-    entry = _child_entries(node, origin, inv, t_hi)
-    t0, t1, c0, c1 = _compare_swap(entry[0], entry[1], node.child[0], node.child[1])
-    t2, t3, c2, c3 = _compare_swap(entry[2], entry[3], node.child[2], node.child[3])
+    t0, t1, c0, c1 = _compare_swap(entry[0], entry[1], child[0], child[1])
+    t2, t3, c2, c3 = _compare_swap(entry[2], entry[3], child[2], child[3])
     t0, t2, c0, c2 = _compare_swap(t0, t2, c0, c2)
     t1, t3, c1, c3 = _compare_swap(t1, t3, c1, c3)
     t1, t2, c1, c2 = _compare_swap(t1, t2, c1, c2)
@@ -380,6 +397,7 @@ def _closest_hit(g: FiberGeometry, origin: wp.vec3, direction: wp.vec3, t_max: f
     if g.num_segments == 0:
         return _no_hit()
     inv = _inverse_direction(direction)
+    rows = _slab_rows(inv)
     t_best = wp.min(t_max, NO_HIT)
     best = int(-1)
     best_exit = int(0)
@@ -389,7 +407,33 @@ def _closest_hit(g: FiberGeometry, origin: wp.vec3, direction: wp.vec3, t_max: f
     ref = int(0)
     while ref != DONE:
         if ref >= 0:
-            t0, t1, t2, t3, c0, c1, c2, c3 = _children_by_entry(g.nodes[ref], origin, inv, t_best)
+            node = g.nodes[ref]
+            entry = _child_entries(node, origin, inv, rows, t_best)
+            h0 = entry[0] < t_best
+            h1 = entry[1] < t_best
+            h2 = entry[2] < t_best
+            h3 = entry[3] < t_best
+            hits = wp.where(h0, 1, 0) + wp.where(h1, 1, 0) + wp.where(h2, 1, 0) + wp.where(h3, 1, 0)
+            # Most nodes have one or two children the ray enters: no sort for one, one comparison for two (the
+            # order the sorting network gives, which keeps two equal entries in child order).
+            if hits == 1:
+                ref = wp.where(
+                    h0, node.child[0], wp.where(h1, node.child[1], wp.where(h2, node.child[2], node.child[3]))
+                )
+                continue
+            if hits == 2:
+                ia = wp.where(h0, 0, wp.where(h1, 1, 2))
+                ib = wp.where(h3, 3, wp.where(h2, 2, 1))
+                ta = entry[ia]
+                tb = entry[ib]
+                near = wp.where(tb < ta, ib, ia)
+                far = ia + ib - near
+                stack[sp] = wp.int32(node.child[far])
+                stack_t[sp] = entry[far]
+                sp += 1
+                ref = node.child[near]
+                continue
+            t0, t1, t2, t3, c0, c1, c2, c3 = _sort_entries(entry, node.child)
             # Push the children the ray enters after the nearest, farthest first (a miss is written and left) ...
             stack[sp] = wp.int32(c3)
             stack_t[sp] = t3
@@ -448,21 +492,25 @@ def _any_hit(g: FiberGeometry, origin: wp.vec3, direction: wp.vec3, t_max: float
     if g.num_segments == 0:
         return False
     inv = _inverse_direction(direction)
+    rows = _slab_rows(inv)
     t_hi = wp.min(t_max, NO_HIT)
     stack = NodeStack()
     sp = int(0)
     ref = int(0)
     while ref != DONE:
         if ref >= 0:
-            t0, t1, t2, t3, c0, c1, c2, c3 = _children_by_entry(g.nodes[ref], origin, inv, t_hi)
-            stack[sp] = wp.int32(c3)
-            sp += wp.where(t3 < t_hi, 1, 0)
-            stack[sp] = wp.int32(c2)
-            sp += wp.where(t2 < t_hi, 1, 0)
-            stack[sp] = wp.int32(c1)
-            sp += wp.where(t1 < t_hi, 1, 0)
-            if t0 < t_hi:
-                ref = c0
+            # Any hit ends the search, so the order of the visit does not matter: the children the ray enters are
+            # pushed as they come, unsorted, and the last of them popped next.
+            node = g.nodes[ref]
+            entry = _child_entries(node, origin, inv, rows, t_hi)
+            stack[sp] = wp.int32(node.child[3])
+            sp += wp.where(entry[3] < t_hi, 1, 0)
+            stack[sp] = wp.int32(node.child[2])
+            sp += wp.where(entry[2] < t_hi, 1, 0)
+            stack[sp] = wp.int32(node.child[1])
+            sp += wp.where(entry[1] < t_hi, 1, 0)
+            if entry[0] < t_hi:
+                ref = node.child[0]
                 continue
         else:
             code = -1 - ref

@@ -11,7 +11,8 @@ from .bvh import TRAVERSAL_COST, build_bvh
 from .intersect import STACK_SIZE, BvhNode, FiberGeometry, Tube
 
 # Tubes per BVH leaf, at most (the cost of a node visit relative to a tube test is bvh.TRAVERSAL_COST): leaves
-# of 1 or 2 tubes render a swatch a few percent faster than leaves of 4 or 7.
+# of 1 or 4 tubes take no fewer instructions a ray than leaves of 2 (docs/benchmarks.md, "The traversal, step
+# by step"), and leaves of 4 or 7 render a swatch a few percent slower.
 MAX_LEAF = 2
 # Mitre joints overlap by this many radii past the mitre plane (see the module docstring).
 JOINT_OVERLAP = 1.0e-3
@@ -44,9 +45,8 @@ class FiberBVH:
             raise ValueError(f"BVH depth {tree.depth} is too deep for the traversal stack ({STACK_SIZE})")
         order = tree.order
         nodes = np.zeros(len(tree.child), dtype=BvhNode.numpy_dtype())
-        for k, axis in enumerate("xyz"):
-            nodes[f"lo_{axis}"] = tree.lo[:, :, k]
-            nodes[f"hi_{axis}"] = tree.hi[:, :, k]
+        # Rows lo_x, lo_y, lo_z, hi_x, hi_y, hi_z (intersect.NodeBounds), children in the columns.
+        nodes["bounds"] = np.concatenate([tree.lo, tree.hi], axis=2).transpose(0, 2, 1)
         nodes["child"] = tree.child
         tubes = np.zeros(len(order), dtype=Tube.numpy_dtype())
         for name in ("center", "axis", "mitre0", "mitre1", "clip", "radius"):
