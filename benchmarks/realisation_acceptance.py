@@ -165,5 +165,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    with exit_on_interrupt():
-        main()
+    exit_on_interrupt(main)
