@@ -73,6 +73,28 @@ def test_realisation_is_reproducible_and_other_strands():
     assert set(draw) == {"seed", "shift"} and 0 <= draw["shift"] < 1
 
 
+def test_a_wavy_swatchs_realisations_keep_where_its_waves_crest():
+    """phase_jitter 0: every fiber waves in step, at the swatch's shared phase; another realisation moves the
+    strands but not the crests (each strand's sideways swing about its axis is the same function of y)."""
+    data = {
+        "camera": front_camera(0.3, (8, 8)),
+        "lights": LIGHTS,
+        "fibers": {"generator": "wavy", "count": 20, "layers": 2, "length": 0.3, "phase_jitter": 0.0, "seed": 9},
+        "hair": HAIR,
+    }
+    scene = scene_from_dict(data)
+    other = realisation(scene, 4)
+
+    def swing(assembly):
+        x = assembly.points.reshape(20, -1, 3)[..., 0]
+        return x - x.mean(axis=1, keepdims=True)  # about each strand's mean: its wave (and its slow wander)
+
+    # The wander (up to jitter/8 of a spacing) differs between realisations; the wave (amplitude 0.02) does not.
+    assert np.abs(swing(other.fibers) - swing(scene.fibers)).max() < 0.1 * 0.02 + 2 * 0.25 / 8 * 0.0128
+    data["fibers"]["phase"] = realisation_draw(scene, 4)["phase"] + np.pi  # crests half a wave along
+    assert np.abs(swing(scene_from_dict(data).fibers) - swing(scene.fibers)).max() > 0.03
+
+
 def test_realisation_of_a_file_groom_says_why(tmp_path):
     fibers = tmp_path / "fibers.txt"
     fibers.write_text("0 -0.1 0 0.004\n0 0.1 0 0.004\n", encoding="utf-8")

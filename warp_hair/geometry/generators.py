@@ -94,6 +94,7 @@ def wavy(
     layer_gap=None,
     drape=None,
     shift=0.0,
+    phase=None,
 ):
     """A swatch of wavy fibers: the fibers of `swatch`, each swinging in x as amplitude·sin(2π·y/wavelength + phase).
 
@@ -105,6 +106,8 @@ def wavy(
         phase_jitter: how independent the fibers' waves are, in [0, 1]. Each fiber's phase is a phase shared
             by the swatch plus a random offset uniform in [0, 2π·phase_jitter): 0 gives waves in step, as in a
             combed wavy swatch, 1 independent waves. Fibers out of step cross their neighbours.
+        phase: the phase shared by the swatch's fibers, radians: where its waves crest, a property of the
+            swatch at the scale of many fibers. Default: drawn from the seed (`shared_phase`).
         segments: straight segments per fiber. Default: 12 per wavelength, ceil(12·length / wavelength).
     """
     _check_positive(amplitude=amplitude, wavelength=wavelength)
@@ -112,7 +115,7 @@ def wavy(
     rng, y, x, z = _straight_swatch(
         count, layers, length, radius, spacing, jitter, segments, width, seed, layer_gap, shift
     )
-    angle = _fiber_phases(count, phase_jitter, rng)[:, None] + 2 * np.pi * y / wavelength
+    angle = _fiber_phases(count, phase_jitter, rng, phase)[:, None] + 2 * np.pi * y / wavelength
     return _swatch_assembly(x + amplitude * np.sin(angle), y, z, radius, drape)
 
 
@@ -132,6 +135,7 @@ def curly(
     layer_gap=None,
     drape=None,
     shift=0.0,
+    phase=None,
 ):
     """A swatch of curly fibers: helices around the fiber axes of `swatch`, all turning the same way.
 
@@ -146,6 +150,7 @@ def curly(
         phase_jitter: how independent the fibers' curls are, in [0, 1]. Each fiber's phase is a phase shared
             by the swatch plus a random offset uniform in [0, 2π·phase_jitter): 1 gives independent curls,
             0 curls in step (one ringlet-like sheet).
+        phase: the phase shared by the swatch's fibers, radians; default: drawn from the seed (`shared_phase`).
         segments: straight segments per fiber. Default: 16 per turn, ceil(16·length / pitch).
     """
     _check_positive(curl_radius=curl_radius, pitch=pitch)
@@ -153,7 +158,7 @@ def curly(
     rng, y, x, z = _straight_swatch(
         count, layers, length, radius, spacing, jitter, segments, width, seed, layer_gap, shift
     )
-    angle = _fiber_phases(count, phase_jitter, rng)[:, None] + 2 * np.pi * y / pitch
+    angle = _fiber_phases(count, phase_jitter, rng, phase)[:, None] + 2 * np.pi * y / pitch
     return _swatch_assembly(x + curl_radius * np.cos(angle), y, z + curl_radius * np.sin(angle), radius, drape)
 
 
@@ -313,10 +318,32 @@ def _swatch_spacing(per_layer, radius, spacing, width, jitter):
     return _SPACING_MARGIN * 2 * radius / closest
 
 
-def _fiber_phases(count, phase_jitter, rng):
+def _fiber_phases(count, phase_jitter, rng, phase=None):
     if not 0 <= phase_jitter <= 1:
         raise ValueError(f"phase_jitter must be in [0, 1], got {phase_jitter}")
-    return rng.uniform(0, 2 * np.pi) + 2 * np.pi * phase_jitter * rng.uniform(0, 1, count)
+    shared = rng.uniform(0, 2 * np.pi)  # drawn even when given, so that the fibers' own draws stay the same
+    if phase is not None:
+        shared = validate.real("phase", phase)
+    return shared + 2 * np.pi * phase_jitter * rng.uniform(0, 1, count)
+
+
+def shared_phase(
+    count=640,
+    layers=4,
+    length=1.4,
+    radius=0.004,
+    spacing=None,
+    jitter=0.25,
+    width=None,
+    seed=0,
+    layer_gap=None,
+    shift=0.0,
+    **_others,
+):
+    """The phase `wavy` and `curly` share among their fibers when `phase` is not given, for these arguments
+    (the others, the waves' own, do not change it)."""
+    rng, *_ = _straight_swatch(count, layers, length, radius, spacing, jitter, 1, width, seed, layer_gap, shift)
+    return float(rng.uniform(0, 2 * np.pi))
 
 
 def _swatch_assembly(x, y, z, radius, drape=None):
