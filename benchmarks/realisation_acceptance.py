@@ -2,7 +2,7 @@
 its scenes holding other realisations of its recipe.
 
     python benchmarks/realisation_acceptance.py [NAME ...] [--realisations 1 2 3 4 5] [--mode random|fixed]
-        [--out benchmarks/out/realisations] [--threads N] [--table]
+        [--shift S] [--out benchmarks/out/realisations] [--threads N] [--table]
 
 For each Cycles target (default: every shipped `cycles_*` target whose fibers come from a generator) and each
 realisation k, a copy of the target whose scene files' [fibers] seed (and, for the swatch recipes, shift) are
@@ -44,13 +44,15 @@ HERE = Path(__file__).resolve().parent
 CONTROLS = ("albedo", "beta_m", "beta_n")
 
 
-def other_realisation(source: Path, destination: Path, index: int, mode: str) -> None:
-    """A copy of target `source` at `destination` whose scenes hold realisation `index` of its recipe and whose
-    target.toml says realisations = mode."""
+def other_realisation(source: Path, destination: Path, index: int, mode: str, shift=None) -> None:
+    """A copy of target `source` at `destination` whose scenes hold realisation `index` of its recipe (with
+    `shift` in place of the drawn one, where given) and whose target.toml says realisations = mode."""
     shutil.copytree(source, destination)
     for entry in read_target_spec(source):
         path = destination / entry["scene"]
         draw = realisation_draw(load_scene(source / entry["scene"]), index)
+        if shift is not None:
+            draw["shift"] = shift
         document = tomlkit.parse(path.read_text(encoding="utf-8"))
         for key, value in draw.items():
             document["fibers"][key] = value
@@ -61,10 +63,10 @@ def other_realisation(source: Path, destination: Path, index: int, mode: str) ->
     spec.write_text(tomlkit.dumps(document), encoding="utf-8")
 
 
-def run_one(source: Path, index: int, mode: str, threads) -> dict:
+def run_one(source: Path, index: int, mode: str, threads, shift=None) -> dict:
     with tempfile.TemporaryDirectory() as tmp:
         copy = Path(tmp) / source.name
-        other_realisation(source, copy, index, mode)
+        other_realisation(source, copy, index, mode, shift)
         target = load_target(copy)
         start = time.perf_counter()
         result = fit(target, threads=threads)
@@ -74,6 +76,7 @@ def run_one(source: Path, index: int, mode: str, threads) -> dict:
         "target": source.name,
         "realisation": index,
         "mode": mode,
+        "shift": shift,
         "values": result.values,
         "truth": {name: truth[name] for name in result.values},
         "uncertainties": result.uncertainties,
@@ -118,7 +121,8 @@ def table(records: list) -> str:
         realised = []
         for c in CONTROLS:
             parts = [r["parts"]["realisation"][c] for r in runs if r["parts"] and r["parts"].get("realisation")]
-            realised.append(f"{float(np.mean(np.max(np.atleast_2d(parts), axis=-1))):.3f}" if parts else "–")
+            largest = np.asarray(parts, float).reshape(len(parts), -1).max(axis=1) if parts else None
+            realised.append(f"{float(np.mean(largest)):.3f}" if parts else "–")
         ok = all(
             float(np.max(np.abs(e["albedo"]))) <= ALBEDO_BOUND
             and float(np.abs(e["beta_m"][0])) <= BETA_BOUND
@@ -141,6 +145,12 @@ def main() -> None:
     parser.add_argument("--mode", choices=("random", "fixed"), default="random")
     parser.add_argument("--out", type=Path, default=HERE / "out" / "realisations")
     parser.add_argument("--threads", type=int)
+    parser.add_argument(
+        "--shift",
+        type=float,
+        help="move the strands by this fraction of a spacing instead of the drawn one (issue 23's experiment: 0.5, "
+        "the fit's strands where the target's gaps are); results go under --out/<mode>-shift<S>",
+    )
     parser.add_argument("--table", action="store_true", help="only tabulate the fits already under --out")
     args = parser.parse_args()
     given = [Path(n) for n in args.names if Path(n).is_dir()]
@@ -153,9 +163,10 @@ def main() -> None:
     records = []
     for directory in directories:
         for index in args.realisations:
-            path = args.out / args.mode / directory.name / f"k{index}.json"
+            folder = args.mode if args.shift is None else f"{args.mode}-shift{args.shift:g}"
+            path = args.out / folder / directory.name / f"k{index}.json"
             if not path.exists() and not args.table:
-                record = run_one(directory, index, args.mode, args.threads)
+                record = run_one(directory, index, args.mode, args.threads, args.shift)
                 path.parent.mkdir(parents=True, exist_ok=True)
                 path.write_text(json.dumps(record, indent=1) + "\n", encoding="utf-8")
                 print(f"{directory.name} k={index}: " + ", ".join(f"{c} {_errors(record)[c]}" for c in CONTROLS))
