@@ -121,8 +121,8 @@ def table(records: list) -> str:
         realised = []
         for c in CONTROLS:
             parts = [r["parts"]["realisation"][c] for r in runs if r["parts"] and r["parts"].get("realisation")]
-            largest = np.asarray(parts, float).reshape(len(parts), -1).max(axis=1) if parts else None
-            realised.append(f"{float(np.mean(largest)):.3f}" if parts else "–")
+            worst = np.asarray(parts, float).reshape(len(parts), -1).max(axis=1) if parts else None
+            realised.append(f"{float(np.mean(worst)):.3f}" if parts else "–")
         ok = all(
             float(np.max(np.abs(e["albedo"]))) <= ALBEDO_BOUND
             and float(np.abs(e["beta_m"][0])) <= BETA_BOUND
@@ -131,7 +131,8 @@ def table(records: list) -> str:
         )
         seconds = np.mean([r["seconds"] for r in runs])
         lines.append(
-            f"| {name} ({runs[0]['mode']}) | {n} | {cells[0]} | {cells[1]} | {cells[2]} | "
+            f"| {name} ({runs[0]['mode']}{'' if runs[0].get('shift') is None else ', shift ' + str(runs[0]['shift'])}) "
+            f"| {n} | {cells[0]} | {cells[1]} | {cells[2]} | "
             f"{largest[0]:.3f}, {largest[1]:.3f}, {largest[2]:.3f} | {z:.1f} | {', '.join(realised)} | "
             f"{'yes' if ok else 'no'} | {seconds:.0f} s |"
         )
