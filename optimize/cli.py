@@ -22,10 +22,12 @@ from pathlib import Path
 
 from warp_hair import cli as render_cli
 from warp_hair.model.params import HairParams
+from warp_hair.realisation import check_realisable
 
 from .camera import GAIN_MODES, WHITE_BALANCE_MODES
 from .fit import FitSettings
 from .latents import DEFAULT_FIT, SPECS, as_values
+from .realisations import REALISATION_MODES
 
 
 def resolve_target(name_or_path: str) -> Path:
@@ -159,6 +161,13 @@ def add_fit(subparsers) -> None:
         "target.toml's white_balance, else fit for photos, none for EXR and linear TIFF)",
     )
     parser.add_argument(
+        "--realisations",
+        choices=REALISATION_MODES,
+        help="fixed: render the scenes' own fibers; random: they are a recipe (a generator) whose strands are not "
+        "the target's, so fit over other realisations of it and count the target's in the uncertainty "
+        "(optimize/realisations.py; default: target.toml's realisations, else fixed)",
+    )
+    parser.add_argument(
         "--export",
         metavar="RENDERERS",
         help="also write the fitted look for these renderers beside params.json (comma-separated: "
@@ -216,7 +225,11 @@ def run_fit(args: argparse.Namespace) -> None:
         refine=args.refine,
         batch=args.batch,
         model_error=args.model_error,
+        realisations=args.realisations,
     )
+    if (args.realisations or target.realisations) == "random":
+        for image in target.images:
+            check_realisable(image.scene, f"{target.name}: --realisations random")
     sizes = ", ".join(f"{im.name} {im.image.shape[1]}x{im.image.shape[0]}" for im in target.images)
     camera = (
         ""

@@ -51,6 +51,7 @@ from . import camera
 from .latents import DEFAULT_FIT, SPECS, as_values, hair_and_gain, parse_control_names
 from .linearize import Linearization, linearize
 from .losses import LOSSES, image_loss, loss_scale
+from .realisations import DEFAULT_SAMPLES, Realisations, RealisationTerm, check_mode, realisation_term
 from .refine import REFINABLE_LOSSES, GaussNewton, GaussNewtonStep, Refinement
 from .target import Target, interpenetration_note
 from .uncertainty import Uncertainty, check_model_error, estimate_uncertainty, target_model_error
@@ -87,6 +88,10 @@ class FitSettings:
     # Relative brightness disagreement between the target's renderer and ours, counted in the uncertainties
     # (uncertainty.py); None: 0 for warp-hair's own targets, 0.01 for any other (`target_model_error`).
     model_error: float | None = None
+    # "fixed": render the scenes' own fibers; "random": their recipe's other realisations (realisations.py);
+    # None: the target's (target.toml `realisations`, default "fixed").
+    realisations: str | None = None
+    realisation_samples: int = DEFAULT_SAMPLES  # K: realisations rendered at the fitted look for σ's realisation term
 
 
 @dataclass(frozen=True)
@@ -115,7 +120,7 @@ class FitResult:
     images: list  # the fitted renders (H, W, 3) of the final evaluation, one per target image
     warnings: list = field(default_factory=list)
     correlations: dict = field(default_factory=dict)  # "a/b" → correlation of the two estimates
-    uncertainty_parts: dict | None = None  # the noise and model-error parts of `uncertainties` (uncertainty.py)
+    uncertainty_parts: dict | None = None  # the noise, model-error and realisation parts of `uncertainties`
     camera: dict | None = None  # a photo target's fitted gains and white balance with their σ (camera.report)
 
 
@@ -167,7 +172,14 @@ def check_settings(target: Target, settings: FitSettings) -> tuple:
     names = parse_control_names(settings.controls, target.hair.colour_input)
     if settings.loss not in LOSSES:
         raise ValueError(f"unknown loss {settings.loss!r}; allowed: {list(LOSSES)}")
-    for key, minimum in (("iters", 1), ("spp", 1), ("patience", 1), ("pool", 1), ("batch", 1)):
+    for key, minimum in (
+        ("iters", 1),
+        ("spp", 1),
+        ("patience", 1),
+        ("pool", 1),
+        ("batch", 1),
+        ("realisation_samples", 2),
+    ):
         value = getattr(settings, key)
         if key == "batch" and value is None:
             continue
@@ -184,6 +196,8 @@ def check_settings(target: Target, settings: FitSettings) -> tuple:
                 f"not {settings.loss!r}; use refine=0 (--refine 0) with it"
             )
     check_model_error(settings.model_error)
+    if settings.realisations is not None:
+        check_mode(settings.realisations)
     if camera.fitted(target) and "exposure" in names:
         raise ValueError(
             f"{target.name}: its gains are fitted already (gains = {target.gains!r}, camera.py); "
@@ -327,6 +341,8 @@ class FitRun:
         self.begun = time.perf_counter()
         # The fibers, BVH, camera and lights of each image, built once: only the hair changes between renders.
         self.scenes = [prepare(image.scene) for image in target.images]
+        self.random = (settings.realisations or target.realisations) == "random"
+        self.realisations = Realisations(target) if self.random else None
         self.final_stage_spp = spp_at(settings.iters - 1, settings.iters, settings.spp)
         self.iteration = 0
         self.stop_reason = None  # set by step() on a plateau
@@ -343,12 +359,14 @@ class FitRun:
         mini-batch of its blocks where it is larger than settings.batch."""
         hair, gain = hair_and_gain(values)
         pairs, used = [], []
+        # Over random realisations, both renders of an image from two different ones (realisations.py).
+        scenes = self.realisations.pair(seeds[0]) if self.random else self.scenes
         for k, _image in enumerate(self.target.images):
             pixels, batch_mask = self.batches[k].draw(seeds[k])  # of counted pixels only: it implies the target's mask
             used.append(self.masks[k] if batch_mask is None else batch_mask)
             pairs.append(
                 render_torch_pair(
-                    self.scenes[k],
+                    scenes[k],
                     hair,
                     spp=max(1, spp // 2),
                     seed=seeds[k],
@@ -462,7 +480,13 @@ class FitRun:
         run = None
         try:
             run = GaussNewton(
-                self.target, descent.estimate, self.settings, self.final_spp, self.final_seed, steps, scenes=self.scenes
+                self.target,
+                descent.estimate,
+                self.settings,
+                self.final_spp,
+                self.final_seed,
+                steps,
+                scenes=self.realisations.pair if self.random else self.scenes,
             )
             while not run.done:
                 record = run.step()
@@ -495,7 +519,7 @@ class FitRun:
                 self.final_spp,
                 self.final_seed,
                 threads=self.settings.threads,
-                scenes=self.scenes,
+                scenes=self.realisations.pair(self.final_seed) if self.random else self.scenes,
             )
         images = lin.images
         full_spp = self.settings.spp * FINAL_SPP_FACTOR
@@ -526,12 +550,43 @@ class FitRun:
         return Evaluation(images, float(np.mean([float(v) for v in losses])), lin, interrupted)
 
     def uncertainty(self, evaluation: Evaluation, refinement: Refinement | None) -> Uncertainty:
-        """The uncertainties from the loss linearised at the result, with the refinement's Monte Carlo error."""
+        """The uncertainties from the loss linearised at the result, with the refinement's Monte Carlo error;
+        over random realisations, with the realisation term (realisations.py) and the noise term from a
+        linearisation on one realisation."""
+        lin, term = evaluation.linearization, None
+        if self.random:
+            term = self.realisation_term(lin)
         return estimate_uncertainty(
-            evaluation.linearization,
+            lin if term is None else dataclasses.replace(term.linearization, curvature=lin.curvature),
             None if refinement is None else refinement.mc_covariance,
             target_model_error(self.target, self.settings.model_error),
+            None if term is None else term.covariance,
         )
+
+    def realisation_term(self, lin: Linearization) -> RealisationTerm:
+        """K further realisations (after the pool's), each linearised at the fitted controls with both passes on
+        it: the spread of the estimate they would give (realisations.py)."""
+        count = self.settings.realisation_samples
+        bar = tqdm(total=count, desc="realisations", unit="real", disable=not self.progress)
+        linearizations = []
+        try:
+            for k in range(count):
+                index = self.realisations.pool + 1 + k
+                linearizations.append(
+                    linearize(
+                        self.target,
+                        lin.values,
+                        self.settings,
+                        self.final_spp,
+                        iteration_seed(self.settings.seed, 2**31 + 1 + k, 0),
+                        threads=self.settings.threads,
+                        scenes=self.realisations.scenes(index),
+                    )
+                )
+                bar.update()
+        finally:
+            bar.close()
+        return realisation_term(lin, linearizations)
 
     def run(self) -> FitResult:
         """Every stage in order (see the module docstring), and the FitResult of them."""

@@ -174,16 +174,17 @@ def linearize(target, values: dict, settings, spp: int, seed: int, threads=None,
 
     `scenes`: the target's scenes prepared once (`warp_hair.prepare`, one per image, in order), so that
     repeated linearisations do not rebuild the BVH; by default each image's scene, prepared here once for both
-    passes."""
+    passes. An image's entry may be a pair of scenes, one per pass: two realisations of its fibers' recipe
+    (optimize/realisations.py)."""
     hair, gain = hair_and_gain(values)
     scenes = [prepare(image.scene) for image in target.images] if scenes is None else scenes
     renders = []  # per image, its two passes' (Jacobian, image, standard error)
     for k in range(len(target.images)):
-        scene = scene_with_controls(scenes[k], hair)
+        pair = scenes[k] if isinstance(scenes[k], tuple) else (scenes[k], scenes[k])
         renders.append(
             [
-                render_jacobian(scene, spp=spp, seed=pass_seed, threads=threads)
-                for pass_seed in (seed + k, default_grad_seed(seed + k))
+                render_jacobian(scene_with_controls(scene, hair), spp=spp, seed=pass_seed, threads=threads)
+                for scene, pass_seed in zip(pair, (seed + k, default_grad_seed(seed + k)))
             ]
         )
     gains = np.full((len(target.images), 3), float(gain))

@@ -107,7 +107,8 @@ class GaussNewton:
     start: the controls to refine from ({name: float or list of 3}); constructing the run linearises there.
     `kept_values` is the last kept step's end point (the start before any): what a fit interrupted during the
     refinement returns. Each linearisation renders with its own seeds (seed + SEED_STRIDE × its index); `scenes`:
-    the target's prepared scenes (`linearize`).
+    the target's prepared scenes (`linearize`), or a function of that seed giving them (a fit over random
+    realisations of the fibers draws a new pair of realisations per linearisation: optimize/realisations.py).
     """
 
     def __init__(self, target, start: dict, settings, spp: int, seed: int, steps: int, scenes=None):
@@ -137,7 +138,7 @@ class GaussNewton:
             self.spp,
             self.seed + SEED_STRIDE * k,
             threads=self.settings.threads,
-            scenes=self.scenes,
+            scenes=self.scenes(self.seed + SEED_STRIDE * k) if callable(self.scenes) else self.scenes,
         )
 
     def _with_earlier(self, lin_at: Linearization) -> Linearization:

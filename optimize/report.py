@@ -79,12 +79,19 @@ def format_table(result: FitResult, truth: dict, renderer: str | None = None) ->
     `renderer`: who rendered the target, for that line."""
     parts = result.uncertainty_parts or {}
     split = result.uncertainties is not None and parts.get("model_error", 0.0) > 0
+    realised = result.uncertainties is not None and parts.get("realisation") is not None
     header = ("control", "fitted", "± 1σ") + (("± noise", "± model") if split else ()) + ("true", "error")
+    if realised:
+        header = header[:3] + (("± noise", "± model") if split else ("± noise",)) + ("± realisation",) + header[-2:]
     rows = []
     for name, value in result.values.items():
         sigma = ("",) if result.uncertainties is None else (_fmt(result.uncertainties[name]),)
         if split:
             sigma += (_fmt(parts["noise"][name]), _fmt(parts["model"][name]))
+        elif realised:
+            sigma += (_fmt(parts["noise"][name]),)
+        if realised:
+            sigma += (_fmt(parts["realisation"][name]),)
         true = truth.get(name)
         rows.append(
             (
@@ -101,8 +108,14 @@ def format_table(result: FitResult, truth: dict, renderer: str | None = None) ->
     if split:
         by = f"{renderer}, which rendered the target," if renderer else "the target's renderer"
         lines.append(
-            f"± 1σ = √(noise² + model²); model: what a {100 * parts['model_error']:g}% disagreement in "
-            f"brightness between {by} and warp-hair moves the fit by (--model-error)"
+            f"± 1σ = √(noise² + model²{' + realisation²' if realised else ''}); model: what a "
+            f"{100 * parts['model_error']:g}% disagreement in brightness between {by} and warp-hair moves the "
+            "fit by (--model-error)"
+        )
+    if realised:
+        lines.append(
+            "realisation: the spread of the estimate over other realisations of the fibers' recipe, "
+            '(realisations = "random": the target\'s strands are one of them)'
         )
     return "\n".join(lines)
 

@@ -43,6 +43,14 @@ images alone (`python benchmarks/make_peer_targets.py NAME` re-renders them, wit
 A target that says nothing of its renderer, but whose images lack warp-hair's render record in their EXR headers
 (what `make_target` and `warp-hair render` write), is of unknown origin (`Target.origin`): a photograph, or an
 image from elsewhere. The fit assumes a brightness disagreement with such targets (`uncertainty.py`).
+
+Where the scenes' fibers are a recipe (a [fibers] generator) rather than the very strands the images show (a
+photographed swatch's never are), target.toml says
+
+    realisations = "random"    # default "fixed": render the scenes' own strands
+
+and the fit renders other realisations of the recipe and counts the target's being one of them in its
+uncertainty (optimize/realisations.py; `warp-hair fit --realisations` overrides).
 """
 
 from __future__ import annotations
@@ -59,15 +67,17 @@ from warp_hair.geometry.interpenetration import checked_interpenetration
 from warp_hair.io import read_exr, write_exr
 from warp_hair.model.params import HairParams
 from warp_hair.photo import TRANSFERS, Photo, read_photo
+from warp_hair.realisation import check_realisable
 from warp_hair.renderer.render import render, render_metadata
 from warp_hair.scene import Scene, load_scene
 
 from .camera import GAIN_MODES, WHITE_BALANCE_MODES
+from .realisations import REALISATION_MODES
 
 TARGET_FILE = shipped.TARGET_FILE
 TRUTH_FILE = "truth.json"
 IMAGE_KEYS = {"scene", "image", "mask", "transfer"}
-SPEC_KEYS = {"images", "renderer", "gains", "white_balance"}
+SPEC_KEYS = {"images", "renderer", "gains", "white_balance", "realisations"}
 # Who rendered a target's images: warp-hair itself, or a peer renderer (benchmarks/make_peer_targets.py).
 RENDERERS = ("warp-hair", "mitsuba", "cycles")
 # The shipped targets: the `targets` package's data, in a source checkout or an installed package.
@@ -94,6 +104,7 @@ class Target:
     renderer: str = "warp-hair"
     gains: str = "none"  # the images' exposures the fit solves for (optimize/camera.py): per-image, exif, shared
     white_balance: str = "none"  # "fit": a gain per channel, green's pinned
+    realisations: str = "fixed"  # "random": the scenes' fibers are a recipe; fit other realisations of it
 
     @property
     def hair(self) -> HairParams:
@@ -160,9 +171,13 @@ def _read_spec(directory) -> dict:
     if unknown:
         raise ValueError(
             f"{spec_path}: unknown key(s) {unknown}; a target file has [[images]] tables, renderer, "
-            "gains and white_balance"
+            "gains, white_balance and realisations"
         )
-    for key, allowed in (("gains", GAIN_MODES), ("white_balance", WHITE_BALANCE_MODES)):
+    for key, allowed in (
+        ("gains", GAIN_MODES),
+        ("white_balance", WHITE_BALANCE_MODES),
+        ("realisations", REALISATION_MODES),
+    ):
         if key in spec and spec[key] not in allowed:
             raise ValueError(f"{spec_path}: {key} = {spec[key]!r}; allowed: {list(allowed)}")
     if spec.get("renderer", "warp-hair") not in RENDERERS:
@@ -199,10 +214,20 @@ def load_target(directory) -> Target:
             mask = _photo_mask(photo, mask)
         images.append(TargetImage(Path(entry["image"]).stem, scene, image, mask, image_path, metadata, photo))
     _check_consistent(images)
+    if spec.get("realisations") == "random":
+        for image in images:
+            check_realisable(image.scene, f'{directory / TARGET_FILE}: realisations = "random"')
     truth = read_truth(directory / TRUTH_FILE)
     gains, white_balance = _camera_unknowns(directory / TARGET_FILE, spec, images)
     return Target(
-        directory.resolve().name, directory, images, truth, spec.get("renderer", "warp-hair"), gains, white_balance
+        directory.resolve().name,
+        directory,
+        images,
+        truth,
+        spec.get("renderer", "warp-hair"),
+        gains,
+        white_balance,
+        spec.get("realisations", "fixed"),
     )
 
 

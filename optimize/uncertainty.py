@@ -30,6 +30,15 @@ is noise and which the renderers' disagreement. The correlations and their warni
 alone: they say how the images constrain the controls, and the rank-one model term would read as a trade-off
 that no extra view undoes.
 
+Realisation: where the target's fibers are known by their recipe only (`realisations = "random"`,
+realisations.py), the target's strands are one draw of it, and the estimate would differ with another: that
+spread, Cov_real, measured from K realisations rendered at the fitted look, is a term of its own as well,
+
+    Cov(x) += Cov_real,
+
+reported apart (`parts["realisation"]`); s² then leaves the realisations' own variance out, so that the noise
+term does not count it a second time.
+
 Identifiability: two components whose estimates correlate by |ρ| > 0.95 trade off against each other in these
 images (albedo and β_n can, through the albedo inversion, under a single front light); a control the images do
 not change with has a zero column in A. Both end in `Uncertainty.warnings` with what to do about them.
@@ -121,12 +130,16 @@ class Uncertainty:
 
 
 def estimate_uncertainty(
-    lin: Linearization, mc_covariance: np.ndarray | None = None, model_error: float = 0.0
+    lin: Linearization,
+    mc_covariance: np.ndarray | None = None,
+    model_error: float = 0.0,
+    realisation_covariance: np.ndarray | None = None,
 ) -> Uncertainty:
     """The uncertainties at the linearisation's values (see the module docstring). mc_covariance: the
     estimate's own Monte Carlo covariance (`refine`); None leaves it out. model_error: ε, the relative
     brightness disagreement between the target's renderer and ours; 0 adds nothing, and the uncertainties are
-    the noise's alone."""
+    the noise's alone. realisation_covariance: the estimate's spread over the target's fiber realisations
+    (realisations.py); None for a target whose strands are known."""
     names = list(lin.values)
     A = lin.mean_jacobian
     p = A.shape[1]
@@ -144,10 +157,14 @@ def estimate_uncertainty(
     if model_error and sensitivity is None:
         raise ValueError("model_error > 0 needs the linearisation's target values (Linearization.targets)")
     model = np.abs(model_error * sensitivity) if model_error else np.zeros(p)
+    realised = np.zeros(p)
+    if realisation_covariance is not None:
+        realised = np.sqrt(np.maximum(np.diag(realisation_covariance), 0.0))
     parts = {
         "model_error": float(model_error),
         "noise": by_control(names, sigma),
         "model": by_control(names, model),
+        "realisation": None if realisation_covariance is None else by_control(names, realised),
         # The estimate's change were the target 1% brighter (s · 0.01), signed.
         "shift_per_percent_brightness": None if sensitivity is None else by_control(names, 0.01 * sensitivity),
     }
@@ -166,6 +183,7 @@ def estimate_uncertainty(
                 f"±{sigma[j]:.2g}) lie mostly along that trade-off. To tell them apart, add an image under another "
                 "light or from another view (a back-lit one shows transmission), or fix one of them."
             )
-    # The diagonal of cov + ε² s sᵀ; with ε = 0 the noise's σ as it stands.
-    uncertainties = by_control(names, np.sqrt(sigma**2 + model**2) if model_error else sigma)
+    # The diagonal of cov + ε² s sᵀ + Cov_real; with ε = 0 and no realisation term the noise's σ as it stands.
+    total = np.sqrt(sigma**2 + model**2 + realised**2) if (model_error or realisation_covariance is not None) else sigma
+    uncertainties = by_control(names, total)
     return Uncertainty(uncertainties, parts, correlations, tuple(warnings))

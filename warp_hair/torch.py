@@ -195,10 +195,10 @@ class _RenderFunction(torch.autograd.Function):
 class _PairFunction(torch.autograd.Function):
     @staticmethod
     def forward(ctx, config, names, *tensors):
-        scene, spp, seeds, threads, pixels = config
-        scene = _begin(ctx, scene, names, tensors)
+        scenes, spp, seeds, threads, pixels = config
+        first = _begin(ctx, scenes[0], names, tensors)
         images, ctx.jacobians = [], []
-        for seed in seeds:
+        for scene, seed in zip((first, _scene_for(scenes[1], names, tensors)), seeds):
             jacobian, image, _ = render_jacobian(
                 scene, spp=spp, seed=seed, threads=threads, device="cpu", pixels=pixels
             )
@@ -254,9 +254,19 @@ def render_torch_pair(
     (pair[0] − T)·(pair[1] − T), would pair each adjoint with its own paths: use `render_torch` for those.)
     The seeds are `seed` and (seed + 1_000_003) mod 2**32. `pixels`: render only these flat pixel indices
     (`render`); the others are 0 in both images, and so is their gradient.
+
+    `scene` may be a pair of scenes, one per render: two realisations of the same fibers' recipe
+    (`warp_hair.realisation`), with the same camera, lights and resolution. The gradient is then unbiased for
+    the loss of the image averaged over realisations, since each adjoint meets a Jacobian of independent
+    strands as well as independent paths (optimize/realisations.py derives it).
     """
-    checked = _check_controls(scene, controls)
-    spp, _ = sampling(scene, spp)
+    scenes = tuple(scene) if isinstance(scene, (tuple, list)) else (scene, scene)
+    if len(scenes) != 2:
+        raise ValueError(f"render_torch_pair takes one scene or a pair of scenes, got {len(scenes)}")
+    checked = _check_controls(scenes[0], controls)
+    spp, _ = sampling(scenes[0], spp)
+    if scene_of(scenes[1]).camera.resolution != scene_of(scenes[0]).camera.resolution:
+        raise ValueError("render_torch_pair's two scenes must have the same camera resolution")
     seed = _checked_seed("seed", seed)
-    config = (scene, spp, (seed, default_grad_seed(seed)), threads, pixels)
+    config = (scenes, spp, (seed, default_grad_seed(seed)), threads, pixels)
     return _PairFunction.apply(config, tuple(checked), *checked.values())

@@ -34,6 +34,7 @@ def swatch(
     seed=0,
     layer_gap=None,
     drape=None,
+    shift=0.0,
 ):
     """A flat swatch of straight, parallel fibers, like a hair swatch card.
 
@@ -63,11 +64,17 @@ def swatch(
             jitter·spacing, at which fibers of different layers never touch.
         drape: radius of a cylinder (axis along x, top at z = 0) to lay the swatch over, scene units, above
             length / π; default flat. Shows the highlight band of swatch photographs (see `_swatch_assembly`).
+        shift: moves every fiber across the swatch by shift × spacing, in [0, 1), those pushed past the edge
+            wrapping round to the other, so that the swatch keeps its width and density: with another seed, another
+            realisation of the same recipe (`warp_hair.realisation`). Jitter and wander are drawn as they are
+            without it; a wrapped fiber's may take its axis up to 5/8 jitter × spacing past the width.
 
     With the default spacing and layer gap no two fibers intersect. A smaller spacing, or a `width` that
     implies one, packs them tighter and lets neighbours overlap.
     """
-    _, y, x, z = _straight_swatch(count, layers, length, radius, spacing, jitter, segments, width, seed, layer_gap)
+    _, y, x, z = _straight_swatch(
+        count, layers, length, radius, spacing, jitter, segments, width, seed, layer_gap, shift
+    )
     return _swatch_assembly(x, y, z, radius, drape)
 
 
@@ -86,23 +93,29 @@ def wavy(
     seed=0,
     layer_gap=None,
     drape=None,
+    shift=0.0,
+    phase=None,
 ):
     """A swatch of wavy fibers: the fibers of `swatch`, each swinging in x as amplitude·sin(2π·y/wavelength + phase).
 
     Args:
-        count, layers, length, radius, spacing, jitter, width, seed, layer_gap, drape: as for `swatch` (fiber axes
-            reach up to `amplitude` beyond its width; `length` is the extent along y, not the arc length).
+        count, layers, length, radius, spacing, jitter, width, seed, layer_gap, drape, shift: as for `swatch`
+            (fiber axes reach up to `amplitude` beyond its width; `length` is the extent along y, not the arc length).
         amplitude: half the peak-to-peak swing of a wave in x, scene units.
         wavelength: length of one wave along y, scene units.
         phase_jitter: how independent the fibers' waves are, in [0, 1]. Each fiber's phase is a phase shared
             by the swatch plus a random offset uniform in [0, 2π·phase_jitter): 0 gives waves in step, as in a
             combed wavy swatch, 1 independent waves. Fibers out of step cross their neighbours.
+        phase: the phase shared by the swatch's fibers, radians: where its waves crest, a property of the
+            swatch at the scale of many fibers. Default: drawn from the seed (`shared_phase`).
         segments: straight segments per fiber. Default: 12 per wavelength, ceil(12·length / wavelength).
     """
     _check_positive(amplitude=amplitude, wavelength=wavelength)
     segments = _segments_per_period(segments, length, wavelength, 12, "wavelength")
-    rng, y, x, z = _straight_swatch(count, layers, length, radius, spacing, jitter, segments, width, seed, layer_gap)
-    angle = _fiber_phases(count, phase_jitter, rng)[:, None] + 2 * np.pi * y / wavelength
+    rng, y, x, z = _straight_swatch(
+        count, layers, length, radius, spacing, jitter, segments, width, seed, layer_gap, shift
+    )
+    angle = _fiber_phases(count, phase_jitter, rng, phase)[:, None] + 2 * np.pi * y / wavelength
     return _swatch_assembly(x + amplitude * np.sin(angle), y, z, radius, drape)
 
 
@@ -121,26 +134,31 @@ def curly(
     seed=0,
     layer_gap=None,
     drape=None,
+    shift=0.0,
+    phase=None,
 ):
     """A swatch of curly fibers: helices around the fiber axes of `swatch`, all turning the same way.
 
     Each fiber is (x + curl_radius·cos a, y, z + curl_radius·sin a) with a = 2π·y/pitch + phase.
 
     Args:
-        count, layers, length, radius, spacing, jitter, width, seed, layer_gap, drape: as for `swatch` (fibers reach
-            up to `curl_radius` beyond its width and layers; `length` is the extent along y, not the arc
+        count, layers, length, radius, spacing, jitter, width, seed, layer_gap, drape, shift: as for `swatch`
+            (fibers reach up to `curl_radius` beyond its width and layers; `length` is the extent along y, not the arc
             length).
         curl_radius: radius of the helix, scene units.
         pitch: rise along y per turn, scene units.
         phase_jitter: how independent the fibers' curls are, in [0, 1]. Each fiber's phase is a phase shared
             by the swatch plus a random offset uniform in [0, 2π·phase_jitter): 1 gives independent curls,
             0 curls in step (one ringlet-like sheet).
+        phase: the phase shared by the swatch's fibers, radians; default: drawn from the seed (`shared_phase`).
         segments: straight segments per fiber. Default: 16 per turn, ceil(16·length / pitch).
     """
     _check_positive(curl_radius=curl_radius, pitch=pitch)
     segments = _segments_per_period(segments, length, pitch, 16, "pitch")
-    rng, y, x, z = _straight_swatch(count, layers, length, radius, spacing, jitter, segments, width, seed, layer_gap)
-    angle = _fiber_phases(count, phase_jitter, rng)[:, None] + 2 * np.pi * y / pitch
+    rng, y, x, z = _straight_swatch(
+        count, layers, length, radius, spacing, jitter, segments, width, seed, layer_gap, shift
+    )
+    angle = _fiber_phases(count, phase_jitter, rng, phase)[:, None] + 2 * np.pi * y / pitch
     return _swatch_assembly(x + curl_radius * np.cos(angle), y, z + curl_radius * np.sin(angle), radius, drape)
 
 
@@ -202,13 +220,13 @@ def fur(
     return FiberAssembly.from_arrays(roots[:, None, :] + offsets, np.broadcast_to(radii, (count, segments + 1)))
 
 
-def _straight_swatch(count, layers, length, radius, spacing, jitter, segments, width, seed, layer_gap):
+def _straight_swatch(count, layers, length, radius, spacing, jitter, segments, width, seed, layer_gap, shift=0.0):
     """What every swatch starts from: the seeded generator (the caller's own draws follow its), the heights y (N,)
     and the straight fiber axes x, z (S, N)."""
     _check_size(count, segments)
     rng = np.random.default_rng(seed)
     y = _heights(length, segments)
-    x, z = _swatch_axes(y, count, layers, radius, spacing, width, jitter, layer_gap, rng)
+    x, z = _swatch_axes(y, count, layers, radius, spacing, width, jitter, layer_gap, rng, shift)
     return rng, y, x, z
 
 
@@ -249,7 +267,7 @@ def _check_size(count, segments):
     )
 
 
-def _swatch_axes(y, count, layers, radius, spacing, width, jitter, layer_gap, rng):
+def _swatch_axes(y, count, layers, radius, spacing, width, jitter, layer_gap, rng, shift=0.0):
     """x and z (S, N) of straight swatch fibers at heights y (N,): jittered, staggered roots plus wander."""
     _check_count(count=count, layers=layers)
     if layers > count:
@@ -266,7 +284,15 @@ def _swatch_axes(y, count, layers, radius, spacing, width, jitter, layer_gap, rn
     layer = np.repeat(np.arange(layers), sizes)
     index_in_layer = np.arange(count) - np.repeat(np.cumsum(sizes) - sizes, sizes)
     stagger = np.where(layer % 2 == 1, 0.25, -0.25) if layers > 1 else 0.0
-    x = (index_in_layer - (sizes[layer] - 1) / 2 + stagger) * spacing
+    position = index_in_layer + stagger  # along the layer, in spacings
+    if shift:
+        shift = validate.real("shift", shift)
+        if not 0 <= shift < 1:
+            raise ValueError(f"shift must be in [0, 1) (a fraction of the spacing), got {shift!r}")
+        # Wrapped into [−½, n − ½) spacings: the lattice is periodic in n spacings, so wrapping keeps it.
+        position = np.mod(position + shift + 0.5, sizes[layer]) - 0.5
+        position = position[np.lexsort((position, layer))]  # left to right in each layer again
+    x = (position - (sizes[layer] - 1) / 2) * spacing
     x += jitter * spacing * rng.uniform(-0.5, 0.5, count)
     z = -layer * layer_gap + jitter * spacing * rng.uniform(-0.5, 0.5, count)
 
@@ -292,10 +318,32 @@ def _swatch_spacing(per_layer, radius, spacing, width, jitter):
     return _SPACING_MARGIN * 2 * radius / closest
 
 
-def _fiber_phases(count, phase_jitter, rng):
+def _fiber_phases(count, phase_jitter, rng, phase=None):
     if not 0 <= phase_jitter <= 1:
         raise ValueError(f"phase_jitter must be in [0, 1], got {phase_jitter}")
-    return rng.uniform(0, 2 * np.pi) + 2 * np.pi * phase_jitter * rng.uniform(0, 1, count)
+    shared = rng.uniform(0, 2 * np.pi)  # drawn even when given, so that the fibers' own draws stay the same
+    if phase is not None:
+        shared = validate.real("phase", phase)
+    return shared + 2 * np.pi * phase_jitter * rng.uniform(0, 1, count)
+
+
+def shared_phase(
+    count=640,
+    layers=4,
+    length=1.4,
+    radius=0.004,
+    spacing=None,
+    jitter=0.25,
+    width=None,
+    seed=0,
+    layer_gap=None,
+    shift=0.0,
+    **_others,
+):
+    """The phase `wavy` and `curly` share among their fibers when `phase` is not given, for these arguments
+    (the others, the waves' own, do not change it)."""
+    rng, *_ = _straight_swatch(count, layers, length, radius, spacing, jitter, 1, width, seed, layer_gap, shift)
+    return float(rng.uniform(0, 2 * np.pi))
 
 
 def _swatch_assembly(x, y, z, radius, drape=None):

@@ -1,0 +1,180 @@
+"""Acceptance of fits that do not know the target's strands (issue 23, section 1): each Cycles swatch fitted with
+its scenes holding other realisations of its recipe.
+
+    python benchmarks/realisation_acceptance.py [NAME ...] [--realisations 1 2 3 4 5] [--mode random|fixed]
+        [--shift S] [--out benchmarks/out/realisations] [--threads N] [--table]
+
+For each Cycles target (default: every shipped `cycles_*` target whose fibers come from a generator) and each
+realisation k, a copy of the target whose scene files' [fibers] seed (and, for the swatch recipes, shift) are
+those of realisation k of the target's own recipe (`warp_hair.realisation.realisation_draw`: another seed, the
+strands' lattice moved across the swatch by a uniform fraction of a spacing) is fitted with the default
+settings and `realisations = --mode`: "random" (default) fits over random realisations of that recipe
+(optimize/realisations.py), "fixed" renders realisation k's strands, as every fit did before (the bias issue
+23 measured). The Cycles images are unchanged: they show the target's own strands, which no fit renders.
+
+Each fit's result is kept as JSON under --out/<mode>/<target>/k<k>.json, and a fit already there is not run
+again (remove it to rerun); --table only tabulates what is there. The Markdown table gives, per target, the
+mean error over its realisations of albedo (per channel, the largest), β_m and β_n with the mean's standard
+error, the largest single error, the largest error over the fit's own σ (|error| / σ: whether σ covers it), the
+mean σ's realisation part, and whether every fit lies within the acceptance bounds (optimize.identify.BOUNDS).
+Wall times are on whatever else the machine is doing.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import tomlkit
+
+from optimize.fit import fit
+from optimize.identify import ALBEDO_BOUND, BETA_BOUND
+from optimize.report import true_values
+from optimize.target import TARGET_FILE, load_target, read_target_spec, shipped_targets
+from warp_hair.cli import exit_on_interrupt
+from warp_hair.realisation import can_realise, realisation_draw
+from warp_hair.scene import load_scene
+
+HERE = Path(__file__).resolve().parent
+CONTROLS = ("albedo", "beta_m", "beta_n")
+
+
+def other_realisation(source: Path, destination: Path, index: int, mode: str, shift=None) -> None:
+    """A copy of target `source` at `destination` whose scenes hold realisation `index` of its recipe (with
+    `shift` in place of the drawn one, where given) and whose target.toml says realisations = mode."""
+    shutil.copytree(source, destination)
+    for entry in read_target_spec(source):
+        path = destination / entry["scene"]
+        draw = realisation_draw(load_scene(source / entry["scene"]), index)
+        if shift is not None:
+            draw["shift"] = shift
+        document = tomlkit.parse(path.read_text(encoding="utf-8"))
+        for key, value in draw.items():
+            document["fibers"][key] = value
+        path.write_text(tomlkit.dumps(document), encoding="utf-8")
+    spec = destination / TARGET_FILE
+    document = tomlkit.parse(spec.read_text(encoding="utf-8"))
+    document["realisations"] = mode
+    spec.write_text(tomlkit.dumps(document), encoding="utf-8")
+
+
+def run_one(source: Path, index: int, mode: str, threads, shift=None) -> dict:
+    with tempfile.TemporaryDirectory() as tmp:
+        copy = Path(tmp) / source.name
+        other_realisation(source, copy, index, mode, shift)
+        target = load_target(copy)
+        start = time.perf_counter()
+        result = fit(target, threads=threads)
+        seconds = time.perf_counter() - start
+    truth = true_values(target, result.values)
+    return {
+        "target": source.name,
+        "realisation": index,
+        "mode": mode,
+        "shift": shift,
+        "values": result.values,
+        "truth": {name: truth[name] for name in result.values},
+        "uncertainties": result.uncertainties,
+        "parts": result.uncertainty_parts,
+        "seconds": seconds,
+        "stop_reason": result.stop_reason,
+    }
+
+
+def _errors(record: dict) -> dict:
+    return {
+        name: np.atleast_1d(np.subtract(record["values"][name], record["truth"][name])).astype(float)
+        for name in CONTROLS
+    }
+
+
+def table(records: list) -> str:
+    lines = [
+        "| target | fits | albedo mean error (± s.e.), worst channel | β_m mean error | β_n mean error "
+        "| largest single error (albedo, β_m, β_n) | max \\|error\\|/σ | σ realisation part (albedo, β_m, β_n) "
+        "| all within bounds | mean wall time |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for name in sorted({r["target"] for r in records}):
+        runs = [r for r in records if r["target"] == name]
+        errors = [_errors(r) for r in runs]
+        n = len(runs)
+        cells = []
+        for control in CONTROLS:
+            stacked = np.stack([e[control] for e in errors])  # (n, channels)
+            mean = stacked.mean(axis=0)
+            se = stacked.std(axis=0, ddof=1) / np.sqrt(n) if n > 1 else np.full_like(mean, np.nan)
+            worst = int(np.argmax(np.abs(mean)))
+            cells.append(f"{mean[worst]:+.3f} ± {se[worst]:.3f}")
+        largest = [max(float(np.max(np.abs(e[c]))) for e in errors) for c in CONTROLS]
+        z = max(
+            float(np.max(np.abs(e[c]) / np.asarray(np.atleast_1d(r["uncertainties"][c]), float)))
+            for e, r in zip(errors, runs)
+            if r["uncertainties"]
+            for c in CONTROLS
+        )
+        realised = []
+        for c in CONTROLS:
+            parts = [r["parts"]["realisation"][c] for r in runs if r["parts"] and r["parts"].get("realisation")]
+            worst = np.asarray(parts, float).reshape(len(parts), -1).max(axis=1) if parts else None
+            realised.append(f"{float(np.mean(worst)):.3f}" if parts else "–")
+        ok = all(
+            float(np.max(np.abs(e["albedo"]))) <= ALBEDO_BOUND
+            and float(np.abs(e["beta_m"][0])) <= BETA_BOUND
+            and float(np.abs(e["beta_n"][0])) <= BETA_BOUND
+            for e in errors
+        )
+        seconds = np.mean([r["seconds"] for r in runs])
+        lines.append(
+            f"| {name} ({runs[0]['mode']}{'' if runs[0].get('shift') is None else ', shift ' + str(runs[0]['shift'])}) "
+            f"| {n} | {cells[0]} | {cells[1]} | {cells[2]} | "
+            f"{largest[0]:.3f}, {largest[1]:.3f}, {largest[2]:.3f} | {z:.1f} | {', '.join(realised)} | "
+            f"{'yes' if ok else 'no'} | {seconds:.0f} s |"
+        )
+    return "\n".join(lines)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("names", nargs="*", help="shipped target names or directories (default: every cycles_*)")
+    parser.add_argument("--realisations", type=int, nargs="+", default=[1, 2, 3, 4, 5])
+    parser.add_argument("--mode", choices=("random", "fixed"), default="random")
+    parser.add_argument("--out", type=Path, default=HERE / "out" / "realisations")
+    parser.add_argument("--threads", type=int)
+    parser.add_argument(
+        "--shift",
+        type=float,
+        help="move the strands by this fraction of a spacing instead of the drawn one (issue 23's experiment: 0.5, "
+        "the fit's strands where the target's gaps are); results go under --out/<mode>-shift<S>",
+    )
+    parser.add_argument("--table", action="store_true", help="only tabulate the fits already under --out")
+    args = parser.parse_args()
+    given = [Path(n) for n in args.names if Path(n).is_dir()]
+    directories = given + [
+        d
+        for d in shipped_targets()
+        if (d.name in args.names or (not args.names and d.name.startswith("cycles_")))
+        and can_realise(load_scene(d / read_target_spec(d)[0]["scene"]))
+    ]
+    records = []
+    for directory in directories:
+        for index in args.realisations:
+            folder = args.mode if args.shift is None else f"{args.mode}-shift{args.shift:g}"
+            path = args.out / folder / directory.name / f"k{index}.json"
+            if not path.exists() and not args.table:
+                record = run_one(directory, index, args.mode, args.threads, args.shift)
+                path.parent.mkdir(parents=True, exist_ok=True)
+                path.write_text(json.dumps(record, indent=1) + "\n", encoding="utf-8")
+                print(f"{directory.name} k={index}: " + ", ".join(f"{c} {_errors(record)[c]}" for c in CONTROLS))
+            if path.exists():
+                records.append(json.loads(path.read_text(encoding="utf-8")))
+    print(table(records))
+
+
+if __name__ == "__main__":
+    exit_on_interrupt(main)

@@ -1,0 +1,121 @@
+"""Fitting a target whose fibers are known by their recipe only: random realisations of the strands.
+
+A target's scenes describe its fibers. Where they are the very strands the target's images show (our own
+renders, the shipped Cycles targets), the fit renders them (`realisations = "fixed"`, the default). A
+photographed swatch's strands were never modelled: its scenes can only give the recipe (a generator and its
+parameters), and the scene's seed picks one set of strands that is not the photographed one. target.toml's
+
+    realisations = "random"
+
+then fits the look averaged over the recipe's realisations (`warp_hair.realisation`: other seeds, and the
+swatch's lattice shifted across it), and the uncertainty counts the photographed strands' being one draw.
+
+Why fitting one wrong realisation biases β_n. With the fit's fibers f and the target's t independent draws, the
+L2 loss ‖I_f(x) − T_t‖² averages over them to ‖Ī(x) − T̄‖² + Σ Var_f[I_f(x)] + const, Ī the image averaged over
+realisations: the fit also minimises how much its own strands' image varies between realisations, per pooled
+block, which is the contrast between fiber and gap, highlight and shadow. A rougher azimuthal lobe (β_n) smooths
+that contrast, so the estimate is pulled up in β_n (issue 23 measured +0.02 to +0.06 on Cycles swatches).
+
+The estimator. Each gradient of the fit comes from two renders whose losses are crossed (`render_torch_pair`:
+each render's adjoint meets the other's Jacobian). Here the two renders also use two different realisations
+a ≠ b, drawn afresh for every iteration and every Gauss–Newton linearisation from a pool of POOL realisations
+(1…POOL; 0, the scene's own, is left out). With a, b independent,
+
+    E[(I_a(x) − T) · ∂I_b(x)] = (Ī(x) − T) · ∂Ī(x),
+
+the gradient of ½‖Ī(x) − T‖², with no variance term: the fit minimises the distance of the realisation-averaged
+image to the target. (Over a finite pool, the mean over its pairs a ≠ b is the U-statistic
+‖Ī_P − T‖² − Σ_a ‖I_a − Ī_P‖² / (P(P − 1)), whose expectation over pools is ‖Ī − T‖² exactly.) The target is
+one realisation t: T = Ī(x*) + e_t, E[e_t] = 0, so to first order the estimate is x* + H⁻¹ Āᵀ W e_t,
+unbiased, with spread H⁻¹ Āᵀ W Cov(e_t) W Ā H⁻¹: the realisation term of the uncertainty. What is left of a
+bias is second order, of the size of that spread squared times the model's curvature in x, and the pool's
+own draw adds a spread of about 1/√POOL of the realisation term's, both in the benchmark's figures
+(benchmarks/realisation_acceptance.py, docs/acceptance.md).
+
+The realisation term of σ (`realisation_term`). At the fitted controls x̂, K further realisations
+(POOL + 1 … POOL + K) are each linearised with both passes on the same strands. Were the target realisation k,
+the estimate would move by u_k = H⁻¹ Aᵀ W r_k, r_k that realisation's weighted residuals (A the fit's own
+Jacobian, independent of these renders); their covariance over k is the realisation term. Each u_k is formed
+from both passes, and the covariance is taken across passes (Σ (u_k¹ − ū¹)(u_k² − ū²)ᵀ / (K − 1)), so that
+our render noise, independent between the passes, drops out of it in expectation. The same cross-pass
+covariance per residual, v, is how much a realisation's image varies: the target differs from any realisation
+we render by about 2v, which the noise term's scatter s² would otherwise count as the target's noise
+(uncertainty.py), so it is taken out of s² there.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from warp_hair.realisation import check_realisable, realisation
+from warp_hair.renderer.prepare import prepare
+
+REALISATION_MODES = ("fixed", "random")
+# Realisations the fit draws its pairs from. Each costs a generator run and a BVH per image (0.2 s each for the
+# Cycles swatches' 152 strands of 128 segments); the pool's own draw adds ~1/√POOL of the realisation term.
+POOL = 16
+DEFAULT_SAMPLES = 8  # K: realisations rendered at the fitted look for the realisation term
+
+
+def check_mode(mode, where: str = "realisations") -> str:
+    if mode not in REALISATION_MODES:
+        raise ValueError(f"{where} = {mode!r}; allowed: {list(REALISATION_MODES)}")
+    return mode
+
+
+class Realisations:
+    """Prepared scenes of the target's other realisations, built when first drawn and kept."""
+
+    def __init__(self, target, pool: int = POOL):
+        for image in target.images:
+            check_realisable(image.scene, str(image.scene.path or target.name))
+        self.target, self.pool = target, pool
+        self._prepared = {}
+
+    def scenes(self, index: int) -> list:
+        """Realisation `index` of every image's scene, prepared (the images show the same strands)."""
+        if index not in self._prepared:
+            self._prepared[index] = [prepare(realisation(image.scene, index)) for image in self.target.images]
+        return self._prepared[index]
+
+    def pair(self, seed: int) -> list:
+        """Per image, a pair of scenes of two different realisations drawn from the pool with `seed`."""
+        a, b = np.random.default_rng(seed).choice(np.arange(1, self.pool + 1), 2, replace=False)
+        return list(zip(self.scenes(int(a)), self.scenes(int(b))))
+
+
+@dataclasses.dataclass(frozen=True)
+class RealisationTerm:
+    covariance: np.ndarray  # (p, p): the estimate's spread over the target's possible realisations
+    scatter: float  # s² of a same-realisation linearisation with the realisations' own variance taken out
+    linearization: object  # that linearisation (both passes on one realisation): for the noise term
+    samples: int
+
+
+def realisation_term(lin, linearizations) -> RealisationTerm:
+    """The realisation covariance from K ≥ 2 linearisations at the fitted controls, each with both passes on one
+    further realisation (see the module docstring); `lin` gives the Jacobian and curvature."""
+    k = len(linearizations)
+    if k < 2:
+        raise ValueError(f"the realisation term needs at least 2 realisations, got {k}")
+    w, a = lin.loss_weights, lin.mean_jacobian
+    gain = np.linalg.pinv(lin.curvature) @ (a * w[:, None]).T  # (p, N): H⁻¹ Aᵀ W
+    residuals = np.stack([other.residuals for other in linearizations])  # (K, 2, N)
+    deviations = residuals - residuals.mean(axis=0)
+    u = np.einsum("pn,khn->khp", gain, deviations)
+    crossed = np.einsum("ki,kj->ij", u[:, 0], u[:, 1]) / (k - 1)
+    covariance = 0.5 * (crossed + crossed.T)
+    variance = (deviations[:, 0] * deviations[:, 1]).sum(axis=0) / (k - 1)  # (N,) per residual
+    first = linearizations[0]
+    n, p = first.jacobians.shape[1:]
+    scatter = first.scatter_estimate - 2.0 * float(w @ variance) / max(n - p, 1)
+    return RealisationTerm(_nearest_psd(covariance), scatter, dataclasses.replace(first, scatter=scatter), k)
+
+
+def _nearest_psd(matrix: np.ndarray) -> np.ndarray:
+    """The cross-pass covariance is unbiased but not always positive semi-definite when the realisations hardly
+    change the estimate; its negative directions are noise, and are dropped."""
+    values, vectors = np.linalg.eigh(matrix)
+    return (vectors * np.maximum(values, 0.0)) @ vectors.T

@@ -1,0 +1,238 @@
+"""Other realisations of a generated groom (warp_hair.realisation) and the fit over them (optimize/realisations.py)."""
+
+import dataclasses
+import shutil
+
+import numpy as np
+import pytest
+import tomlkit
+import torch
+from helpers.scenes import front_camera, swatch_scene, toml_text, write_front_back_target
+
+from optimize.fit import FitSettings, check_settings, fit
+from optimize.linearize import Linearization
+from optimize.realisations import Realisations, realisation_term
+from optimize.report import format_table
+from optimize.target import load_target, make_target
+from warp_hair.geometry.generators import curly, swatch, wavy
+from warp_hair.realisation import realisation, realisation_draw
+from warp_hair.renderer.gradients import render_grad
+from warp_hair.renderer.render import render
+from warp_hair.scene import scene_from_dict
+from warp_hair.torch import default_grad_seed, render_torch_pair
+
+LIGHTS = [{"type": "directional", "direction": [0.3, -0.4, -1.0], "irradiance": [3.0, 3.0, 3.0]}]
+HAIR = {"albedo": [0.6, 0.4, 0.3], "beta_m": 0.3, "beta_n": 0.35}
+
+
+def _roots_x(assembly, count):
+    return assembly.points.reshape(count, -1, 3)[:, 0, 0]
+
+
+@pytest.mark.parametrize("generator", [swatch, wavy, curly])
+def test_shift_zero_is_the_recipe_as_it_was(generator):
+    a = generator(count=40, layers=2, length=0.3, segments=6, seed=5)
+    b = generator(count=40, layers=2, length=0.3, segments=6, seed=5, shift=0.0)
+    np.testing.assert_array_equal(a.points, b.points)
+
+
+def test_shift_moves_the_lattice_and_keeps_the_swatch():
+    """Without jitter the strands lie on the lattice: a shift moves every strand's axis by shift × spacing modulo
+    the layer's width, keeps them left to right in each layer and within the width (plus a spacing's rounding)."""
+    count, layers, width = 40, 2, 0.4
+    spacing = width / (count // layers)
+    plain = _roots_x(swatch(count=count, layers=layers, width=width, jitter=0.0, segments=4), count)
+    moved = _roots_x(swatch(count=count, layers=layers, width=width, jitter=0.0, segments=4, shift=0.3), count)
+    for layer in range(layers):
+        a, b = plain[layer * 20 : (layer + 1) * 20], moved[layer * 20 : (layer + 1) * 20]
+        assert np.all(np.diff(b) > 0)  # left to right
+        np.testing.assert_allclose(np.diff(b), spacing, rtol=1e-6)  # the assembly holds float32
+        # The same lattice, moved: every shifted position is an unshifted one plus 0.3 spacing, modulo the width.
+        phase = np.mod((b - a.min()) / spacing - 0.3, 1.0)
+        np.testing.assert_allclose(np.minimum(phase, 1 - phase), 0, atol=1e-5)
+        assert np.abs(b).max() <= width / 2 * (1 + 1e-6)
+    assert not np.allclose(plain, moved)
+
+
+@pytest.mark.parametrize("shift", [-0.1, 1.0, float("nan")])
+def test_bad_shift_names_it(shift):
+    with pytest.raises(ValueError, match="shift"):
+        swatch(count=10, layers=2, segments=4, shift=shift)
+
+
+def test_realisation_is_reproducible_and_other_strands():
+    scene = swatch_scene(HAIR, LIGHTS, resolution=(8, 8))
+    assert realisation(scene, 0) is scene
+    one, again, two = realisation(scene, 1), realisation(scene, 1), realisation(scene, 2)
+    np.testing.assert_array_equal(one.fibers.points, again.fibers.points)
+    assert one.fibers.points.shape == scene.fibers.points.shape
+    assert not np.allclose(one.fibers.points, scene.fibers.points)
+    assert not np.allclose(one.fibers.points, two.fibers.points)
+    assert one.camera == scene.camera and one.hair == scene.hair
+    draw = realisation_draw(scene, 1)
+    assert set(draw) == {"seed", "shift"} and 0 <= draw["shift"] < 1
+
+
+def test_a_wavy_swatchs_realisations_keep_where_its_waves_crest():
+    """phase_jitter 0: every fiber waves in step, at the swatch's shared phase; another realisation moves the
+    strands but not the crests (each strand's sideways swing about its axis is the same function of y)."""
+    data = {
+        "camera": front_camera(0.3, (8, 8)),
+        "lights": LIGHTS,
+        "fibers": {"generator": "wavy", "count": 20, "layers": 2, "length": 0.3, "phase_jitter": 0.0, "seed": 9},
+        "hair": HAIR,
+    }
+    scene = scene_from_dict(data)
+    other = realisation(scene, 4)
+
+    def swing(assembly):
+        x = assembly.points.reshape(20, -1, 3)[..., 0]
+        return x - x.mean(axis=1, keepdims=True)  # about each strand's mean: its wave (and its slow wander)
+
+    # The wander (up to jitter/8 of a spacing) differs between realisations; the wave (amplitude 0.02) does not.
+    assert np.abs(swing(other.fibers) - swing(scene.fibers)).max() < 0.1 * 0.02 + 2 * 0.25 / 8 * 0.0128
+    data["fibers"]["phase"] = realisation_draw(scene, 4)["phase"] + np.pi  # crests half a wave along
+    assert np.abs(swing(scene_from_dict(data).fibers) - swing(scene.fibers)).max() > 0.03
+
+
+def test_realisation_of_a_file_groom_says_why(tmp_path):
+    fibers = tmp_path / "fibers.txt"
+    fibers.write_text("0 -0.1 0 0.004\n0 0.1 0 0.004\n", encoding="utf-8")
+    scene = scene_from_dict(
+        {
+            "camera": front_camera(0.3, (8, 8)),
+            "lights": LIGHTS,
+            "fibers": {"file": str(fibers)},
+            "hair": HAIR,
+        }
+    )
+    with pytest.raises(ValueError, match="generator"):
+        realisation(scene, 1)
+
+
+def test_pair_of_scenes_renders_one_realisation_each_and_crosses_them():
+    scene = swatch_scene(HAIR, LIGHTS, resolution=(10, 10), render_table={"spp": 4, "max_depth": 8, "seed": 1})
+    other = realisation(scene, 1)
+    beta_n = torch.tensor(0.25, requires_grad=True)  # exact in float32
+    pair = render_torch_pair((scene, other), {"beta_n": beta_n}, spp=4, seed=7)
+    seeds = (7, default_grad_seed(7))
+    hair = scene.hair.replace(beta_n=0.25)
+    scenes = [dataclasses.replace(s, hair=hair) for s in (scene, other)]
+    for image, s, seed in zip(pair, scenes, seeds):
+        np.testing.assert_allclose(image.detach().numpy(), render(s, spp=4, seed=seed), rtol=1e-5, atol=1e-7)
+    loss = 0.5 * ((pair[0] - 0.2) ** 2).sum() + 0.5 * ((pair[1] - 0.05) ** 2).sum()
+    loss.backward()
+    adjoints = [(pair[0] - 0.2).detach().numpy(), (pair[1] - 0.05).detach().numpy()]
+    # Each adjoint meets the Jacobian of the other render: its realisation and its seed.
+    crossed = (
+        render_grad(scenes[1], adjoints[0], spp=4, seed=seeds[1])["beta_n"]
+        + render_grad(scenes[0], adjoints[1], spp=4, seed=seeds[0])["beta_n"]
+    )
+    np.testing.assert_allclose(beta_n.grad.item(), crossed, rtol=1e-5)
+
+
+def test_pool_pairs_are_two_different_realisations(tmp_path):
+    directory = tmp_path / "t"
+    shutil.copytree("targets/cycles_brown_straight", directory)
+    target = load_target(directory)
+    realisations = Realisations(target, pool=3)
+    for seed in range(6):
+        pairs = realisations.pair(seed)
+        assert len(pairs) == len(target.images)
+        for a, b in pairs:
+            assert a is not b and not np.allclose(a.scene.fibers.points, b.scene.fibers.points)
+    # Both images of a pass show the same strands.
+    first = realisations.scenes(1)
+    np.testing.assert_array_equal(first[0].scene.fibers.points, first[1].scene.fibers.points)
+
+
+def test_target_realisations_key(tmp_path):
+    directory = tmp_path / "t"
+    shutil.copytree("targets/cycles_brown_straight", directory)
+    spec = directory / "target.toml"
+    document = tomlkit.parse(spec.read_text(encoding="utf-8"))
+    document["realisations"] = "random"
+    spec.write_text(tomlkit.dumps(document), encoding="utf-8")
+    assert load_target(directory).realisations == "random"
+    document["realisations"] = "sometimes"
+    spec.write_text(tomlkit.dumps(document), encoding="utf-8")
+    with pytest.raises(ValueError, match=r"target.toml: realisations = 'sometimes'; allowed: \['fixed', 'random'\]"):
+        load_target(directory)
+
+
+def _linearization(residuals, jacobian, weights):
+    n = residuals.shape[1]
+    return Linearization(
+        values={"beta_n": 0.3},
+        residuals=residuals,
+        variances=np.zeros((2, n)),
+        jacobians=np.stack([jacobian, jacobian]),
+        images=[],
+        loss_weights=weights,
+    )
+
+
+def test_realisation_term_is_the_spread_of_the_estimates_and_drops_render_noise():
+    """Without render noise (both passes alike) the term is the covariance over the realisations of the estimate
+    H⁻¹ Aᵀ W r_k each would give; noise independent between the passes leaves it unbiased, where the covariance
+    of either pass alone would add the noise's."""
+    rng = np.random.default_rng(0)
+    n, k = 60, 400
+    jacobian = rng.normal(size=(n, 2))
+    weights = np.full(n, 1.0 / n)
+    lin = _linearization(np.zeros((2, n)), jacobian, weights)
+    realised = rng.normal(scale=0.5, size=(k, n))
+    clean = [_linearization(np.stack([r, r]), jacobian, weights) for r in realised]
+    gain = np.linalg.pinv(lin.curvature) @ (jacobian * weights[:, None]).T
+    expected = np.cov((realised @ gain.T).T)
+    term = realisation_term(lin, clean)
+    np.testing.assert_allclose(term.covariance, expected, rtol=1e-9, atol=1e-12)
+
+    # Noise independent between the passes, 4 times the realisations' variance (1 against 0.25 per residual).
+    k = 4000
+    realised = rng.normal(scale=0.5, size=(k, n))
+    noisy = [
+        _linearization(np.stack([r + rng.normal(size=n), r + rng.normal(size=n)]), jacobian, weights) for r in realised
+    ]
+    truth = 0.25 * gain @ gain.T
+    crossed = realisation_term(lin, noisy).covariance
+    one_pass = np.cov((np.stack([x.residuals[0] for x in noisy]) @ gain.T).T)
+    # One pass alone overstates the term 5-fold; the crossed passes are unbiased, within their sampling error
+    # (relative s.d. about (1 + 0.25) / 0.25 / sqrt(k) = 0.08: the bound is ~4 of those).
+    assert np.all(np.diag(one_pass) > 4 * np.diag(truth))
+    np.testing.assert_allclose(np.diag(crossed), np.diag(truth), rtol=0.3)
+
+
+def _tiny_scene(direction):
+    return toml_text(
+        {
+            "camera": front_camera(0.2, (8, 8)),
+            "lights": [{"type": "directional", "direction": direction, "irradiance": [3.0, 3.0, 3.0]}],
+            "fibers": {"generator": "swatch", "count": 30, "layers": 2, "length": 0.3, "width": 0.24, "drape": 0.2},
+            "hair": HAIR,
+            "render": {"spp": 8, "max_depth": 8, "seed": 2},
+        }
+    )
+
+
+def test_a_fit_over_random_realisations_reports_the_realisation_term(tmp_path):
+    directory = write_front_back_target(tmp_path, _tiny_scene)
+    make_target(directory)
+    target = load_target(directory)
+    with pytest.raises(ValueError, match=r"realisations = 'sometimes'"):
+        check_settings(target, FitSettings(realisations="sometimes"))
+    with pytest.raises(ValueError, match="realisation_samples must be an integer >= 2"):
+        check_settings(target, FitSettings(realisation_samples=1))
+    result = fit(
+        target, progress=False, realisations="random", iters=3, spp=2, refine=2, realisation_samples=3, batch=None
+    )
+    parts = result.uncertainty_parts
+    for name in ("albedo", "beta_m", "beta_n"):
+        noise, model, realised = (np.asarray(parts[key][name]) for key in ("noise", "model", "realisation"))
+        np.testing.assert_allclose(result.uncertainties[name], np.sqrt(noise**2 + model**2 + realised**2))
+    # Other strands give other estimates: the term is not zero for the controls the strands' placement moves.
+    assert max(np.max(parts["realisation"][name]) for name in ("albedo", "beta_m", "beta_n")) > 0
+    assert "± realisation" in format_table(result, {})
+    # A fixed fit of the same target has no realisation term.
+    fixed = fit(target, progress=False, iters=2, spp=2, refine=0, batch=None)
+    assert fixed.uncertainty_parts["realisation"] is None
