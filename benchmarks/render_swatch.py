@@ -1,7 +1,7 @@
 """Benchmark: time warp-hair on the standard swatch and, where Mitsuba 3 is installed, render the same scene
 with it in the same run and compare speed and images.
 
-    python benchmarks/render_swatch.py [--spp 64] [--threads N] [--repeat 1] [--out DIR] [--no-tilt]
+    python benchmarks/render_swatch.py [--spp 64] [--threads N] [--repeat 1] [--out DIR] [--no-tilt] [--scene TOML]
 
 Mitsuba is an optional extra (`pip install mitsuba`); without it the comparison is skipped. Its LLVM back end
 needs libLLVM: DRJIT_LIBLLVM_PATH is set to the system's libLLVM-19 when unset (it must be set before the
@@ -123,16 +123,19 @@ def main(argv=None):
     parser.add_argument("--repeat", type=int, default=1, help="timed renders per renderer; the best is reported")
     parser.add_argument("--out", type=Path, default=HERE / "out")
     parser.add_argument("--no-tilt", action="store_true", help="render both with cuticle tilt alpha = 0")
+    parser.add_argument(
+        "--scene", type=Path, default=SCENE, help="another scene (e.g. ../shared/bench/draped_swatch.toml)"
+    )
     args = parser.parse_args(argv)
     threads = args.threads or default_threads()
 
-    scene = load_scene(SCENE)
+    scene = load_scene(args.scene)
     if args.no_tilt:
         scene.hair = scene.hair.replace(alpha=0.0)
     width, height = scene.camera.resolution
     paths = width * height * args.spp
     print(
-        f"{SCENE.name}: {width}x{height}, {args.spp} spp, max depth {scene.render.max_depth}, "
+        f"{args.scene.name}: {width}x{height}, {args.spp} spp, max depth {scene.render.max_depth}, "
         f"{scene.fibers.num_strands} fibers, alpha {scene.hair.alpha:g} deg"
     )
     print(
