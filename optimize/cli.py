@@ -22,7 +22,6 @@ from pathlib import Path
 
 from warp_hair import cli as render_cli
 from warp_hair.model.params import HairParams
-from warp_hair.realisation import check_realisable
 
 from .camera import GAIN_MODES, WHITE_BALANCE_MODES
 from .fit import FitSettings
@@ -227,9 +226,6 @@ def run_fit(args: argparse.Namespace) -> None:
         model_error=args.model_error,
         realisations=args.realisations,
     )
-    if (args.realisations or target.realisations) == "random":
-        for image in target.images:
-            check_realisable(image.scene, f"{target.name}: --realisations random")
     sizes = ", ".join(f"{im.name} {im.image.shape[1]}x{im.image.shape[0]}" for im in target.images)
     camera = (
         ""

@@ -70,7 +70,7 @@ class Realisations:
 
     def __init__(self, target, pool: int = POOL):
         for image in target.images:
-            check_realisable(image.scene, str(image.scene.path or target.name))
+            check_realisable(image.scene, f'{target.name}: realisations = "random", {image.scene.path or image.name}')
         self.target, self.pool = target, pool
         self._prepared = {}
 

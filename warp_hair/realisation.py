@@ -23,7 +23,7 @@ import copy
 import numpy as np
 
 from .geometry.generators import shared_phase
-from .scene import Scene, scene_from_dict
+from .scene import GENERATORS, Scene, scene_from_dict
 
 # The generators whose strands lie on a lattice across the swatch, which `shift` moves (generators.py).
 SHIFTED_GENERATORS = frozenset({"swatch", "wavy", "curly"})
@@ -57,7 +57,8 @@ def realisation_draw(scene: Scene, index: int) -> dict:
     if fibers["generator"] in SHIFTED_GENERATORS:
         draw["shift"] = float(state[1]) / 2**32
     if fibers["generator"] in WAVED_GENERATORS and "phase" not in fibers:
-        draw["phase"] = shared_phase(**{key: value for key, value in fibers.items() if key != "generator"})
+        arguments = {key: value for key, value in fibers.items() if key != "generator"}
+        draw["phase"] = shared_phase(GENERATORS[fibers["generator"]], **arguments)
     return draw
 
 

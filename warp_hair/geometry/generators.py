@@ -4,6 +4,7 @@ strands ordered layer by layer (the front layer first), left to right in a layer
 
 from __future__ import annotations
 
+import inspect
 import math
 import operator
 
@@ -327,22 +328,16 @@ def _fiber_phases(count, phase_jitter, rng, phase=None):
     return shared + 2 * np.pi * phase_jitter * rng.uniform(0, 1, count)
 
 
-def shared_phase(
-    count=640,
-    layers=4,
-    length=1.4,
-    radius=0.004,
-    spacing=None,
-    jitter=0.25,
-    width=None,
-    seed=0,
-    layer_gap=None,
-    shift=0.0,
-    **_others,
-):
-    """The phase `wavy` and `curly` share among their fibers when `phase` is not given, for these arguments
-    (the others, the waves' own, do not change it)."""
-    rng, *_ = _straight_swatch(count, layers, length, radius, spacing, jitter, 1, width, seed, layer_gap, shift)
+def shared_phase(generator, **arguments) -> float:
+    """The phase `wavy` or `curly` (`generator`) shares among its fibers when `phase` is not given, for these
+    arguments and the generator's own defaults for the rest (the waves' own arguments do not change it)."""
+    bound = inspect.signature(generator).bind(**arguments)
+    bound.apply_defaults()
+    a = bound.arguments
+    rng, *_ = _straight_swatch(
+        a["count"], a["layers"], a["length"], a["radius"], a["spacing"], a["jitter"], 1, a["width"], a["seed"],
+        a["layer_gap"], a["shift"],
+    )  # fmt: skip
     return float(rng.uniform(0, 2 * np.pi))
 
 
