@@ -427,7 +427,41 @@ def _add_photo(actions) -> None:
         metavar="auto|FILE",
         help="'auto': leave out the background (not with --card); or a mask per photo (white = counts)",
     )
+    photo.add_argument(
+        "--card-mask",
+        nargs="+",
+        metavar="FILE|none",
+        help="a grey card in the photos, nobody modelled: per --image, in order, a mask of its pixels (white = "
+        "the card, at the photo's size) or 'none'; it pins the gains and white balance (optimize/card_region.py)",
+    )
+    photo.add_argument(
+        "--card-reflectance",
+        type=_reflectance,
+        metavar="R|R,G,B",
+        help="the masked card's reflectance, each in (0, 1] (an 18%% grey card: 0.18; per channel from its datasheet)",
+    )
+    photo.add_argument(
+        "--card-normal",
+        type=_card_normal,
+        default="camera",
+        metavar="camera|X,Y,Z",
+        help="the masked card's normal in the rig's frame, or 'camera' (facing it, the default)",
+    )
     photo.set_defaults(run=run_photo)
+
+
+def _reflectance(text: str) -> float | list:
+    try:
+        values = [float(v) for v in text.split(",")]
+    except ValueError:
+        values = []
+    if len(values) not in (1, 3) or not all(0 < v <= 1 for v in values):
+        raise argparse.ArgumentTypeError(f"a reflectance is R or R,G,B, each in (0, 1], got {text!r}")
+    return values[0] if len(values) == 1 else values
+
+
+def _card_normal(text: str) -> str | list:
+    return "camera" if text == "camera" else list(_vector(text))
 
 
 def run_photo(args: argparse.Namespace) -> int:

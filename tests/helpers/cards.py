@@ -1,0 +1,48 @@
+"""A grey card pasted into a copy of a photo-like target (optimize/card_region.py): what a shoot with one gives.
+
+The shipped photo-like targets (benchmarks/make_photo_targets.py) are Cycles renders as a camera saved them, with
+the gains and white balance in camera_truth.json. A card of reflectance ρ facing `normal` in a view's light has
+radiance L (warp_hair.grey_card), so the camera records G_kc · L_c there: that value, sRGB-encoded to the file's
+8-bit codes, is pasted over a square of the view (the hair fills the frame: the card hides what is behind it),
+with its mask beside it and target.toml told of both.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import numpy as np
+from PIL import Image
+
+from warp_hair.grey_card import card_normal, card_radiance
+from warp_hair.io import srgb_encode
+from warp_hair.scene import load_scene
+
+
+def with_card(source, directory, views=("front",), box=(0, 8, 0, 8), reflectance=0.18, normal="camera"):
+    """Copy the PNG photo target `source` to `directory` with a card pasted into `views` over the rows and
+    columns box = (y0, y1, x0, x1); returns {view: the card's linear value in the file (3,)}."""
+    shutil.copytree(source, directory)
+    truth = json.loads((directory / "camera_truth.json").read_text())
+    spec = (directory / "target.toml").read_text()
+    pasted = {}
+    y0, y1, x0, x1 = box
+    for view in views:
+        scene = load_scene(directory / f"scene_{view}.toml")
+        radiance = card_radiance(scene, reflectance, card_normal(scene, normal))
+        value = truth["gains"][view] * np.asarray(truth["white_balance"]) * radiance
+        path = directory / f"{view}.png"
+        codes = np.asarray(Image.open(path).convert("RGB")).copy()
+        codes[y0:y1, x0:x1] = np.round(srgb_encode(value) * 255.0).astype(np.uint8)
+        Image.fromarray(codes, "RGB").save(path)
+        mask = np.zeros(codes.shape[:2], np.uint8)
+        mask[y0:y1, x0:x1] = 255
+        Image.fromarray(mask, "L").save(directory / f"{view}_card.png")
+        spec = spec.replace(f'image = "{view}.png"', f'image = "{view}.png"\ncard_mask = "{view}_card.png"')
+        pasted[view] = value
+    normal_text = '"camera"' if isinstance(normal, str) else json.dumps(list(normal))
+    head, images = spec.split("[[images]]", 1)
+    card = f"[card]\nreflectance = {json.dumps(reflectance)}\nnormal = {normal_text}\n\n"
+    (directory / "target.toml").write_text(head + card + "[[images]]" + images)
+    return pasted
