@@ -35,7 +35,7 @@ def _row(name: str, card: str, result) -> str:
     sigma = "/".join(f"{result.sigma[k]:.4f}" for k in albedo)
     shift = "/".join(f"{result.shift[k]:+.4f}" for k in albedo)
     camera = "  ".join(f"{label} {100 * s:.2f}%" for label, _, s in result.camera)
-    return f"{name:<28} {card:<6} {noise:<22} {sigma:<22} {shift:<25} {camera}"
+    return f"{name:<28} {card:<11} {noise:<22} {sigma:<22} {shift:<25} {camera}"
 
 
 def main(argv=None) -> None:
@@ -43,27 +43,36 @@ def main(argv=None) -> None:
     parser.add_argument("names", nargs="*", default=list(DEFAULT), help="shipped PNG photo-like targets")
     parser.add_argument("--sizes", type=int, nargs="+", default=[8, 16], help="card squares' sides, in pixels")
     parser.add_argument("--model-error", type=float, default=None, help="as `targets check --model-error`")
+    parser.add_argument(
+        "--exif",
+        action="store_true",
+        help='also with EXIF exposures in the photos (a manual shoot\'s) and gains = "exif": one gain, its ratios '
+        "EXIF's, so that the front view's card pins the back view's gain too",
+    )
     parser.add_argument("--threads", type=int, default=2)
     args = parser.parse_args(argv)
     sys.path.insert(0, str(HERE.parent / "tests"))
     from helpers.cards import with_card
 
     print(
-        f"{'target':<28} {'card':<6} {'albedo σ noise (r/g/b)':<22} {'albedo σ expected':<22} "
+        f"{'target':<28} {'card':<11} {'albedo σ noise (r/g/b)':<22} {'albedo σ expected':<22} "
         f"{'shift per 1% brighter':<25} camera σ"
     )
     with tempfile.TemporaryDirectory() as scratch:
         for name in args.names:
-            for size in [0, *args.sizes]:
+            for exif, size in [(False, s) for s in [0, *args.sizes]] + [
+                (True, s) for s in [0, *args.sizes] if args.exif
+            ]:
                 begun = time.perf_counter()
-                if size == 0:
+                if size == 0 and not exif:
                     directory = targets.path(name)
                 else:
-                    directory = Path(scratch) / f"{name}_{size}"
+                    directory = Path(scratch) / f"{name}_{size}_{exif}"
                     shutil.rmtree(directory, ignore_errors=True)
-                    with_card(targets.path(name), directory, box=(0, size, 0, size))
+                    views = ("front",) if size else ()
+                    with_card(targets.path(name), directory, views, box=(0, size, 0, size), exif=exif)
                 result = check_target(load_target(directory), model_error=args.model_error, threads=args.threads)
-                card = "none" if size == 0 else f"{size}x{size}"
+                card = ("none" if size == 0 else f"{size}x{size}") + ("+exif" if exif else "")
                 print(_row(name, card, result) + f"  ({time.perf_counter() - begun:.0f} s)", flush=True)
 
 

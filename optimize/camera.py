@@ -27,9 +27,10 @@ absorption; TT, TRT and the multiply scattered light are filtered by the fiber. 
 alike, and in every view alike; albedo_c only the second, and the back-lit view's transmission more than the
 front-lit view's glow: that pins w (within 0.4% on the photo-like swatches, light hair too). The overall level
 is what the gains take: in light hair, which scatters most of its light, a lighter albedo and a brighter gain
-change the images almost alike (`warp-hair targets check` says by how much). A grey card in the scene (a
-`[card]` the camera sees) pins both outright: its radiance is its reflectance times the light's, with no hair
-in it.
+change the images almost alike (`warp-hair targets check` says by how much). A grey card pins both: its
+radiance is its reflectance times the light's, with no hair in it. Modelled in the scene (a `[card]` the camera
+sees) it is rendered like the hair; marked in the photo by a mask (card_region.py) its radiance is known without
+rendering, and its pixels add terms to `solve`'s sums and rows to the linearisation, with no hair in them.
 """
 
 from __future__ import annotations

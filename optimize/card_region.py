@@ -173,3 +173,20 @@ def rows(image, gains: np.ndarray, omega_scale: float, loss: str, pool: int) -> 
         omega = np.full(values.shape, 1.0 / max(omega_scale, 1e-15))
     model = gains[None, :] * image.card.radiance[None, :]
     return (omega * (model - values)).reshape(-1), (omega * values).reshape(-1)
+
+
+def summary(target) -> list[str]:
+    """One line per image with a card: what it is, its pixels counted, its radiance in the scene's light (what
+    `warp-hair fit` and `targets check` print)."""
+    lines = []
+    for image in target.images:
+        card = image.card
+        if card is None:
+            continue
+        rho = "/".join(f"{v:g}" for v in card.reflectance)
+        lines.append(
+            f"{image.name}: grey card of reflectance {rho}, normal {(card.normal.round(3) + 0.0).tolist()}, "
+            f"{int(card.mask.sum())} pixels counted, radiance {'/'.join(f'{v:.4g}' for v in card.radiance)} in "
+            "the scene's light (unshadowed, as assumed)" + (f"; {card.note}" if card.note else "")
+        )
+    return lines

@@ -191,6 +191,7 @@ def _batch(text: str) -> int | None:
 
 def run_fit(args: argparse.Namespace) -> None:
     from .camera import fitted as fitted_camera
+    from .card_region import summary as card_summary
     from .fit import fit
     from .report import camera_table, format_table, photo_summary, true_values, write_outputs
     from .target import load_target
@@ -237,7 +238,7 @@ def run_fit(args: argparse.Namespace) -> None:
         else (f", with the photos' gains ({target.gains}) and white balance ({target.white_balance})")
     )
     print(f"fitting {', '.join(names)} of {target.name} ({sizes}){camera}")
-    for line in photo_summary(target):
+    for line in photo_summary(target) + card_summary(target):
         print(f"  {line}")
     result = fit(target, settings)
     if result.stop_reason == "interrupted":
@@ -505,6 +506,7 @@ def run_targets(args: argparse.Namespace) -> int:
 
 
 def _check_target(args: argparse.Namespace) -> int:
+    from .card_region import summary as card_summary
     from .identify import check_target, describe
     from .target import load_target
     from .uncertainty import check_model_error
@@ -521,6 +523,8 @@ def _check_target(args: argparse.Namespace) -> int:
         model_error=args.model_error,
         threads=args.threads,
     )
+    for line in card_summary(target):
+        print(line)
     print(describe(result))
     print(f"({time.perf_counter() - start:.0f} s)")
     if not result.identifiable:

@@ -30,6 +30,18 @@ of the mask). A camera chose each photo's exposure and white balance, so they ar
 
 By default both are fitted when any image is display-referred (gains "exif" when every image has EXIF exposure,
 "per-image" otherwise) and neither for linear images (EXR); `warp-hair fit --gains/--white-balance` override.
+A grey card in the shot that no scene models is marked per image and described once (optimize/card_region.py):
+
+    [card]
+    reflectance = 0.18                 # or [r, g, b], each in (0, 1]
+    normal = "camera"                  # or [x, y, z] in scene coordinates
+
+    [[images]]
+    ...
+    card_mask = "front_card.png"       # white = the card; its pixels are left out of the hair's
+    card = {normal = [0, 0.3, 1]}      # optional: this image's card differs from [card] in these keys
+
+Its pixels pin the gains and white balance (which a card makes unknowns even in an EXR target).
 
 All images of a target show the same fibers with the same hair: their scenes' [fibers] and [hair] must agree.
 `make_target` renders the images from their scenes (at the spp and seed of each scene's [render] table) and

@@ -327,3 +327,22 @@ def test_target_from_photos_with_a_marked_card(tmp_path):
     args.card_reflectance, args.card_mask = 0.18, ["none", "none"]
     with pytest.raises(ValueError, match="1 photo\\(s\\) but 2 --card-mask"):
         make_photo_target(tmp_path / "other", args)
+
+
+def test_an_image_overrides_the_targets_card(tmp_path):
+    """card = {...} in an image's table overrides [card]'s keys for it: twice the reflectance, twice the radiance;
+    a per-channel reflectance scales each channel."""
+    directory = tmp_path / "t"
+    with_card(targets.path(SOURCE), directory)
+    grey = load_target(directory).images[0].card.radiance
+    _write_spec(
+        directory,
+        lambda s: s.replace(
+            'card_mask = "front_card.png"', 'card_mask = "front_card.png"\ncard = {reflectance = 0.36}'
+        ),
+    )
+    np.testing.assert_allclose(load_target(directory).images[0].card.radiance, 2 * grey, rtol=1e-12)
+    _write_spec(
+        directory, lambda s: s.replace("card = {reflectance = 0.36}", "card = {reflectance = [0.09, 0.18, 0.36]}")
+    )
+    np.testing.assert_allclose(load_target(directory).images[0].card.radiance, [0.5, 1, 2] * grey, rtol=1e-12)
