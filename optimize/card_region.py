@@ -115,25 +115,34 @@ def region(marked: np.ndarray, card: dict, scene, image: np.ndarray, photo, wher
     return CardRegion(counted, marked, card["reflectance"], normal, radiance, note)
 
 
-def _pooled(image_values: np.ndarray, mask: np.ndarray, pool: int) -> np.ndarray:
-    """(M, 3) float64: `image_values` (H, W, 3) over the mask's pixels, pooled over k×k blocks as the loss pools
-    (losses.block_mean; blocks holding no masked pixel dropped)."""
+def _pooled(image_values: np.ndarray, mask: np.ndarray, pool: int) -> tuple:
+    """((M, 3) float64, (M,) pixel counts): `image_values` (H, W, 3) over the mask's pixels, pooled over k×k
+    blocks as the loss pools (losses.block_mean; blocks holding no masked pixel dropped)."""
     values = torch.from_numpy(np.ascontiguousarray(image_values, dtype=np.float64))
     if pool == 1:
-        return values[torch.from_numpy(mask)].numpy()
+        picked = values[torch.from_numpy(mask)].numpy()
+        return picked, np.ones(len(picked))
     means, totals = block_mean(values, torch.from_numpy(mask.astype(np.float64)), pool)
-    return means[totals > 0].numpy()
+    keep = totals > 0
+    return means[keep].numpy(), totals[keep].numpy()
+
+
+def card_variances(image, variance: np.ndarray, pool: int) -> np.ndarray:
+    """(M, 3): per-pixel variances (H, W, 3) over the card's counted pixels, as the variance of each block's mean
+    (Σ var / n², the pixels independent)."""
+    means, counts = _pooled(variance, image.card.mask, pool)
+    return means / counts[:, None]
 
 
 def hair_blocks(image, pool: int) -> int:
     """How many pooled blocks (or pixels) of the image's hair the loss counts: what a card block counts as one of."""
     mask = np.ones(image.image.shape[:2], bool) if image.mask is None else image.mask
-    return len(_pooled(np.zeros((*mask.shape, 3)), mask, pool))
+    return len(_pooled(np.zeros((*mask.shape, 3)), mask, pool)[0])
 
 
 def card_values(image, pool: int) -> np.ndarray:
     """(M, 3): the photo's pooled values over the card's counted pixels."""
-    return _pooled(image.image, image.card.mask, pool)
+    return _pooled(image.image, image.card.mask, pool)[0]
 
 
 def weights(card: np.ndarray, loss: str, scale: float) -> np.ndarray:
@@ -162,17 +171,22 @@ def sums(target, loss: str, pool: int, scales) -> tuple | None:
     return a, b
 
 
-def rows(image, gains: np.ndarray, omega_scale: float, loss: str, pool: int) -> tuple:
-    """The card's rows of the linearisation (flattened R, G, B per block): (residuals ω (G L − T), weighted targets
-    ω T). omega_scale: the loss's scale for ω as `linearize.loss_weights` takes it (L2: sqrt(mean T²) of the
-    hair's blocks; relative L2: their mean T)."""
-    values = card_values(image, pool)
+def omega(values: np.ndarray, reference: np.ndarray, loss: str) -> np.ndarray:
+    """(M, 3) ω of the card's blocks (their values `values`) in the linearisation, as `linearize.loss_weights`
+    weighs the image's pooled hair values `reference`: 1/sqrt(mean T²) for L2 (and L1), 1/(T + ε mean T) for
+    relative L2, T the card's own value."""
     if loss == "rel_l2":
-        omega = 1.0 / (values + REL_EPSILON * omega_scale)
-    else:
-        omega = np.full(values.shape, 1.0 / max(omega_scale, 1e-15))
+        return 1.0 / (values + REL_EPSILON * float(reference.mean()))
+    return np.full(values.shape, 1.0 / max(float(np.sqrt(np.mean(reference * reference))), 1e-15))
+
+
+def rows(image, gains: np.ndarray, reference: np.ndarray, loss: str, pool: int) -> tuple:
+    """The card's rows of the linearisation (flattened R, G, B per block): (residuals ω (G L − T), weighted targets
+    ω T), ω from the image's pooled hair values `reference` (`omega`)."""
+    values = card_values(image, pool)
+    w = omega(values, reference, loss)
     model = gains[None, :] * image.card.radiance[None, :]
-    return (omega * (model - values)).reshape(-1), (omega * values).reshape(-1)
+    return (w * (model - values)).reshape(-1), (w * values).reshape(-1)
 
 
 def summary(target) -> list[str]:

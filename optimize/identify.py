@@ -29,14 +29,12 @@ import dataclasses
 import itertools
 
 import numpy as np
-import torch
 
 from warp_hair.renderer.prepare import prepare
 
 from . import camera, card_region
 from .latents import DEFAULT_FIT, SPECS, as_values, parse_control_names
 from .linearize import CHANNELS, crossed_curvature, linearize
-from .losses import REL_EPSILON
 from .uncertainty import (
     CORRELATION_WARNING,
     check_model_error,
@@ -277,24 +275,11 @@ def _quantisation_variances(target, settings) -> np.ndarray | None:
 
 
 def _card_quantisation(image, reference, variance, settings) -> np.ndarray:
-    """A grey card's rows of `_quantisation_variances`: its pixels' quantisation variance pooled over its blocks
-    (Σ var / n² per block), times its rows' ω² (card_region.rows)."""
-    from .losses import block_mean
-
-    mask = image.card.mask
+    """A grey card's rows of `_quantisation_variances`: its pixels' quantisation variance pooled over its blocks,
+    times its rows' ω² (card_region.rows)."""
+    pooled = card_region.card_variances(image, variance, settings.pool)
     values = card_region.card_values(image, settings.pool)
-    if settings.pool == 1:
-        pooled = variance[mask]
-    else:
-        weight = torch.from_numpy(mask.astype(np.float64))
-        sums, totals = block_mean(torch.from_numpy(variance), weight, settings.pool)
-        keep = totals > 0
-        pooled = (sums[keep] / totals[keep][:, None]).numpy()
-    if settings.loss == "rel_l2":
-        omega = 1.0 / (values + REL_EPSILON * reference.mean())
-    else:
-        omega = np.full(values.shape, 1.0 / max(float(np.sqrt(np.mean(reference * reference))), 1e-15))
-    return (pooled * omega**2).reshape(-1)
+    return (pooled * card_region.omega(values, reference, settings.loss) ** 2).reshape(-1)
 
 
 def _target_gradient_covariance(lins, a, variance_factors, extra=None) -> np.ndarray:

@@ -230,8 +230,7 @@ def linearize(target, values: dict, settings, spp: int, seed: int, threads=None,
         if getattr(image, "card", None) is not None and solved is not None:
             # A grey card's rows (card_region.py), weighed as the image's hair rows are: no render, no noise of
             # ours, no hair in them.
-            scale = reference.mean() if settings.loss == "rel_l2" else np.sqrt(np.mean(reference * reference))
-            card_r, card_t = card_region.rows(image, gains[k], float(scale), settings.loss, settings.pool)
+            card_r, card_t = card_region.rows(image, gains[k], reference, settings.loss, settings.pool)
             for half in range(2):
                 rs[half].append(card_r)
                 vs[half].append(np.zeros(card_r.size))

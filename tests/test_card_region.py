@@ -346,3 +346,26 @@ def test_an_image_overrides_the_targets_card(tmp_path):
         directory, lambda s: s.replace("card = {reflectance = 0.36}", "card = {reflectance = [0.09, 0.18, 0.36]}")
     )
     np.testing.assert_allclose(load_target(directory).images[0].card.radiance, [0.5, 1, 2] * grey, rtol=1e-12)
+
+
+def test_targets_check_counts_the_card(tmp_path):
+    """`targets check` on the photo-like target with a 16×16 card in the front view against the same target with
+    those pixels left out and no card (the same hair rows, the same renders): the card adds information on the
+    gains, so the front gain's σ and the red albedo's σ from the target's noise fall (a short check: 4 spp, 2
+    linearisations, no model error; benchmarks/card_region.py runs the full one)."""
+    from optimize.identify import check_target
+
+    plain = tmp_path / "plain"
+    shutil.copytree(targets.path(SOURCE), plain)
+    hole = np.full((64, 64), 255, np.uint8)
+    hole[:16, :16] = 0
+    Image.fromarray(hole, "L").save(plain / "front_hole.png")
+    _write_spec(plain, lambda s: s.replace('image = "front.png"', 'image = "front.png"\nmask = "front_hole.png"'))
+    with_card(targets.path(SOURCE), tmp_path / "card", box=(0, 16, 0, 16))
+    results = {
+        name: check_target(load_target(tmp_path / name), render_spp=4, linearisations=2, threads=2, model_error=0.0)
+        for name in ("plain", "card")
+    }
+    front = {name: {label: s for label, _, s in r.camera}["gain[front]"] for name, r in results.items()}
+    red = {name: r.noise[r.labels.index("albedo[r]")] for name, r in results.items()}
+    assert front["card"] < front["plain"] and red["card"] < red["plain"], (front, red)
