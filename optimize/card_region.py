@@ -90,10 +90,10 @@ def region(marked: np.ndarray, card: dict, scene, image: np.ndarray, photo, wher
     radiance = card_radiance(scene, card["reflectance"], normal)
     if not (radiance > 0).all():
         dark = ", ".join("RGB"[c] for c in range(3) if radiance[c] <= 0)
+        shown = (normal.round(4) + 0.0).tolist()
         raise ValueError(
-            f"{where}: the scene's lights give the card (normal {normal.round(4).tolist()}) no light in {dark}: "
-            "it cannot pin the gains there; check its normal (it must face a light) or leave its mask out of "
-            "this image"
+            f"{where}: the scene's lights give the card (normal {shown}) no light in {dark}: it cannot pin the "
+            "gains there; check its normal (it must face a light) or leave its mask out of this image"
         )
     counted, note = marked, ""
     if photo is not None:

@@ -300,4 +300,8 @@ def make_photo_target(out_dir, args) -> list[Path]:
         lines += ["", "[[images]]"] + [f"{key} = {_toml(value)}" for key, value in entry.items()]
     (out_dir / "target.toml").write_text("\n".join(lines) + "\n", encoding="utf-8")
     written.append(out_dir / "target.toml")
+    if any(mask is not None for mask in card_masks):
+        from .target import load_target
+
+        load_target(out_dir)  # the card checked as a fit will read it: its normal against the camera, its light
     return written

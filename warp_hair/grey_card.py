@@ -53,10 +53,11 @@ def card_normal(scene, normal, where: str = "normal") -> np.ndarray:
     n = n / np.linalg.norm(n)
     facing = -float(n @ forward)
     if abs(facing) < MIN_VIEW_COSINE:
+        toward = ((-forward).round(4) + 0.0).tolist()
+        angle = math.degrees(math.acos(min(abs(facing), 1.0)))
         raise ValueError(
-            f"{where} = {list(normal)} is {math.degrees(math.acos(min(abs(facing), 1.0))):.1f}° from the camera's "
-            f"view direction {(-forward).round(4).tolist()}: the camera sees the card edge-on; a card must face "
-            "the camera within 85°"
+            f"{where} = {list(normal)} is {angle:.1f}° from the direction to the camera {toward}: the camera sees "
+            "the card edge-on; a card must face the camera within 85°"
         )
     return n if facing > 0 else -n
 
