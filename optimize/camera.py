@@ -27,9 +27,10 @@ absorption; TT, TRT and the multiply scattered light are filtered by the fiber. 
 alike, and in every view alike; albedo_c only the second, and the back-lit view's transmission more than the
 front-lit view's glow: that pins w (within 0.4% on the photo-like swatches, light hair too). The overall level
 is what the gains take: in light hair, which scatters most of its light, a lighter albedo and a brighter gain
-change the images almost alike (`warp-hair targets check` says by how much). A grey card in the scene (a
-`[card]` the camera sees) pins both outright: its radiance is its reflectance times the light's, with no hair
-in it.
+change the images almost alike (`warp-hair targets check` says by how much). A grey card pins both: its
+radiance is its reflectance times the light's, with no hair in it. Modelled in the scene (a `[card]` the camera
+sees) it is rendered like the hair; marked in the photo by a mask (card_region.py) its radiance is known without
+rendering, and its pixels add terms to `solve`'s sums and rows to the linearisation, with no hair in them.
 """
 
 from __future__ import annotations
@@ -39,6 +40,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from . import card_region
 from .losses import REL_EPSILON, _pool
 
 GAIN_MODES = ("per-image", "exif", "shared", "none")
@@ -123,8 +125,13 @@ def loss_sums(pairs, targets, masks, loss: str, pool: int, scales) -> tuple:
 
 
 def gains_for(target, pairs, targets, masks, loss: str, pool: int, scales) -> Gains:
-    """The best gains for these renders: per image, two independent renders of it (`loss_sums`)."""
-    return solve(*loss_sums(pairs, targets, masks, loss, pool, scales), target)
+    """The best gains for these renders: per image, two independent renders of it (`loss_sums`), and a grey
+    card's pixels where an image has one marked (card_region.py: its terms need no render)."""
+    a, b = loss_sums(pairs, targets, masks, loss, pool, scales)
+    card = card_region.sums(target, loss, pool, scales)
+    if card is not None:
+        a, b = a + card[0], b + card[1]
+    return solve(a, b, target)
 
 
 # -- The linearisation: project the gains' columns out (linearize.py calls these). -------------------------------
@@ -188,6 +195,10 @@ class Projection:
     weights: np.ndarray  # (N,) the loss weights W
     jacobian: np.ndarray  # (N, p) the hair's mean Jacobian before projection
     labels: list
+    # (q,) with a grey card (card_region.py): how far the log-gains move per unit brightness disagreement of the
+    # hair's render, (CᵀWC)⁻¹CᵀW t with t the weighted target on the hair's rows only (the card's radiance is
+    # known, not rendered). None without one: then the gains absorb the disagreement whole (1 on each gain).
+    direct: np.ndarray | None = None
 
     @property
     def normal(self) -> np.ndarray:
@@ -201,21 +212,43 @@ class Projection:
         coefficients = np.linalg.pinv(self.normal) @ (self.columns.T @ (self.weights[:, None] * flat))
         return (flat - self.columns @ coefficients).reshape(shape)
 
-    def covariance(self, hair_covariance: np.ndarray, scatter: float, model_error: float) -> np.ndarray:
-        """(q, q) of the log-gains: the hair's uncertainty carried over (the gains follow the hair, −(CᵀWC)⁻¹CᵀWA
-        per unit), the target's scatter s² (CᵀWC)⁻¹ on the gains themselves, and a brightness disagreement ε
-        moving every gain (not the white balance) by ε."""
+    @property
+    def follow(self) -> np.ndarray:
+        """(q, p): how the log-gains follow the hair, −(CᵀWC)⁻¹CᵀWA per unit of each control component."""
+        return -np.linalg.pinv(self.normal) @ (self.columns.T @ (self.weights[:, None] * self.jacobian))
+
+    def brightness(self, shift: np.ndarray | None = None) -> np.ndarray:
+        """(q,): the log-gains' move per unit brightness disagreement ε. Without a card every gain takes it whole
+        (and the white balance none); with one, `direct` plus the gains' following the hair's own move (`shift`,
+        (p,) per unit ε, uncertainty.brightness_sensitivity)."""
+        if self.direct is None:
+            return np.array([label.startswith("gain") for label in self.labels], dtype=float)
+        return self.direct + (0.0 if shift is None else self.follow @ shift)
+
+    def covariance(
+        self, hair_covariance: np.ndarray, scatter: float, model_error: float, shift: np.ndarray | None = None
+    ) -> np.ndarray:
+        """(q, q) of the log-gains: the hair's uncertainty carried over (`follow`), the target's scatter
+        s² (CᵀWC)⁻¹ on the gains themselves, and a brightness disagreement ε moving them by ε `brightness`."""
         inverse = np.linalg.pinv(self.normal)
-        follow = -inverse @ (self.columns.T @ (self.weights[:, None] * self.jacobian))
+        follow = self.follow
         cov = follow @ hair_covariance @ follow.T + max(scatter, 0.0) * inverse
-        is_gain = np.array([label.startswith("gain") for label in self.labels], dtype=float)
-        return cov + model_error**2 * np.outer(is_gain, is_gain)
+        moved = self.brightness(shift)
+        return cov + model_error**2 * np.outer(moved, moved)
 
 
-def report(projection: Projection, target, hair_covariance: np.ndarray, scatter: float, model_error: float) -> dict:
+def report(
+    projection: Projection,
+    target,
+    hair_covariance: np.ndarray,
+    scatter: float,
+    model_error: float,
+    shift: np.ndarray | None = None,
+) -> dict:
     """{"gains": {image name: [value, σ]}, "white_balance": {"value": [r, g, b], "sigma": [...]}, "modes": ...},
-    σ from the log-gains' covariance (σ of a gain = gain · σ of its log)."""
-    cov = projection.covariance(hair_covariance, scatter, model_error)
+    σ from the log-gains' covariance (σ of a gain = gain · σ of its log); `shift` the hair's move per unit
+    brightness disagreement (used with a grey card, `Projection.brightness`)."""
+    cov = projection.covariance(hair_covariance, scatter, model_error, shift)
     sigma = dict(zip(projection.labels, np.sqrt(np.maximum(np.diag(cov), 0.0))))
     g, w = projection.gains.g, projection.gains.w
     gains = {}

@@ -191,6 +191,7 @@ def _batch(text: str) -> int | None:
 
 def run_fit(args: argparse.Namespace) -> None:
     from .camera import fitted as fitted_camera
+    from .card_region import summary as card_summary
     from .fit import fit
     from .report import camera_table, format_table, photo_summary, true_values, write_outputs
     from .target import load_target
@@ -237,7 +238,7 @@ def run_fit(args: argparse.Namespace) -> None:
         else (f", with the photos' gains ({target.gains}) and white balance ({target.white_balance})")
     )
     print(f"fitting {', '.join(names)} of {target.name} ({sizes}){camera}")
-    for line in photo_summary(target):
+    for line in photo_summary(target) + card_summary(target):
         print(f"  {line}")
     result = fit(target, settings)
     if result.stop_reason == "interrupted":
@@ -427,7 +428,41 @@ def _add_photo(actions) -> None:
         metavar="auto|FILE",
         help="'auto': leave out the background (not with --card); or a mask per photo (white = counts)",
     )
+    photo.add_argument(
+        "--card-mask",
+        nargs="+",
+        metavar="FILE|none",
+        help="a grey card in the photos, nobody modelled: per --image, in order, a mask of its pixels (white = "
+        "the card, at the photo's size) or 'none'; it pins the gains and white balance (optimize/card_region.py)",
+    )
+    photo.add_argument(
+        "--card-reflectance",
+        type=_reflectance,
+        metavar="R|R,G,B",
+        help="the masked card's reflectance, each in (0, 1] (an 18%% grey card: 0.18; per channel from its datasheet)",
+    )
+    photo.add_argument(
+        "--card-normal",
+        type=_card_normal,
+        default="camera",
+        metavar="camera|X,Y,Z",
+        help="the masked card's normal in the rig's frame, or 'camera' (facing it, the default)",
+    )
     photo.set_defaults(run=run_photo)
+
+
+def _reflectance(text: str) -> float | list:
+    try:
+        values = [float(v) for v in text.split(",")]
+    except ValueError:
+        values = []
+    if len(values) not in (1, 3) or not all(0 < v <= 1 for v in values):
+        raise argparse.ArgumentTypeError(f"a reflectance is R or R,G,B, each in (0, 1], got {text!r}")
+    return values[0] if len(values) == 1 else values
+
+
+def _card_normal(text: str) -> str | list:
+    return "camera" if text == "camera" else list(_vector(text))
 
 
 def run_photo(args: argparse.Namespace) -> int:
@@ -471,6 +506,7 @@ def run_targets(args: argparse.Namespace) -> int:
 
 
 def _check_target(args: argparse.Namespace) -> int:
+    from .card_region import summary as card_summary
     from .identify import check_target, describe
     from .target import load_target
     from .uncertainty import check_model_error
@@ -487,6 +523,8 @@ def _check_target(args: argparse.Namespace) -> int:
         model_error=args.model_error,
         threads=args.threads,
     )
+    for line in card_summary(target):
+        print(line)
     print(describe(result))
     print(f"({time.perf_counter() - start:.0f} s)")
     if not result.identifiable:

@@ -56,7 +56,13 @@ from .losses import LOSSES, image_loss, loss_scale
 from .realisations import DEFAULT_SAMPLES, Realisations, RealisationTerm, check_mode, realisation_term
 from .refine import REFINABLE_LOSSES, GaussNewton, GaussNewtonStep, Refinement
 from .target import Target, interpenetration_note
-from .uncertainty import Uncertainty, check_model_error, estimate_uncertainty, target_model_error
+from .uncertainty import (
+    Uncertainty,
+    brightness_sensitivity,
+    check_model_error,
+    estimate_uncertainty,
+    target_model_error,
+)
 
 SPP_STAGES = ((0.25, 4), (0.5, 2), (1.0, 1))  # (fraction of the iterations, divisor of spp) in order
 FINAL_LR_FRACTION = 0.05
@@ -643,12 +649,15 @@ class FitRun:
             return None
         mc = None if refinement is None else refinement.mc_covariance
         hair_covariance = lin.statistical_covariance + (0 if mc is None else mc)
+        # With a grey card the gains take part of a brightness disagreement and follow the hair's share of it.
+        shift = None if lin.camera.direct is None else brightness_sensitivity(lin)
         return camera.report(
             lin.camera,
             self.target,
             hair_covariance,
             lin.scatter,
             target_model_error(self.target, self.settings.model_error),
+            shift,
         )
 
 

@@ -32,7 +32,7 @@ import numpy as np
 
 from warp_hair.renderer.prepare import prepare
 
-from . import camera
+from . import camera, card_region
 from .latents import DEFAULT_FIT, SPECS, as_values, parse_control_names
 from .linearize import CHANNELS, crossed_curvature, linearize
 from .uncertainty import (
@@ -223,9 +223,13 @@ def check_target(
         gradient_gg = _target_gradient_covariance(lins, projection.columns, factors, quantisation)
         noise_gg = normal_inv @ gradient_gg @ normal_inv
         follow = -normal_inv @ (projection.columns.T @ (w[:, None] * projection.jacobian))
-        cov_gg = noise_gg + follow @ (cov + np.outer(shift, shift) * (model_error / 0.01) ** 2) @ follow.T
-        is_gain = np.array([label.startswith("gain") for label in projection.labels], dtype=float)
-        cov_gg += model_error**2 * np.outer(is_gain, is_gain)
+        if projection.direct is None:
+            cov_gg = noise_gg + follow @ (cov + np.outer(shift, shift) * (model_error / 0.01) ** 2) @ follow.T
+            is_gain = np.array([label.startswith("gain") for label in projection.labels], dtype=float)
+            cov_gg += model_error**2 * np.outer(is_gain, is_gain)
+        else:  # a grey card: the gains take part of a disagreement of the hair's brightness, and follow the hair's
+            moved = projection.brightness(shift / 0.01)
+            cov_gg = noise_gg + follow @ cov @ follow.T + model_error**2 * np.outer(moved, moved)
         values = camera.label_values(projection, target)
         result.camera = [
             (label, float(v), float(np.sqrt(max(cov_gg[k, k], 0.0))))
@@ -252,6 +256,8 @@ def _quantisation_variances(target, settings) -> np.ndarray | None:
         photo = image.photo
         if photo is None or photo.bits == 32:
             parts.append(np.zeros(reference.size))
+            if image.card is not None and camera.fitted(target):
+                parts.append(np.zeros(card_region.card_values(image, settings.pool).size))
             continue
         step = 1.0 / (2**photo.bits - 1)
         linear = image.image.astype(np.float64)
@@ -263,7 +269,17 @@ def _quantisation_variances(target, settings) -> np.ndarray | None:
         variance = (slope * step) ** 2 / 12.0
         _, pooled = pool_like_loss(image, np.zeros_like(linear), variance, settings.pool)
         parts.append(pooled * weight**2)
+        if image.card is not None and camera.fitted(target):  # its rows follow the image's (linearize.py)
+            parts.append(_card_quantisation(image, reference, variance, settings))
     return np.concatenate(parts)
+
+
+def _card_quantisation(image, reference, variance, settings) -> np.ndarray:
+    """A grey card's rows of `_quantisation_variances`: its pixels' quantisation variance pooled over its blocks,
+    times its rows' ω² (card_region.rows)."""
+    pooled = card_region.card_variances(image, variance, settings.pool)
+    values = card_region.card_values(image, settings.pool)
+    return (pooled * card_region.omega(values, reference, settings.loss) ** 2).reshape(-1)
 
 
 def _target_gradient_covariance(lins, a, variance_factors, extra=None) -> np.ndarray:

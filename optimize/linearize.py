@@ -32,7 +32,7 @@ from warp_hair.renderer.gradients import render_jacobian
 from warp_hair.renderer.prepare import prepare
 from warp_hair.torch import default_grad_seed, scene_with_controls
 
-from . import camera
+from . import camera, card_region
 from .latents import EXPOSURE, hair_and_gain
 from .losses import REL_EPSILON, block_mean, loss_scale
 
@@ -56,6 +56,7 @@ class Linearization:
     curvature: np.ndarray | None = None  # (p, p) Gauss–Newton matrix; default: `crossed_curvature` of all Jacobians
     scatter: float | None = None  # s² of `statistical_covariance`; default: this linearisation's `scatter_estimate`
     camera: object | None = None  # a photo's gains, projected out of residuals and Jacobian (camera.Projection)
+    card_rows: np.ndarray | None = None  # (N,) bool: a grey card's rows (card_region.py), within their image's
 
     def __post_init__(self):
         if self.residuals.shape[1] % CHANNELS:
@@ -118,12 +119,19 @@ class Linearization:
         return h_inv @ self.noise_covariance @ h_inv
 
     @property
+    def hair_rows(self) -> np.ndarray | slice:
+        """The rows of the hair's pixels: all but a grey card's (`card_rows`)."""
+        return slice(None) if self.card_rows is None else ~self.card_rows
+
+    @property
     def scatter_estimate(self) -> float:
         """Σ w (r² − Var_MC) / (N − p): the target's own scatter around the model (its noise, any misfit), our
-        render noise Var_MC removed; unbiased, and so negative at times where the target is far less noisy."""
-        w, r = self.loss_weights, self.mean_residual
-        n, p = self.jacobians.shape[1:]
-        return float(w @ (r * r - self.mean_variance)) / max(n - p, 1)
+        render noise Var_MC removed; unbiased, and so negative at times where the target is far less noisy. Over
+        the hair's rows: the scatter is compared with our render's noise, which a grey card's rows lack."""
+        hair = self.hair_rows
+        w, r = self.loss_weights[hair], self.mean_residual[hair]
+        n, p = len(w), self.jacobians.shape[2]
+        return float(w @ (r * r - self.mean_variance[hair])) / max(n - p, 1)
 
     @property
     def statistical_covariance(self) -> np.ndarray:
@@ -131,10 +139,11 @@ class Linearization:
         render's noise does: `step_covariance` scaled by the ratio of s² (`scatter`, no less than a tenth of the
         whole residual variance) to what s² would be were the target's scatter our own noise (`uncertainty.py`).
         Where channels are independent and equally noisy, that is the classical s² H⁻¹."""
-        w, r = self.loss_weights, self.mean_residual
-        n, p = self.jacobians.shape[1:]
+        hair = self.hair_rows
+        w, r = self.loss_weights[hair], self.mean_residual[hair]
+        n, p = len(w), self.jacobians.shape[2]
         s2 = max(self.scatter, 0.1 * float(w @ (r * r)) / max(n - p, 1))
-        ours = float(w @ self.mean_variance) / max(n - p, 1)
+        ours = float(w @ self.mean_variance[hair]) / max(n - p, 1)
         return s2 / max(ours, 1e-300) * self.step_covariance
 
     @property
@@ -197,11 +206,13 @@ def linearize(target, values: dict, settings, spp: int, seed: int, threads=None,
         solved = camera.gains_for(target, pairs, references, masks, settings.loss, settings.pool, scales)
         gains = solved.per_channel
     rs, vs, js = [[], []], [[], []], [[], []]
-    images, weights, ts = [], [], []
+    images, weights, ts, on_card, counts = [], [], [], [], []
     for k, image in enumerate(target.images):
         reference, _ = pool_like_loss(image, image.image, None, settings.pool)
         weight = loss_weights(reference, settings.loss)
         ts.append(reference * weight)
+        on_card.append(np.zeros(reference.size, bool))
+        counts.append(reference.size)
         pair = []
         g = gains[k].astype(np.float32)
         for half, (jac, raw, stderr) in enumerate(renders[k]):
@@ -216,11 +227,25 @@ def linearize(target, values: dict, settings, spp: int, seed: int, threads=None,
             pair.append(rendered)
         images.append(0.5 * (pair[0] + pair[1]))
         weights.append(np.full(reference.size, 1.0 / (reference.size * len(target.images))))
+        if getattr(image, "card", None) is not None and solved is not None:
+            # A grey card's rows (card_region.py), weighed as the image's hair rows are: no render, no noise of
+            # ours, no hair in them.
+            card_r, card_t = card_region.rows(image, gains[k], reference, settings.loss, settings.pool)
+            for half in range(2):
+                rs[half].append(card_r)
+                vs[half].append(np.zeros(card_r.size))
+                js[half].append(np.zeros((card_r.size, js[half][-1].shape[1])))
+            ts.append(card_t)
+            on_card.append(np.ones(card_r.size, bool))
+            weights.append(np.full(card_r.size, weights[-1][0]))
+            counts[-1] += card_r.size
     residuals = np.stack([np.concatenate(r) for r in rs])
     jacobians = np.stack([np.concatenate(j) for j in js])
     targets = np.concatenate(ts)
     weights = np.concatenate(weights)
-    image_residuals = tuple(len(t) for t in ts)
+    on_card = np.concatenate(on_card)
+    card_rows = on_card if on_card.any() else None
+    image_residuals = tuple(counts)
     projection = None
     if solved is not None:
         # The loss minimised over the gains (camera.py): what no change of the gains makes, of each part. The
@@ -234,6 +259,11 @@ def linearize(target, values: dict, settings, spp: int, seed: int, threads=None,
             jacobians.mean(axis=0),
             camera.labels(target),
         )
+        if card_rows is not None:
+            # A brightness disagreement of our render scales the hair's rows, not the card's, whose radiance is
+            # known (uncertainty.brightness_sensitivity takes `targets` as what it scales).
+            targets = np.where(card_rows, 0.0, targets)
+            projection.direct = np.linalg.pinv(projection.normal) @ (projection.columns.T @ (weights * targets))
         residuals = np.stack([projection.apply(r) for r in residuals])
         jacobians = np.stack([projection.apply(a) for a in jacobians])
         targets = projection.apply(targets)
@@ -247,6 +277,7 @@ def linearize(target, values: dict, settings, spp: int, seed: int, threads=None,
         targets=targets,
         image_residuals=image_residuals,
         camera=projection,
+        card_rows=card_rows,
     )
 
 

@@ -20,7 +20,11 @@ Rigs: `draped` a swatch laid over a rod of radius `--drape` (the highlight band 
 on a card, `fur` a patch of fur (`--patch`, `--fur-length`, `--count`). The camera: orthographic (`--ortho-width`,
 the view's width in scene units), or perspective at `--distance` with `--fov`, or EXIF's focal length with
 `--sensor-width` (mm; the 35 mm equivalent focal length's 36 mm when EXIF gives that). A grey card behind the
-swatch (`--card REFLECTANCE`) is rendered as the scenes' [card]: its pixels pin the gains and white balance.
+swatch (`--card REFLECTANCE`) is rendered as the scenes' [card]: its pixels pin the gains and white balance. A
+grey card somewhere in the shot that is not modelled is marked instead: `--card-mask` (per photo, a mask of its
+pixels at the photo's size, or 'none'), `--card-reflectance` and `--card-normal` (default facing the camera)
+write <photo>_card.png and target.toml's [card] (optimize/card_region.py); its blocks are those wholly on the
+card, and blocks it touches are left out of the hair.
 
 Decisions: the photo is box-filtered to `--resolution` pixels across (aspect kept) in linear light; a block
 holding a clipped or crushed pixel is left out (the mask), as is the background when `--mask auto` (pixels
@@ -112,6 +116,44 @@ def background_mask(image: np.ndarray) -> np.ndarray:
     return grown
 
 
+def _card_masks(args, count: int) -> list:
+    """Per photo, its --card-mask file (None for 'none' or without the option), checked against the flags."""
+    given = getattr(args, "card_mask", None)
+    if not given:
+        if getattr(args, "card_reflectance", None) is not None:
+            raise ValueError("--card-reflectance given without --card-mask: which pixels are the card?")
+        return [None] * count
+    if len(given) != count:
+        raise ValueError(
+            f"{count} photo(s) but {len(given)} --card-mask file(s): give one per --image, in order ('none' "
+            "where a photo shows no card)"
+        )
+    if getattr(args, "card_reflectance", None) is None:
+        raise ValueError("--card-mask needs --card-reflectance (an 18% grey card: 0.18): the card's level is its pin")
+    return [None if name == "none" else Path(name) for name in given]
+
+
+def _card_blocks(path: Path, shape, width: int, flags: np.ndarray) -> tuple:
+    """(card, touched) at the working resolution from a card mask at the photo's size: the blocks wholly on the
+    card and free of clipped or crushed pixels, and every block with a card pixel in it."""
+    try:
+        marked = np.asarray(Image.open(path).convert("L")) > 127
+    except (OSError, ValueError) as error:
+        raise ValueError(f"{path}: cannot read the card mask: {error}") from None
+    if marked.shape != tuple(shape):
+        raise ValueError(
+            f"{path}: the card mask is {marked.shape[1]}x{marked.shape[0]} but its photo is {shape[1]}x{shape[0]}"
+        )
+    covered, _ = downsample(np.repeat(marked[..., None].astype(np.float32), 3, -1), np.zeros(shape, bool), width)
+    card = (covered[..., 0] == 1.0) & ~flags
+    if not card.any():
+        raise ValueError(
+            f"{path}: no block of {shape[1] // width}x{shape[1] // width} photo pixels lies wholly on the card and "
+            "unclipped: mark a larger part of it, or take a larger --resolution"
+        )
+    return card, covered[..., 0] > 0
+
+
 def _fibers_table(rig: str, args) -> dict:
     if rig == "fur":
         return {
@@ -181,6 +223,7 @@ def make_photo_target(out_dir, args) -> list[Path]:
         )
     if args.mask and len(args.mask) not in (1, len(images)) and args.mask != ["auto"]:
         raise ValueError("--mask takes 'auto' or one mask file per --image")
+    card_masks = _card_masks(args, len(images))
     names = [p.stem for p in images]
     if len(set(names)) != len(names):
         raise ValueError(f"two photos have the same name {names}: the target names its files after them")
@@ -199,6 +242,10 @@ def make_photo_target(out_dir, args) -> list[Path]:
                 np.repeat(given[..., None].astype(np.float32), 3, -1), np.zeros(given.shape, bool), args.resolution
             )
             keep &= given[..., 0] > 0.5
+        card = None
+        if card_masks[k] is not None:
+            card, touched = _card_blocks(card_masks[k], photo.image.shape[:2], args.resolution, flags)
+            keep &= ~touched  # a block the card reaches is not hair; one it covers only partly is neither
         if not keep.any():
             raise ValueError(f"{path}: no pixel is left to fit once clipped, crushed and background pixels are out")
         resolution = (image.shape[1], image.shape[0])
@@ -236,6 +283,10 @@ def make_photo_target(out_dir, args) -> list[Path]:
             Image.fromarray((keep * 255).astype(np.uint8), "L").save(out_dir / mask_name)
             entry["mask"] = mask_name
             written.append(out_dir / mask_name)
+        if card is not None:
+            entry["card_mask"] = f"{path.stem}_card.png"
+            Image.fromarray((card * 255).astype(np.uint8), "L").save(out_dir / entry["card_mask"])
+            written.append(out_dir / entry["card_mask"])
         entries.append(entry)
     lines = [
         "# Made by `warp-hair targets photo`: the photos decoded to linear EXR; their exposures and white balance "
@@ -243,8 +294,14 @@ def make_photo_target(out_dir, args) -> list[Path]:
         'gains = "per-image"',
         'white_balance = "fit"',
     ]
+    if any(mask is not None for mask in card_masks):
+        lines += ["", _table("card", {"reflectance": args.card_reflectance, "normal": args.card_normal})]
     for entry in entries:
         lines += ["", "[[images]]"] + [f"{key} = {_toml(value)}" for key, value in entry.items()]
     (out_dir / "target.toml").write_text("\n".join(lines) + "\n", encoding="utf-8")
     written.append(out_dir / "target.toml")
+    if any(mask is not None for mask in card_masks):
+        from .target import load_target
+
+        load_target(out_dir)  # the card checked as a fit will read it: its normal against the camera, its light
     return written

@@ -111,8 +111,9 @@ def realisation_term(lin, linearizations) -> RealisationTerm:
     covariance = 0.5 * (crossed + crossed.T)
     variance = (deviations[:, 0] * deviations[:, 1]).sum(axis=0) / (k - 1)  # (N,) per residual
     first = linearizations[0]
-    n, p = first.jacobians.shape[1:]
-    scatter = first.scatter_estimate - 2.0 * float(w @ variance) / max(n - p, 1)
+    hair = first.hair_rows  # as scatter_estimate counts them (a grey card's rows left out)
+    n, p = len(w[hair]), first.jacobians.shape[2]
+    scatter = first.scatter_estimate - 2.0 * float(w[hair] @ variance[hair]) / max(n - p, 1)
     return RealisationTerm(_nearest_psd(covariance), scatter, dataclasses.replace(first, scatter=scatter), k)
 
 

@@ -30,6 +30,18 @@ of the mask). A camera chose each photo's exposure and white balance, so they ar
 
 By default both are fitted when any image is display-referred (gains "exif" when every image has EXIF exposure,
 "per-image" otherwise) and neither for linear images (EXR); `warp-hair fit --gains/--white-balance` override.
+A grey card in the shot that no scene models is marked per image and described once (optimize/card_region.py):
+
+    [card]
+    reflectance = 0.18                 # or [r, g, b], each in (0, 1]
+    normal = "camera"                  # or [x, y, z] in scene coordinates
+
+    [[images]]
+    ...
+    card_mask = "front_card.png"       # white = the card; its pixels are left out of the hair's
+    card = {normal = [0, 0.3, 1]}      # optional: this image's card differs from [card] in these keys
+
+Its pixels pin the gains and white balance (which a card makes unknowns even in an EXR target).
 
 All images of a target show the same fibers with the same hair: their scenes' [fibers] and [hair] must agree.
 `make_target` renders the images from their scenes (at the spp and seed of each scene's [render] table) and
@@ -71,13 +83,14 @@ from warp_hair.realisation import check_realisable
 from warp_hair.renderer.render import render, render_metadata
 from warp_hair.scene import Scene, load_scene
 
+from . import card_region
 from .camera import GAIN_MODES, WHITE_BALANCE_MODES
 from .realisations import REALISATION_MODES
 
 TARGET_FILE = shipped.TARGET_FILE
 TRUTH_FILE = "truth.json"
-IMAGE_KEYS = {"scene", "image", "mask", "transfer"}
-SPEC_KEYS = {"images", "renderer", "gains", "white_balance", "realisations"}
+IMAGE_KEYS = {"scene", "image", "mask", "transfer", "card_mask", "card"}
+SPEC_KEYS = {"images", "renderer", "gains", "white_balance", "realisations", "card"}
 # Who rendered a target's images: warp-hair itself, or a peer renderer (benchmarks/make_peer_targets.py).
 RENDERERS = ("warp-hair", "mitsuba", "cycles")
 # The shipped targets: the `targets` package's data, in a source checkout or an installed package.
@@ -93,6 +106,7 @@ class TargetImage:
     image_path: Path
     metadata: dict = field(default_factory=dict)  # the EXR header's string attributes (`warp_hair.io.read_exr`)
     photo: Photo | None = None  # a PNG, JPEG or TIFF's decoding: transfer, clipped and crushed pixels, EXIF
+    card: card_region.CardRegion | None = None  # a grey card marked in the image (optimize/card_region.py)
 
 
 @dataclass
@@ -171,7 +185,7 @@ def _read_spec(directory) -> dict:
     if unknown:
         raise ValueError(
             f"{spec_path}: unknown key(s) {unknown}; a target file has [[images]] tables, renderer, "
-            "gains, white_balance and realisations"
+            "gains, white_balance, realisations and [card]"
         )
     for key, allowed in (
         ("gains", GAIN_MODES),
@@ -197,7 +211,37 @@ def _read_spec(directory) -> dict:
             raise ValueError(f"{where}: mask must be a file name, got {entry['mask']!r}")
         if "transfer" in entry and entry["transfer"] not in TRANSFERS:
             raise ValueError(f"{where}: transfer = {entry['transfer']!r}; allowed: {list(TRANSFERS)}")
+        _check_card_entry(spec, entry, where)
+    if "card" in spec and not any("card_mask" in entry for entry in entries):
+        raise ValueError(
+            f"{spec_path}: [card] describes a grey card but no [[images]] table names its pixels (card_mask = "
+            '"<mask file>"); add one, or leave [card] out'
+        )
     return spec
+
+
+def _check_card_entry(spec: dict, entry: dict, where: str) -> None:
+    """A grey card marked in an image (card_region.py): its mask file, and a description of it at hand."""
+    if "card_mask" in entry and (not isinstance(entry["card_mask"], str) or not entry["card_mask"]):
+        raise ValueError(f"{where}: card_mask must be a file name, got {entry['card_mask']!r}")
+    if "card" in entry and "card_mask" not in entry:
+        raise ValueError(f'{where}: card = ... describes a grey card but the image names no card_mask = "<file>"')
+    if "card_mask" in entry and "card" not in spec and "card" not in entry:
+        raise ValueError(
+            f"{where}: card_mask names a grey card's pixels but nothing says what the card is: add a [card] table "
+            '(reflectance = 0.18 or [r, g, b]; normal = "camera" or [x, y, z]) or card = {...} to the image'
+        )
+
+
+def _card_description(spec: dict, entry: dict, where: str) -> dict:
+    """The image's card: target.toml's [card], its keys overridden by the image's own card = {...}."""
+    table = spec.get("card", {})
+    if not isinstance(table, dict):
+        raise ValueError(f"{where}: [card] must be a table with reflectance = ... and normal = ...")
+    own = entry.get("card", {})
+    if not isinstance(own, dict):
+        raise ValueError(f"{where}: card must be a table {{reflectance = ..., normal = ...}}, got {own!r}")
+    return card_region.description({**table, **own}, f"{where}: card")
 
 
 def load_target(directory) -> Target:
@@ -205,14 +249,22 @@ def load_target(directory) -> Target:
     directory = Path(directory)
     spec = _read_spec(directory)
     images = []
-    for entry in spec["images"]:
+    for k, entry in enumerate(spec["images"]):
         scene = load_scene(directory / entry["scene"])
         image_path = directory / entry["image"]
         image, metadata, photo = _read_target_image(image_path, scene, entry.get("transfer", "auto"))
         mask = None if "mask" not in entry else _read_mask(directory / entry["mask"], image.shape[:2])
         if photo is not None:
             mask = _photo_mask(photo, mask)
-        images.append(TargetImage(Path(entry["image"]).stem, scene, image, mask, image_path, metadata, photo))
+        card = None
+        if "card_mask" in entry:
+            where = f"{directory / TARGET_FILE}: [[images]] #{k + 1}"
+            marked = _read_mask(directory / entry["card_mask"], image.shape[:2])
+            card = card_region.region(marked, _card_description(spec, entry, where), scene, image, photo, where)
+            mask = ~marked if mask is None else mask & ~marked  # the card's pixels are not hair
+            if not mask.any():
+                raise ValueError(f"{where}: no pixel of hair is left once the card's ({entry['card_mask']}) are out")
+        images.append(TargetImage(Path(entry["image"]).stem, scene, image, mask, image_path, metadata, photo, card))
     _check_consistent(images)
     if spec.get("realisations") == "random":
         for image in images:
@@ -250,10 +302,17 @@ def _camera_unknowns(spec_path: Path, spec: dict, images) -> tuple:
     EXIF's ratios when every image has EXIF exposure (t, N, ISO), a gain per image otherwise; for linear images
     (EXR, linear TIFF), none."""
     photos = [image.photo for image in images]
-    display = any(p is not None and p.camera_exposed for p in photos)
+    # A grey card marked in an image is there to pin the gains: with one, they are unknowns even in an EXR.
+    display = any(p is not None and p.camera_exposed for p in photos) or any(im.card is not None for im in images)
     with_exif = all(p is not None and p.relative_exposure is not None for p in photos)
     gains = spec.get("gains", ("exif" if with_exif else "per-image") if display else "none")
     white_balance = spec.get("white_balance", "fit" if display else "none")
+    if gains == "none" and white_balance == "none" and any(im.card is not None for im in images):
+        raise ValueError(
+            f'{spec_path}: a grey card is marked (card_mask) but gains = "none" and white_balance = "none": the '
+            "card pins the photos' gains and white balance, and there are none to pin; fit them, or leave the "
+            "card out"
+        )
     if gains == "exif" and not with_exif:
         lacking = next(image for image, p in zip(images, photos) if p is None or p.relative_exposure is None)
         raise ValueError(
