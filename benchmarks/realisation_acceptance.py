@@ -2,7 +2,7 @@
 its scenes holding other realisations of its recipe.
 
     python benchmarks/realisation_acceptance.py [NAME ...] [--realisations 1 2 3 4 5] [--mode random|fixed]
-        [--shift S] [--out benchmarks/out/realisations] [--threads N] [--table]
+        [--shift S] [--out benchmarks/out/realisations] [--threads N] [--table] [--own-draw SPP]
 
 For each Cycles target (default: every shipped `cycles_*` target whose fibers come from a generator) and each
 realisation k, a copy of the target whose scene files' [fibers] seed (and, for the swatch recipes, shift) are
@@ -18,6 +18,9 @@ mean error over its realisations of albedo (per channel, the largest), β_m and 
 error, the largest single error, the largest error over the fit's own σ (|error| / σ: whether σ covers it), the
 mean σ's realisation part, and whether every fit lies within the acceptance bounds (optimize.identify.BOUNDS).
 Wall times are on whatever else the machine is doing.
+
+--own-draw SPP fits nothing: it says where each target's own strands lie among its recipe's realisations
+(`own_draw`), which every fit of that target shares.
 """
 
 from __future__ import annotations
@@ -83,6 +86,45 @@ def run_one(source: Path, index: int, mode: str, threads, shift=None) -> dict:
         "parts": result.uncertainty_parts,
         "seconds": seconds,
         "stop_reason": result.stop_reason,
+    }
+
+
+def own_draw(source: Path, spp: int, samples: int, threads=None) -> dict:
+    """How far the target's own strands lie from the realisation average, for β_n and the rest: with warp-hair
+    alone at the true controls, where a fit over random realisations would land were the target warp-hair's
+    render of realisation k, u_k = H⁻¹ Aᵀ W (I_k − Ī) (k = 0 the scene's own strands, 1…samples others; A and H
+    from a random-realisation linearisation, Ī the mean over 1…samples). Each u_k is taken per pass; the
+    cross-pass covariance over k is the realisation spread without our render noise (optimize/realisations.py).
+    Every fit of one target shares its u_0: a mean over fits of one target does not average it out."""
+    from optimize.fit import FitSettings
+    from optimize.linearize import linearize
+    from optimize.realisations import Realisations
+    from warp_hair.renderer.prepare import prepare
+
+    target = load_target(source)
+    names = list(CONTROLS)
+    truth = true_values(target, names)
+    pool = Realisations(target)
+    settings = FitSettings()
+    lin = linearize(target, truth, settings, spp, 1, threads=threads, scenes=pool.pair(1))
+    gain = np.linalg.pinv(lin.curvature) @ (lin.mean_jacobian * lin.loss_weights[:, None]).T
+    own = [prepare(image.scene) for image in target.images]
+    residuals = np.stack(
+        [
+            linearize(
+                target, truth, settings, spp, 100 + k, threads=threads, scenes=own if k == 0 else pool.scenes(k)
+            ).residuals
+            for k in range(samples + 1)
+        ]
+    )  # (samples + 1, 2, N)
+    u = np.einsum("pn,khn->khp", gain, residuals - residuals[1:].mean(axis=0))
+    d = u[1:] - u[1:].mean(axis=0)
+    cross = np.einsum("ki,kj->ij", d[:, 0], d[:, 1]) / (samples - 1)
+    return {
+        "own": u[0].mean(axis=0),
+        "own_per_pass": u[0],
+        "others": u[1:].mean(axis=1),
+        "spread": np.sqrt(np.maximum(np.diag(0.5 * (cross + cross.T)), 0.0)),
     }
 
 
@@ -153,6 +195,12 @@ def main() -> None:
         "the fit's strands where the target's gaps are); results go under --out/<mode>-shift<S>",
     )
     parser.add_argument("--table", action="store_true", help="only tabulate the fits already under --out")
+    parser.add_argument(
+        "--own-draw",
+        type=int,
+        metavar="SPP",
+        help="instead of fitting: where the target's own strands lie among realisations 1..8 (`own_draw`), at SPP",
+    )
     args = parser.parse_args()
     given = [Path(n) for n in args.names if Path(n).is_dir()]
     directories = given + [
@@ -161,6 +209,14 @@ def main() -> None:
         if (d.name in args.names or (not args.names and d.name.startswith("cycles_")))
         and can_realise(load_scene(d / read_target_spec(d)[0]["scene"]))
     ]
+    if args.own_draw:
+        labels = "albedo r, g, b, β_m, β_n"
+        for directory in directories:
+            draw = own_draw(directory, args.own_draw, 8, args.threads)
+            print(f"{directory.name} ({labels}): own strands {np.round(draw['own'], 4)} (passes "
+                  f"{np.round(draw['own_per_pass'], 4).tolist()}); realisation spread {np.round(draw['spread'], 4)}; "
+                  f"others {np.round(draw['others'][:, -1], 4).tolist()} in β_n")  # fmt: skip
+        return
     records = []
     for directory in directories:
         for index in args.realisations:

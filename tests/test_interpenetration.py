@@ -329,3 +329,21 @@ def test_the_gradient_pass_traces_the_exit_rule_paths():
             np.testing.assert_array_equal(traced, images[rule])
             assert all(np.all(np.isfinite(v)) for v in g.values())
     assert interpenetration(scene.fibers).pairs >= 5 and not np.array_equal(images["enter"], images["exit"])
+
+
+def test_the_cycles_swatches_and_their_realisations_have_strands_apart():
+    """Issue 23's acceptance compares warp-hair with Cycles on swatches whose strands do not touch (where the
+    renderers agree) and fits them with five other realisations of their recipes (benchmarks/
+    realisation_acceptance.py): none of those may interpenetrate either."""
+    import targets
+    from optimize.target import read_target_spec
+    from warp_hair.realisation import realisation
+    from warp_hair.scene import load_scene
+
+    swatches = [targets.path(name) for name in targets.names() if name.startswith("cycles_")]
+    assert len(swatches) == 9
+    for directory in swatches:
+        scene = load_scene(directory / read_target_spec(directory)[0]["scene"])
+        for index in range(6):
+            report = interpenetration(realisation(scene, index).fibers)
+            assert report.pairs == 0, f"{directory.name} realisation {index}: {report.pairs} pairs"

@@ -497,10 +497,10 @@ def test_fit_command_names_a_missing_target(tmp_path, capsys):
 def test_shipped_targets_are_complete():
     names = [d.name for d in shipped_targets()]
     own = ["auburn_curly", "black_straight", "blonde_straight", "brown_wavy", "chestnut_straight", "fur_patch"]
-    peers = [
-        f"{peer}_{look}"
-        for peer in ("cycles", "mitsuba")
-        for look in ("blonde_straight", "brown_straight", "dark_wavy")
+    peers = [f"mitsuba_{look}" for look in ("blonde_straight", "brown_straight", "dark_wavy")]
+    # Cycles' draped swatches: light, medium and dark hair, straight, wavy and curly (issue 23's acceptance).
+    peers += [
+        f"cycles_{hair}_{shape}" for hair in ("blonde", "brown", "dark") for shape in ("straight", "wavy", "curly")
     ]
     # The Cycles swatches as a camera saves them (benchmarks/make_photo_targets.py, issue 22).
     photos = [
