@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 import torch
 from helpers.cards import with_card
+from helpers.photo_args import photo_args
 from helpers.scenes import front_camera
 from PIL import Image
 
@@ -271,8 +272,6 @@ def test_target_from_photos_with_a_marked_card(tmp_path):
     """`warp-hair targets photo --card-mask --card-reflectance`: a 128 px photo of the Cycles brown swatch, taken
     at a gain of 2.2 with an 18% card in a 16×16 corner, becomes a 64 px target whose card (the 8×8 blocks wholly
     on it) alone solves to that gain and a neutral white balance, within the 8-bit codes' rounding."""
-    import argparse
-
     from optimize.photo_target import make_photo_target
     from warp_hair.io import read_exr, srgb_encode
     from warp_hair.photo import srgb_decode, write_photo
@@ -287,32 +286,10 @@ def test_target_from_photos_with_a_marked_card(tmp_path):
     mask = np.zeros((128, 128), np.uint8)
     mask[:17, :17] = 255  # one photo pixel past the card: the blocks it reaches only partly are neither
     Image.fromarray(mask, "L").save(tmp_path / "card.png")
-    args = argparse.Namespace(
-        image=[str(tmp_path / "front.png")],
-        light=[light],
-        hdri=None,
-        rig="draped",
-        transfer="auto",
-        width=0.4,
-        length=0.5,
-        count=152,
-        layers=4,
-        fiber_radius=0.004,
-        drape=0.25,
-        patch=0.3,
-        fur_length=0.1,
-        elevation=30.0,
-        distance=3.0,
-        ortho_width=0.36,
-        fov=None,
-        sensor_width=None,
-        resolution=64,
-        card=None,
-        mask=None,
-        card_mask=[str(tmp_path / "card.png")],
-        card_reflectance=0.18,
-        card_normal="camera",
-    )
+    args = photo_args(
+        "--image", str(tmp_path / "front.png"), "--light", ",".join(map(str, light)), "--ortho-width", "0.36",
+        "--card-mask", str(tmp_path / "card.png"), "--card-reflectance", "0.18", "--card-normal", "camera",
+    )  # fmt: skip
     make_photo_target(tmp_path / "made", args)
     target = load_target(tmp_path / "made")
     card = target.images[0].card

@@ -3,7 +3,6 @@ targets from photos (optimize/photo_target.py), and bad input."""
 
 from __future__ import annotations
 
-import argparse
 import json
 import shutil
 
@@ -11,6 +10,7 @@ import numpy as np
 import pytest
 import tifffile
 import torch
+from helpers.photo_args import photo_args
 from PIL import Image, ImageCms
 
 import targets
@@ -210,29 +210,7 @@ def test_target_from_photos_in_one_command(tmp_path):
     image, _ = read_exr(targets.path("cycles_brown_straight") / "front.exr")
     big = np.repeat(np.repeat(image, 2, 0), 2, 1) * 2.2
     write_photo(tmp_path / "front.png", big)
-    args = argparse.Namespace(
-        image=[str(tmp_path / "front.png")],
-        light=[(0.2, -0.3, -1.0)],
-        hdri=None,
-        rig="draped",
-        transfer="auto",
-        width=0.4,
-        length=0.5,
-        count=152,
-        layers=4,
-        fiber_radius=0.004,
-        drape=0.25,
-        patch=0.3,
-        fur_length=0.1,
-        elevation=30.0,
-        distance=3.0,
-        ortho_width=0.36,
-        fov=None,
-        sensor_width=None,
-        resolution=64,
-        card=None,
-        mask=None,
-    )
+    args = photo_args("--image", str(tmp_path / "front.png"), "--light", "0.2,-0.3,-1.0", "--ortho-width", "0.36")
     make_photo_target(tmp_path / "made", args)
     target = load_target(tmp_path / "made")
     assert (target.gains, target.white_balance) == ("per-image", "fit")
@@ -295,29 +273,10 @@ def test_fur_rig_with_a_perspective_camera_and_an_hdri(tmp_path):
 
     write_exr(tmp_path / "sky.exr", np.full((8, 16, 3), 0.5, np.float32))
     write_photo(tmp_path / "fur.png", np.full((40, 40, 3), 0.3, np.float32) + _gradient(40))
-    args = argparse.Namespace(
-        image=[str(tmp_path / "fur.png")],
-        light=None,
-        hdri=str(tmp_path / "sky.exr"),
-        rig="fur",
-        transfer="auto",
-        width=0.4,
-        length=0.5,
-        count=200,
-        layers=4,
-        fiber_radius=0.0015,
-        drape=0.25,
-        patch=0.3,
-        fur_length=0.1,
-        elevation=30.0,
-        distance=3.0,
-        ortho_width=None,
-        fov=8.0,
-        sensor_width=None,
-        resolution=20,
-        card=0.18,
-        mask=None,
-    )
+    args = photo_args(
+        "--image", str(tmp_path / "fur.png"), "--hdri", str(tmp_path / "sky.exr"), "--rig", "fur", "--count", "200",
+        "--fiber-radius", "0.0015", "--fov", "8", "--resolution", "20", "--card", "0.18",
+    )  # fmt: skip
     make_photo_target(tmp_path / "fur", args)
     scene = load_target(tmp_path / "fur").images[0].scene
     assert scene.camera.type == "perspective" and scene.camera.fov == 8.0 and scene.camera.resolution == (20, 20)
