@@ -118,8 +118,9 @@ def loss_sums(pairs, targets, masks, loss: str, pool: int, scales) -> tuple:
         else:
             weight = torch.full_like(reference, 1.0 / max(float(scale), 1e-30))
         weight = weight / (reference.shape[0] * len(pairs))
-        a[k] = (weight * 0.5 * (pooled[0] + pooled[1]) * reference).sum(0).numpy()
-        b[k] = (weight * pooled[0] * pooled[1]).sum(0).numpy()
+        # Three numbers each to the host, where the gains are solved (the renders may be on a GPU).
+        a[k] = (weight * 0.5 * (pooled[0] + pooled[1]) * reference).sum(0).cpu().numpy()
+        b[k] = (weight * pooled[0] * pooled[1]).sum(0).cpu().numpy()
     return a, b
 
 

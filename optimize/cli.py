@@ -2,7 +2,7 @@
 
     warp-hair fit TARGET -o OUT_DIR [--fit albedo,beta_m,beta_n] [--iters N] [--spp N] [--loss l2]
                   [--lr LR] [--init NAME=V ...] [--fix NAME=V ...] [--seed S] [--patience P] [--refine K] [--threads T]
-                  [--model-error E] [--export mitsuba,pbrt,cycles,materialx]
+                  [--device D] [--model-error E] [--export mitsuba,pbrt,cycles,materialx]
     warp-hair targets make [NAME ...] [--threads T]
     warp-hair targets list [NAME ...]
     warp-hair targets check TARGET [--fit NAMES] [--at NAME=V ...] [--spp N] [--model-error E] [--threads T]
@@ -21,6 +21,7 @@ import time
 from pathlib import Path
 
 from warp_hair import cli as render_cli
+from warp_hair.devices import check_device
 from warp_hair.model.params import HairParams
 
 from .camera import GAIN_MODES, WHITE_BALANCE_MODES
@@ -71,6 +72,7 @@ def add_fit(subparsers) -> None:
         "fit",
         parents=[
             render_cli.common_flags(
+                device=True,
                 spp=f"samples per pixel at the end of the schedule (default {defaults.spp}; it starts at spp/4)",
                 spp_default=defaults.spp,
                 seed="seed of the fit's random streams (default 0)",
@@ -200,6 +202,7 @@ def run_fit(args: argparse.Namespace) -> None:
     from .uncertainty import check_model_error
 
     check_model_error(args.model_error, "--model-error")
+    device = check_device(args.device, "--device")
 
     # Checked before the fit, not after it.
     renderers = [] if args.export is None else parse_renderers(args.export)
@@ -222,6 +225,7 @@ def run_fit(args: argparse.Namespace) -> None:
         patience=args.patience,
         init=parse_assignments(args.init, "--init"),
         threads=args.threads,
+        device=device,
         refine=args.refine,
         batch=args.batch,
         model_error=args.model_error,

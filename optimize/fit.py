@@ -40,8 +40,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import torch
+import warp as wp
 from tqdm import tqdm
 
+from warp_hair.devices import check_device
 from warp_hair.model.params import effective_beta
 from warp_hair.renderer.prepare import prepare
 from warp_hair.renderer.render import render
@@ -88,6 +90,7 @@ class FitSettings:
     patience: int = 30
     init: dict = field(default_factory=dict)  # start values of fitted controls; default: each control's neutral guess
     threads: int | None = None
+    device: str = "cpu"  # where to render: "cpu", "cuda", "cuda:N" (warp_hair.devices); Adam's state lives there too
     uncertainty: bool = True
     refine: int | None = None  # Gauss–Newton steps after Adam (refine.py); None: `_refine_steps`, 0 for L1
     batch: int | None = BATCH_PIXELS  # pixels of an image per render (see BATCH_PIXELS); None: every pixel, always
@@ -176,6 +179,7 @@ def iteration_seed(seed: int, iteration: int, image: int) -> int:
 
 def check_settings(target: Target, settings: FitSettings) -> tuple:
     names = parse_control_names(settings.controls, target.hair.colour_input)
+    check_device(settings.device)
     if settings.loss not in LOSSES:
         raise ValueError(f"unknown loss {settings.loss!r}; allowed: {list(LOSSES)}")
     for key, minimum in (
@@ -232,19 +236,21 @@ def _as_control(name, values):
 
 
 class _Latents:
-    """The optimiser's parameters: one latent tensor per fitted control, float64.
+    """The optimiser's parameters: one latent tensor per fitted control, float64, on the render device (so that
+    the renders of `render_torch_pair` come back there).
 
     The albedo's latent depends on β_n (latents.py): the fitted β_n's current value, else the scenes' own; and
     on the scenes' albedo inversion coefficients.
     """
 
-    def __init__(self, start: dict, fixed_beta_n: float, inversion):
+    def __init__(self, start: dict, fixed_beta_n: float, inversion, device: torch.device):
         self.fixed_beta_n = float(effective_beta(fixed_beta_n))
         self.inversion = inversion
-        beta_n = torch.tensor(start["beta_n"][0] if "beta_n" in start else self.fixed_beta_n, dtype=torch.float64)
+        kind = {"dtype": torch.float64, "device": device}
+        beta_n = torch.tensor(start["beta_n"][0] if "beta_n" in start else self.fixed_beta_n, **kind)
         self.tensors = {
             name: SPECS[name]
-            .to_latent(torch.tensor(v if SPECS[name].size == 3 else v[0], dtype=torch.float64), beta_n, inversion)
+            .to_latent(torch.tensor(v if SPECS[name].size == 3 else v[0], **kind), beta_n, inversion)
             .requires_grad_()
             for name, v in start.items()
         }
@@ -337,18 +343,22 @@ class FitRun:
         self.target, self.settings, self.progress = target, settings, progress
         self.names = check_settings(target, settings)
         self.start = start_values(self.names, settings)
-        self.latents = _Latents(self.start, target.hair.beta_n, target.hair.albedo_inversion)
+        # Renders, targets, losses and the Adam state on one device: per iteration only the controls (a few
+        # floats, the kernels' launch arguments) and a mini-batch's pixel indices cross to or from the host.
+        self.device = check_device(settings.device)
+        on_device = torch.device(wp.device_to_torch(self.device))
+        self.latents = _Latents(self.start, target.hair.beta_n, target.hair.albedo_inversion, on_device)
         self.optimizer = torch.optim.Adam(self.latents.tensors.values(), lr=settings.lr)
         self.schedule = torch.optim.lr_scheduler.LambdaLR(self.optimizer, lambda it: lr_factor(it, settings.iters))
-        self.targets = [torch.from_numpy(image.image) for image in target.images]
-        self.masks = [None if image.mask is None else torch.from_numpy(image.mask) for image in target.images]
+        self.targets = [torch.from_numpy(image.image).to(on_device) for image in target.images]
+        self.masks = [None if im.mask is None else torch.from_numpy(im.mask).to(on_device) for im in target.images]
         self.scales = [loss_scale(t, settings.loss, m, settings.pool) for t, m in zip(self.targets, self.masks)]
         self.batches = [Batches(image, settings.pool, settings.batch) for image in target.images]
         self.begun = time.perf_counter()
         # The fibers, BVH, camera and lights of each image, built once: only the hair changes between renders.
-        self.scenes = [prepare(image.scene) for image in target.images]
+        self.scenes = [prepare(image.scene, self.device) for image in target.images]
         self.random = (settings.realisations or target.realisations) == "random"
-        self.realisations = Realisations(target) if self.random else None
+        self.realisations = Realisations(target, device=self.device) if self.random else None
         self.final_stage_spp = spp_at(settings.iters - 1, settings.iters, settings.spp)
         self.iteration = 0
         self.stop_reason = None  # set by step() on a plateau
@@ -369,7 +379,7 @@ class FitRun:
         scenes = self.realisations.pair(seeds[0]) if self.random else self.scenes
         for k, _image in enumerate(self.target.images):
             pixels, batch_mask = self.batches[k].draw(seeds[k])  # of counted pixels only: it implies the target's mask
-            used.append(self.masks[k] if batch_mask is None else batch_mask)
+            used.append(self.masks[k] if batch_mask is None else batch_mask.to(self.targets[k].device))
             pairs.append(
                 render_torch_pair(
                     scenes[k],
@@ -385,7 +395,7 @@ class FitRun:
             solved = camera.gains_for(
                 self.target, pairs, self.targets, used, self.settings.loss, self.settings.pool, self.scales
             ).per_channel
-            gains = [torch.from_numpy(g) for g in solved]
+            gains = [torch.from_numpy(g).to(self.targets[k].device) for k, g in enumerate(solved)]
         total = 0.0
         for k, pair in enumerate(pairs):
             for rendered in pair:

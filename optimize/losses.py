@@ -38,7 +38,7 @@ def _pool(x: torch.Tensor, mask, pool: int):
     """x over k×k blocks (masked pixels left out), and the mask of the blocks (or pixels) that count."""
     if pool == 1:
         return x, mask
-    weight = torch.ones(x.shape[:2], dtype=x.dtype) if mask is None else mask.to(x.dtype)
+    weight = torch.ones(x.shape[:2], dtype=x.dtype, device=x.device) if mask is None else mask.to(x.dtype)
     means, total = block_mean(x, weight, pool)
     return means, total > 0
 

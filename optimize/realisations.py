@@ -68,16 +68,18 @@ def check_mode(mode, where: str = "realisations") -> str:
 class Realisations:
     """Prepared scenes of the target's other realisations, built when first drawn and kept."""
 
-    def __init__(self, target, pool: int = POOL):
+    def __init__(self, target, pool: int = POOL, device: str = "cpu"):
         for image in target.images:
             check_realisable(image.scene, f'{target.name}: realisations = "random", {image.scene.path or image.name}')
-        self.target, self.pool = target, pool
+        self.target, self.pool, self.device = target, pool, device
         self._prepared = {}
 
     def scenes(self, index: int) -> list:
         """Realisation `index` of every image's scene, prepared (the images show the same strands)."""
         if index not in self._prepared:
-            self._prepared[index] = [prepare(realisation(image.scene, index)) for image in self.target.images]
+            self._prepared[index] = [
+                prepare(realisation(image.scene, index), self.device) for image in self.target.images
+            ]
         return self._prepared[index]
 
     def pair(self, seed: int) -> list:

@@ -7,7 +7,7 @@ with one line and exit status 130, leaving no partial output file; anything else
 and its traceback under `--debug`.
 
     warp-hair plot-bsdf -o lobes.png [hair controls] [--theta-o DEG ...] [--h H]
-    warp-hair render SCENE.toml -o OUT.exr [--spp N] [--seed S] [--threads T] [--png PREVIEW.png]
+    warp-hair render SCENE.toml -o OUT.exr [--spp N] [--seed S] [--threads T] [--device D] [--png PREVIEW.png]
     warp-hair gradcheck SCENE.toml [--spp N] [--seeds K] [--params albedo,eta,...] [--eps E] [--threads T]
     warp-hair export LOOK --to mitsuba|pbrt|cycles|materialx [-o FILE]
     warp-hair calibrate SCENE.toml [-o COPY.toml] [--sigma-a S ...] [--beta-n B ...] [--spp N] [--seed S] [--threads T]
@@ -28,6 +28,7 @@ import warp as wp
 
 from . import validate
 from .controls import COLOUR_CONTROL_NAMES, COLOUR_CONTROLS, CONTROLS
+from .devices import DEFAULT_DEVICE, check_device
 from .model.params import HairParams
 
 PROG = "warp-hair"
@@ -36,11 +37,14 @@ SCENE_SPP = "samples per pixel (default: the scene's [render] spp)"
 SCENE_SEED = "random seed (default: the scene's [render] seed)"
 
 
-def common_flags(*, threads=True, spp=None, seed=None, spp_default=None, seed_default=None) -> argparse.ArgumentParser:
+def common_flags(
+    *, threads=True, device=False, spp=None, seed=None, spp_default=None, seed_default=None
+) -> argparse.ArgumentParser:
     """The parent parser of a subcommand: the flags every command spells the same way.
 
-    --debug (also accepted before the subcommand), --threads where the command renders, and --spp / --seed
-    where given their help text (the defaults differ: the scene's [render] table, or the command's own).
+    --debug (also accepted before the subcommand), --threads where the command renders, --device where it can
+    render on a GPU, and --spp / --seed where given their help text (the defaults differ: the scene's [render]
+    table, or the command's own).
     """
     parent = argparse.ArgumentParser(add_help=False)
     if spp is not None:
@@ -49,6 +53,13 @@ def common_flags(*, threads=True, spp=None, seed=None, spp_default=None, seed_de
         parent.add_argument("--seed", type=int, default=seed_default, metavar="S", help=seed)
     if threads:
         parent.add_argument("--threads", type=int, metavar="T", help="CPU threads (default: all cores)")
+    if device:
+        parent.add_argument(
+            "--device",
+            default=DEFAULT_DEVICE,
+            metavar="D",
+            help="where to render: cpu (the default), cuda or cuda:N (a GPU, through Warp's CUDA backend)",
+        )
     # SUPPRESS keeps the top-level value when the flag is not repeated after the subcommand.
     parent.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help=argparse.SUPPRESS)
     return parent
@@ -128,7 +139,7 @@ def plot_bsdf(args: argparse.Namespace) -> None:
 def add_render(subparsers) -> None:
     parser = subparsers.add_parser(
         "render",
-        parents=[common_flags(spp=SCENE_SPP, seed=SCENE_SEED)],
+        parents=[common_flags(device=True, spp=SCENE_SPP, seed=SCENE_SEED)],
         help="path-trace a scene file to a linear EXR",
         description="Path-trace a scene (TOML) to a float32 linear-radiance EXR, with the scene and hair controls "
         "in its header; optionally also a tone-mapped sRGB PNG preview.",
@@ -150,6 +161,7 @@ def render_scene(args: argparse.Namespace) -> None:
     from .scene import load_scene
 
     check_sampling_args(args)
+    device = check_device(args.device, "--device")
     if args.png is not None:
         validate.real("--exposure", args.exposure)
         if not args.exposure > 0:
@@ -162,7 +174,7 @@ def render_scene(args: argparse.Namespace) -> None:
     with progress_bar(
         total=width * height, unit="px", desc=f"{args.scene.name} {width}x{height} {spp} spp"
     ) as progress:
-        image = render(scene, spp=spp, seed=seed, threads=args.threads, progress=progress)
+        image = render(scene, spp=spp, seed=seed, threads=args.threads, device=device, progress=progress)
     seconds = time.perf_counter() - start
     write_exr(args.output, image, render_metadata(scene, spp, seed))
     print(f"wrote {args.output} ({seconds:.1f} s, {width * height * spp / seconds / 1e6:.3f} M paths/s)")

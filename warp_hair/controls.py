@@ -297,8 +297,9 @@ def controls_of(colour_input: str) -> tuple:
 
 def named_theta(colour_input: str, theta) -> dict:
     """Name the last axis of theta (..., THETA_SIZE) by control: {name: (..., 3) for RGB, (...) otherwise}, in
-    `controls_of` order. The arrays are views of theta."""
-    theta = np.asarray(theta)
+    `controls_of` order. The arrays are views of theta; a torch tensor stays one (on its device)."""
+    if not hasattr(theta, "shape"):  # a NumPy array or a torch tensor is sliced as it is
+        theta = np.asarray(theta)
     if theta.shape[-1:] != (THETA_SIZE,):
         raise ValueError(f"θ must have {THETA_SIZE} components on its last axis, got shape {theta.shape}")
     named = {}

@@ -3,7 +3,7 @@
 One `wp.launch` on the CPU runs on one core, but launches from several Python threads run at the same time
 (Warp releases the GIL). Kernels launched through here take the index of their first item as their last
 input, so each launch covers its own contiguous range of the same arrays: no copies, and the result does
-not depend on how many threads there are.
+not depend on how many threads there are. On a GPU one launch covers all the items: the device spreads it.
 """
 
 from __future__ import annotations

@@ -52,21 +52,27 @@ pass computed, so it needs no second tracing of the paths (what `optimize.fit` u
 `scene` may be a `warp_hair.prepare(scene)`: a loop that renders the same scene with new controls then
 builds its BVH once, not once per render (the images are the same, bit for bit).
 
-Everything runs on Warp's CPU device; the image is returned on the device of the first control tensor (CPU if
-none), and gradients have each control's dtype and device. Double backward is not supported.
+Where it renders: on `device` when given ("cpu", "cuda", "cuda:N"), else on a prepared scene's device, else on
+the first control tensor's GPU if it is a CUDA tensor, else on the CPU (`render_device`). The image is returned on
+the device of the first control tensor (the render device if none), and gradients have each control's dtype and
+device. On a GPU the image and the Jacobians are torch views of Warp's arrays, made on torch's current stream,
+and the adjoint meets the Jacobian there: only the controls (a few floats, the kernel's launch arguments) go
+to the host per render. Double backward is not supported.
 """
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 
-import numpy as np
 import torch
+import warp as wp
 
-from .controls import COLOUR_CONTROLS, CONTROL_NAMES, RGB_CONTROLS, controls_of
-from .renderer.gradients import contract, contract_crossed, named_gradients, render_jacobian
+from .controls import COLOUR_CONTROLS, CONTROL_NAMES, RGB_CONTROLS, controls_of, named_theta
+from .devices import check_device, is_cpu
+from .renderer.gradients import contract
 from .renderer.prepare import PreparedScene, sampling, scene_of
-from .renderer.render import render
+from .renderer.render import launch_pixels
 from .scene import Scene
 
 GRAD_SEED_OFFSET = 1_000_003
@@ -136,37 +142,63 @@ def _scene_for(scene, names, tensors):
     return scene_with_controls(scene, {name: _to_python(name, t) for name, t in zip(names, tensors)})
 
 
-def _control_gradients(ctx, theta_gradient):
+def render_device(scene: Scene | PreparedScene, tensors, device=None) -> str:
+    """The Warp device a render of `scene` with these control tensors runs on: `device` when given, else a
+    prepared scene's own, else the first control tensor's when it is a GPU's (CUDA tensors render on their GPU),
+    else "cpu"."""
+    if device is not None:
+        return check_device(device)
+    if isinstance(scene, PreparedScene):
+        return scene.device
+    if tensors and tensors[0].device.type == "cuda":
+        return check_device(tensors[0].device, "the controls' device")
+    return "cpu"
+
+
+def _on_torch_stream(device: str):
+    """On a GPU, Warp's launches go on torch's current stream of that GPU, so that torch's operations on the
+    image and the Jacobian are ordered after them without a synchronisation (Warp has streams of its own
+    otherwise); nothing to do on the CPU."""
+    if is_cpu(device):
+        return contextlib.nullcontext()
+    return wp.ScopedStream(wp.stream_from_torch(wp.device_to_torch(device)))
+
+
+def _as_tensor(array, resolution, *shape) -> torch.Tensor:
+    """A flat Warp array of a render, as a torch tensor (H, W, *shape) on its device, sharing its memory."""
+    width, height = resolution
+    return wp.to_torch(array, requires_grad=False).reshape(height, width, *shape)
+
+
+def _contract(adjoint: torch.Tensor, jacobian: torch.Tensor) -> torch.Tensor:
+    """(8,) float64 on the Jacobian's device: Σ adjoint ⊙ jacobian over pixels and channels. On the CPU by
+    `gradients.contract`, render_grad's own sum (so the two agree bit for bit); on a GPU the same sum in torch,
+    where the Jacobian is: nothing of the image size goes to the host."""
+    adjoint = adjoint.detach().to(jacobian.device, torch.float64)
+    if jacobian.device.type == "cpu":
+        return torch.from_numpy(contract(adjoint.numpy(), jacobian.numpy()))
+    return torch.einsum("hwc,hwck->k", adjoint, jacobian.to(torch.float64))
+
+
+def _control_gradients(ctx, theta_gradient: torch.Tensor):
     """Per-control torch gradients from the 8 θ components, in each input's dtype and device."""
-    named = named_gradients(scene_of(ctx.scene).hair, theta_gradient)
+    named = named_theta(scene_of(ctx.scene).hair.colour_input, theta_gradient)
     out = []
     for name, need, (dtype, device) in zip(ctx.names, ctx.needs_input_grad[2:], ctx.meta):
-        if not need:
-            out.append(None)
-            continue
-        g = np.asarray(named[name], dtype=np.float64)
-        out.append(torch.as_tensor(g, dtype=dtype, device=device).reshape((3,) if name in RGB_CONTROLS else ()))
+        shape = (3,) if name in RGB_CONTROLS else ()
+        out.append(named[name].to(device=device, dtype=dtype).reshape(shape) if need else None)
     return (None, None, *tuple(out))
 
 
-def _begin(ctx, scene, names, tensors):
+def _begin(ctx, scene, names, tensors, device):
     """Keep what backward needs of the inputs; the scene with the controls substituted."""
     ctx.scene = _scene_for(scene, names, tensors)
     ctx.names = names
     ctx.meta = [(t.dtype, t.device) for t in tensors]
+    ctx.device = device
+    # The image goes back where the controls are (torch's rule for a function of them), else where it was made.
+    ctx.out_device = tensors[0].device if tensors else torch.device(wp.device_to_torch(device))
     return ctx.scene
-
-
-def _adjoint(ctx, grad_output):
-    """grad_output as float64 NumPy, or None when no control needs a gradient."""
-    if not any(ctx.needs_input_grad[2:]):
-        return None
-    return grad_output.detach().to("cpu", torch.float64).numpy()
-
-
-def _as_image(image, tensors):
-    out_device = tensors[0].device if tensors else torch.device("cpu")
-    return torch.from_numpy(np.ascontiguousarray(image, dtype=np.float32)).to(out_device)
 
 
 def _no_gradients(ctx):
@@ -177,42 +209,46 @@ def _no_gradients(ctx):
 class _RenderFunction(torch.autograd.Function):
     @staticmethod
     def forward(ctx, config, names, *tensors):
-        scene, spp, seed, grad_seed, threads = config
-        scene = _begin(ctx, scene, names, tensors)
+        scene, spp, seed, grad_seed, threads, device = config
+        scene = _begin(ctx, scene, names, tensors, device)
         ctx.spp, ctx.grad_seed, ctx.threads = spp, grad_seed, threads
-        return _as_image(render(scene, spp=spp, seed=seed, threads=threads, device="cpu"), tensors)
+        with _on_torch_stream(device):
+            prepared, image, _, _ = launch_pixels(scene, spp, seed, threads, device, False)
+            return _as_tensor(image, prepared.resolution, 3).to(ctx.out_device)
 
     @staticmethod
     @torch.autograd.function.once_differentiable
     def backward(ctx, grad_output):
-        adjoint = _adjoint(ctx, grad_output)
-        if adjoint is None:
+        if not any(ctx.needs_input_grad[2:]):
             return _no_gradients(ctx)
-        jacobian, _, _ = render_jacobian(ctx.scene, spp=ctx.spp, seed=ctx.grad_seed, threads=ctx.threads, device="cpu")
-        return _control_gradients(ctx, contract(adjoint, jacobian))
+        with _on_torch_stream(ctx.device):
+            prepared, _, _, jacobian = launch_pixels(ctx.scene, ctx.spp, ctx.grad_seed, ctx.threads, ctx.device, True)
+            theta = _contract(grad_output, _as_tensor(jacobian, prepared.resolution, 3, -1))
+        return _control_gradients(ctx, theta)
 
 
 class _PairFunction(torch.autograd.Function):
     @staticmethod
     def forward(ctx, config, names, *tensors):
-        scenes, spp, seeds, threads, pixels = config
-        first = _begin(ctx, scenes[0], names, tensors)
+        scenes, spp, seeds, threads, pixels, device = config
+        first = _begin(ctx, scenes[0], names, tensors, device)
         images, ctx.jacobians = [], []
-        for scene, seed in zip((first, _scene_for(scenes[1], names, tensors)), seeds):
-            jacobian, image, _ = render_jacobian(
-                scene, spp=spp, seed=seed, threads=threads, device="cpu", pixels=pixels
-            )
-            images.append(image)
-            ctx.jacobians.append(jacobian)
-        return _as_image(np.stack(images), tensors)
+        with _on_torch_stream(device):
+            for scene, seed in zip((first, _scene_for(scenes[1], names, tensors)), seeds):
+                prepared, image, _, jacobian = launch_pixels(scene, spp, seed, threads, device, True, pixels=pixels)
+                images.append(_as_tensor(image, prepared.resolution, 3))
+                ctx.jacobians.append(_as_tensor(jacobian, prepared.resolution, 3, -1))
+            return torch.stack(images).to(ctx.out_device)
 
     @staticmethod
     @torch.autograd.function.once_differentiable
     def backward(ctx, grad_output):
-        adjoint = _adjoint(ctx, grad_output)
-        if adjoint is None:
+        if not any(ctx.needs_input_grad[2:]):
             return _no_gradients(ctx)
-        return _control_gradients(ctx, contract_crossed(adjoint, ctx.jacobians))
+        # Each image's adjoint meets the other image's Jacobian (independent paths: an unbiased product).
+        with _on_torch_stream(ctx.device):
+            theta = _contract(grad_output[0], ctx.jacobians[1]) + _contract(grad_output[1], ctx.jacobians[0])
+        return _control_gradients(ctx, theta)
 
 
 def _checked_seed(name, seed):
@@ -223,25 +259,25 @@ def _checked_seed(name, seed):
 
 
 def render_torch(
-    scene: Scene | PreparedScene, controls: dict, spp=None, seed=0, grad_seed=None, threads=None
+    scene: Scene | PreparedScene, controls: dict, spp=None, seed=0, grad_seed=None, threads=None, device=None
 ) -> torch.Tensor:
     """The image (H, W, 3) float32 of `scene` with `controls` substituted, differentiable in the controls.
 
     controls: {name: tensor}, "albedo"/"sigma_a" (3,) or the 0-d scalars (see the module docstring); not
     passed ⇒ the scene's value. spp defaults to the scene's [render] spp. The forward pass renders with `seed`;
     the backward pass estimates the gradient with `grad_seed`, by default (seed + 1_000_003) mod 2**32, an
-    independent random stream (see the module docstring for why).
+    independent random stream (see the module docstring for why). `device`: where to render (`render_device`).
     """
     checked = _check_controls(scene, controls)
     spp, _ = sampling(scene, spp)
     seed = _checked_seed("seed", seed)
     grad_seed = default_grad_seed(seed) if grad_seed is None else _checked_seed("grad_seed", grad_seed)
-    config = (scene, spp, seed, grad_seed, threads)
+    config = (scene, spp, seed, grad_seed, threads, render_device(scene, tuple(checked.values()), device))
     return _RenderFunction.apply(config, tuple(checked), *checked.values())
 
 
 def render_torch_pair(
-    scene: Scene | PreparedScene, controls: dict, spp=None, seed=0, threads=None, pixels=None
+    scene: Scene | PreparedScene, controls: dict, spp=None, seed=0, threads=None, pixels=None, device=None
 ) -> torch.Tensor:
     """Two independent renders (2, H, W, 3) of `scene` with `controls`, each at `spp`, in one pass each.
 
@@ -258,7 +294,8 @@ def render_torch_pair(
     `scene` may be a pair of scenes, one per render: two realisations of the same fibers' recipe
     (`warp_hair.realisation`), with the same camera, lights and resolution. The gradient is then unbiased for
     the loss of the image averaged over realisations, since each adjoint meets a Jacobian of independent
-    strands as well as independent paths (optimize/realisations.py derives it).
+    strands as well as independent paths (optimize/realisations.py derives it). `device`: where to render
+    (`render_device`; a pair of prepared scenes must share one).
     """
     scenes = tuple(scene) if isinstance(scene, (tuple, list)) else (scene, scene)
     if len(scenes) != 2:
@@ -268,5 +305,6 @@ def render_torch_pair(
     if scene_of(scenes[1]).camera.resolution != scene_of(scenes[0]).camera.resolution:
         raise ValueError("render_torch_pair's two scenes must have the same camera resolution")
     seed = _checked_seed("seed", seed)
-    config = (scenes, spp, (seed, default_grad_seed(seed)), threads, pixels)
+    device = render_device(scenes[0], tuple(checked.values()), device)
+    config = (scenes, spp, (seed, default_grad_seed(seed)), threads, pixels, device)
     return _PairFunction.apply(config, tuple(checked), *checked.values())

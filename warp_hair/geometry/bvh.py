@@ -125,7 +125,7 @@ def build_binary(lowers, uppers, max_leaf, traversal_cost, threads=None) -> Tree
     if m >= 2**31:
         raise ValueError(f"at most 2**31 - 1 boxes, got {m}")
 
-    device = "cpu"
+    device = "cpu"  # the build's levels are planned in NumPy: on the host, whatever the render device (tubes.py)
     # The primitives' indices and boxes, kept in the order of `order` as the ranges are partitioned, so that
     # every pass over a range reads contiguous memory.
     prims = _primitives(np.arange(m, dtype=np.int32), lowers, uppers, device)

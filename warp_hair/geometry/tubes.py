@@ -28,6 +28,13 @@ class FiberBVH:
     `geometry` is the `FiberGeometry` that kernels take; `bounds` is (lo (3,), hi (3,)) float64, the box
     around every tube. Segment indices are those of `assembly.segments()`. `smooth_tangents=False` gives
     `shading_frame` each segment's own axis: the polyline's frame, with its jumps at the joints.
+
+    The tree is built on the host whatever `device` is, and the finished arrays are uploaded to `device` once per
+    scene (a fit prepares its scenes once, so that is once per fit). The build's levels are planned in NumPy
+    (bvh.py), which on a GPU would read every level back; and Warp's own builder (`wp.Bvh`, which does build on
+    the GPU) gives a binary tree in its own node layout, not the 4-wide nodes over leaf-ordered tubes that
+    intersect.py's traversal reads. The host build costs about 3 CPU µs per segment (docs/scaling.md): nothing
+    beside a fit's hundreds of renders, but one GPU render of a million-segment scene may well take less.
     """
 
     def __init__(self, assembly, device="cpu", smooth_tangents=True):

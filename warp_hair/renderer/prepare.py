@@ -16,6 +16,7 @@ import numpy as np
 import warp as wp
 
 from .. import validate
+from ..devices import check_device
 from ..geometry.card import card_data
 from ..geometry.tubes import FiberBVH
 from ..model.hair_bsdf import hair_coefficients
@@ -31,12 +32,14 @@ class PreparedScene:
     the light tables, the card. `prepare(scene)` makes one; `render` and `render_jacobian` accept it in place of
     the scene. Only the hair coefficients change between a fit's iterations: `with_hair` swaps them and shares
     the rest, so a fit builds its BVH once, and a render of the prepared scene is bit for bit that of the scene.
+    Everything lives on `device` (a checked name, `devices.check_device`); the BVH is built on the host and
+    uploaded once (geometry/tubes.py says why), and the hair coefficients travel as a launch argument.
     """
 
     def __init__(self, scene: Scene, device: str = "cpu"):
         check_scene(scene)  # a scene built in Python, not loaded, is checked here
         self.scene = scene
-        self.device = device
+        self.device = device = check_device(device)
         self.bvh = FiberBVH(scene.fibers, device=device, smooth_tangents=scene.render.tangents == "smooth")
         directional = [light for light in scene.lights if isinstance(light, DirectionalLight)]
         environments = [light for light in scene.lights if isinstance(light, EnvironmentLight)]
@@ -87,23 +90,17 @@ class PreparedScene:
         return other
 
 
-def _same_device(a: str, b: str) -> bool:
-    try:
-        return wp.get_device(a) == wp.get_device(b)
-    except ValueError:  # not a device on this machine
-        return False
-
-
 def prepare(scene: Scene | PreparedScene, device: str | None = None) -> PreparedScene:
-    """The scene made ready to render on `device` (default "cpu"), for rendering it many times with only its
-    hair changing (`PreparedScene.with_hair`); a prepared scene is returned as it is (on its own device)."""
+    """The scene made ready to render on `device` ("cpu", the default; "cuda" or "cuda:N"), for rendering it many
+    times with only its hair changing (`PreparedScene.with_hair`); a prepared scene is returned as it is (on its
+    own device). A device this machine lacks raises ValueError naming the ones it has."""
     if isinstance(scene, PreparedScene):
-        if device is not None and not _same_device(device, scene.device):
+        if device is not None and check_device(device) != scene.device:
             raise ValueError(f"the scene was prepared on device {scene.device!r}, not {device!r}; prepare it again")
         return scene
     if not isinstance(scene, Scene):
         raise TypeError(f"expected a Scene or a PreparedScene, got {type(scene).__name__}")
-    return PreparedScene(scene, device="cpu" if device is None else device)
+    return PreparedScene(scene, device=check_device(device))
 
 
 def _directional_data(light: DirectionalLight | None) -> DirectionalLightData:

@@ -5,9 +5,10 @@ image and its Jacobian.
 
 One kernel factory makes both passes: `render` launches its forward variant, `gradients.render_jacobian` its
 gradient variant, which traces the same paths (same seed, same random streams) and also sums each path's
-Jacobian. Each sample is a camera ray handed to the path tracer (`integrator.trace_path`, pbrt's Li). The image is
-split into ranges of pixels launched from a thread pool (a Warp CPU launch runs on one core); every pixel owns its
-random stream, so the image depends on the seed only, not on the threads.
+Jacobian. Each sample is a camera ray handed to the path tracer (`integrator.trace_path`, pbrt's Li). On the CPU
+the image is split into ranges of pixels launched from a thread pool (a Warp CPU launch runs on one core); on a
+GPU one launch covers it. Every pixel owns its random stream, so the image depends on the seed only, not on the
+threads or the device (up to the devices' float rounding: the same kernel, compiled by another compiler).
 """
 
 from __future__ import annotations
@@ -125,12 +126,13 @@ def pixel_indices(pixels, resolution) -> np.ndarray | None:
     return flat.astype(np.int32)
 
 
-def render_pixels(
+def launch_pixels(
     scene: Scene | PreparedScene, spp, seed, threads, device, differentiable: bool, progress=None, pixels=None
 ):
-    """(image (H, W, 3), stderr (H, W, 3), jacobian (H, W, 3, 8) or None): the launch of both passes, over
-    `pixels` (flat indices; default all). Every pixel draws from its own random stream, so a pixel rendered
-    alone has the value it has in the whole image; the pixels not rendered are 0."""
+    """(prepared scene, image, stderr, jacobian or None): the launch of both passes over `pixels` (flat indices;
+    default all), its outputs left on the device as flat Warp arrays of n = W·H pixels (vec3, value_jacobian_mat),
+    for callers that keep working there (the torch front). On the CPU the pixels are tiled over `threads`; on a GPU
+    one launch covers them, on the current Warp stream (`wp.ScopedStream` chooses it)."""
     spp, seed = sampling(scene, spp, seed)
     prepared = prepare(scene, device)
     device = prepared.device
@@ -156,6 +158,19 @@ def render_pixels(
         chunk=tile_pixels(spp),
         progress=progress,
     )
+    return prepared, image, stderr, jacobian
+
+
+def render_pixels(
+    scene: Scene | PreparedScene, spp, seed, threads, device, differentiable: bool, progress=None, pixels=None
+):
+    """(image (H, W, 3), stderr (H, W, 3), jacobian (H, W, 3, 8) or None), NumPy on the host: `launch_pixels`'s
+    arrays. Every pixel draws from its own random stream, so a pixel rendered alone has the value it has in the
+    whole image; the pixels not rendered are 0."""
+    prepared, image, stderr, jacobian = launch_pixels(
+        scene, spp, seed, threads, device, differentiable, progress, pixels
+    )
+    width, height = prepared.resolution
     return (
         image.numpy().reshape(height, width, 3),
         stderr.numpy().reshape(height, width, 3),
@@ -191,8 +206,9 @@ def render(
 ):
     """Linear radiance, float32 (H, W, 3), row 0 at the top.
 
-    `scene` is a Scene, or a PreparedScene (`prepare(scene)`) to skip building the BVH again; `device` defaults
-    to the prepared scene's, else "cpu". spp and seed default to the scene's [render] table.
+    `scene` is a Scene, or a PreparedScene (`prepare(scene)`) to skip building the BVH again; `device` ("cpu",
+    "cuda" or "cuda:N") defaults to the prepared scene's, else "cpu". spp and seed default to the scene's
+    [render] table.
     `progress(done, total)` is called as tiles finish.
     With `return_stderr`, returns (image, stderr): the standard error of each pixel's mean, estimated from
     the spread of its own samples. `pixels`: the flat indices (row · width + column) of the pixels to render,
