@@ -344,7 +344,7 @@ class FitRun:
         self.names = check_settings(target, settings)
         self.start = start_values(self.names, settings)
         # Renders, targets, losses and the Adam state on one device: per iteration only the controls (a few
-        # floats, the kernels' launch arguments) and a mini-batch's pixel indices cross to or from the host.
+        # floats, the kernels' launch arguments) and a mini-batch's pixels (indices, mask) cross to or from the host.
         self.device = check_device(settings.device)
         on_device = torch.device(wp.device_to_torch(self.device))
         self.latents = _Latents(self.start, target.hair.beta_n, target.hair.albedo_inversion, on_device)
