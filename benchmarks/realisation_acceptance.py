@@ -94,11 +94,11 @@ def own_draw(source: Path, spp: int, samples: int, threads=None) -> dict:
     alone at the true controls, where a fit over random realisations would land were the target warp-hair's
     render of realisation k, u_k = H⁻¹ Aᵀ W (I_k − Ī) (k = 0 the scene's own strands, 1…samples others; A and H
     from a random-realisation linearisation, Ī the mean over 1…samples). Each u_k is taken per pass; the
-    cross-pass covariance over k is the realisation spread without our render noise (optimize/realisations.py).
+    spread is the fit's own realisation term over 1…samples (`realisation_term`), free of our render noise.
     Every fit of one target shares its u_0: a mean over fits of one target does not average it out."""
     from optimize.fit import FitSettings
     from optimize.linearize import linearize
-    from optimize.realisations import Realisations
+    from optimize.realisations import Realisations, realisation_term
     from warp_hair.renderer.prepare import prepare
 
     target = load_target(source)
@@ -109,22 +109,18 @@ def own_draw(source: Path, spp: int, samples: int, threads=None) -> dict:
     lin = linearize(target, truth, settings, spp, 1, threads=threads, scenes=pool.pair(1))
     gain = np.linalg.pinv(lin.curvature) @ (lin.mean_jacobian * lin.loss_weights[:, None]).T
     own = [prepare(image.scene) for image in target.images]
-    residuals = np.stack(
-        [
-            linearize(
-                target, truth, settings, spp, 100 + k, threads=threads, scenes=own if k == 0 else pool.scenes(k)
-            ).residuals
-            for k in range(samples + 1)
-        ]
-    )  # (samples + 1, 2, N)
+    lins = [
+        linearize(target, truth, settings, spp, 100 + k, threads=threads, scenes=own if k == 0 else pool.scenes(k))
+        for k in range(samples + 1)
+    ]
+    residuals = np.stack([one.residuals for one in lins])  # (samples + 1, 2, N)
     u = np.einsum("pn,khn->khp", gain, residuals - residuals[1:].mean(axis=0))
-    d = u[1:] - u[1:].mean(axis=0)
-    cross = np.einsum("ki,kj->ij", d[:, 0], d[:, 1]) / (samples - 1)
+    spread = realisation_term(lin, lins[1:]).covariance
     return {
         "own": u[0].mean(axis=0),
         "own_per_pass": u[0],
         "others": u[1:].mean(axis=1),
-        "spread": np.sqrt(np.maximum(np.diag(0.5 * (cross + cross.T)), 0.0)),
+        "spread": np.sqrt(np.diag(spread)),
     }
 
 
