@@ -20,12 +20,15 @@ mean σ's realisation part, and whether every fit lies within the acceptance bou
 Wall times are on whatever else the machine is doing.
 
 --own-draw SPP fits nothing: it says where each target's own strands lie among its recipe's realisations
-(`own_draw`), which every fit of that target shares.
+(`own_draw`), which every fit of that target shares, and which half of the draw puts them there: the target's
+own seed (its strands' jitter and wander) under the realisations' shifts, and the realisations' seeds under its
+own shift.
 """
 
 from __future__ import annotations
 
 import argparse
+import copy
 import json
 import shutil
 import tempfile
@@ -89,7 +92,7 @@ def run_one(source: Path, index: int, mode: str, threads, shift=None) -> dict:
     }
 
 
-def own_draw(source: Path, spp: int, samples: int, threads=None) -> dict:
+def own_draw(source: Path, spp: int, samples: int, threads=None, pool: int | None = None) -> dict:
     """How far the target's own strands lie from the realisation average, for β_n and the rest: with warp-hair
     alone at the true controls, where a fit over random realisations would land were the target warp-hair's
     render of realisation k, u_k = H⁻¹ Aᵀ W (I_k − Ī) (k = 0 the scene's own strands, 1…samples others; A and H
@@ -104,24 +107,57 @@ def own_draw(source: Path, spp: int, samples: int, threads=None) -> dict:
     target = load_target(source)
     names = list(CONTROLS)
     truth = true_values(target, names)
-    pool = Realisations(target)
-    settings = FitSettings()
-    lin = linearize(target, truth, settings, spp, 1, threads=threads, scenes=pool.pair(1))
+    realisations = Realisations(target)
+    settings = FitSettings() if pool is None else FitSettings(pool=pool)
+    lin = linearize(target, truth, settings, spp, 1, threads=threads, scenes=realisations.pair(1))
     gain = np.linalg.pinv(lin.curvature) @ (lin.mean_jacobian * lin.loss_weights[:, None]).T
     own = [prepare(image.scene) for image in target.images]
     lins = [
-        linearize(target, truth, settings, spp, 100 + k, threads=threads, scenes=own if k == 0 else pool.scenes(k))
+        linearize(
+            target, truth, settings, spp, 100 + k, threads=threads, scenes=own if k == 0 else realisations.scenes(k)
+        )
         for k in range(samples + 1)
     ]
     residuals = np.stack([one.residuals for one in lins])  # (samples + 1, 2, N)
-    u = np.einsum("pn,khn->khp", gain, residuals - residuals[1:].mean(axis=0))
+    mean = residuals[1:].mean(axis=0)
+    u = np.einsum("pn,khn->khp", gain, residuals - mean)
     spread = realisation_term(lin, lins[1:]).covariance
+
+    def moved(scenes, seed):  # u of other strands, per pass averaged
+        r = linearize(target, truth, settings, spp, seed, threads=threads, scenes=scenes).residuals
+        return np.einsum("pn,hn->hp", gain, r - mean).mean(axis=0)
+
+    shifts = "shift" in realisation_draw(target.images[0].scene, 1)  # a swatch recipe: its lattice moves
     return {
         "own": u[0].mean(axis=0),
         "own_per_pass": u[0],
         "others": u[1:].mean(axis=1),
         "spread": np.sqrt(np.diag(spread)),
+        # The two halves of a draw: the target's own seed (its strands' jitter and wander) with the shifts of
+        # realisations 1…samples, and the seeds of those realisations at the target's own shift.
+        "own_seed": np.array(
+            [moved(_redrawn(target, k, seed=False), 200 + k) for k in range(1, samples + 1)] if shifts else []
+        ),
+        "own_shift": np.array(
+            [moved(_redrawn(target, k, shift=False), 300 + k) for k in range(1, samples + 1)] if shifts else []
+        ),
     }
+
+
+def _redrawn(target, index: int, seed: bool = True, shift: bool = True) -> list:
+    """The target's prepared scenes with realisation `index`'s seed and/or shift only (the rest the scene's own)."""
+    from warp_hair.renderer.prepare import prepare
+    from warp_hair.scene import scene_from_dict
+
+    scenes = []
+    for image in target.images:
+        source = copy.deepcopy(image.scene.source)
+        draw = realisation_draw(image.scene, index)
+        source["fibers"].update(
+            {key: value for key, value in draw.items() if (key != "seed" or seed) and (key != "shift" or shift)}
+        )
+        scenes.append(prepare(scene_from_dict(source, where=f"{image.scene.path} (realisation {index}, in part)")))
+    return scenes
 
 
 def _errors(record: dict) -> dict:
@@ -197,6 +233,7 @@ def main() -> None:
         metavar="SPP",
         help="instead of fitting: where the target's own strands lie among realisations 1..8 (`own_draw`), at SPP",
     )
+    parser.add_argument("--pool", type=int, help="with --own-draw: the loss's k×k blocks (default the fit's)")
     args = parser.parse_args()
     given = [Path(n) for n in args.names if Path(n).is_dir()]
     directories = given + [
@@ -208,10 +245,18 @@ def main() -> None:
     if args.own_draw:
         labels = "albedo r, g, b, β_m, β_n"
         for directory in directories:
-            draw = own_draw(directory, args.own_draw, 8, args.threads)
+            draw = own_draw(directory, args.own_draw, 8, args.threads, args.pool)
             print(f"{directory.name} ({labels}): own strands {np.round(draw['own'], 4)} (passes "
                   f"{np.round(draw['own_per_pass'], 4).tolist()}); realisation spread {np.round(draw['spread'], 4)}; "
                   f"others {np.round(draw['others'][:, -1], 4).tolist()} in β_n")  # fmt: skip
+            for key, what in (
+                ("own_seed", "its own seed, realisations' shifts"),
+                ("own_shift", "its own shift, realisations' seeds"),
+            ):
+                if len(draw[key]):
+                    values = draw[key][:, -1]
+                    print(f"  {what}: β_n {np.round(values, 4).tolist()}, mean {values.mean():+.4f} ± "
+                          f"{values.std(ddof=1) / np.sqrt(len(values)):.4f}")  # fmt: skip
         return
     records = []
     for directory in directories:

@@ -50,6 +50,7 @@ from warp_hair.renderer.render import render
 from warp_hair.torch import render_torch_pair, scene_with_controls
 
 from . import camera
+from .identify import BOUNDS
 from .latents import DEFAULT_FIT, SPECS, as_values, hair_and_gain, parse_control_names
 from .linearize import Linearization, linearize
 from .losses import LOSSES, image_loss, loss_scale
@@ -60,6 +61,7 @@ from .uncertainty import (
     Uncertainty,
     brightness_sensitivity,
     check_model_error,
+    component_labels,
     estimate_uncertainty,
     target_model_error,
 )
@@ -482,6 +484,31 @@ class FitRun:
     def final_spp(self) -> int:
         return gauss_newton_spp(self.settings, self.target)
 
+    def sparse_linearisation_note(self, uncertainty: Uncertainty) -> str | None:
+        """A hint where a control's σ is above its acceptance bound (identify.BOUNDS) and the Gauss–Newton renders
+        ran at fewer samples than FINAL_SPP_FACTOR × spp because the images hold more pixels than settings.batch
+        (`gauss_newton_spp`): on a large image whose control barely changes it (a dense groom's β_n under a sky)
+        their noise, not the images', can set that σ, and rendering every pixel at the full samples pins it
+        better, at proportionally more time per step."""
+        full = self.settings.spp * FINAL_SPP_FACTOR
+        if self.final_spp >= full:
+            return None
+        names = list(uncertainty.uncertainties)
+        sigma = np.concatenate([np.atleast_1d(uncertainty.uncertainties[name]) for name in names])
+        bounds = np.concatenate([[BOUNDS.get(name, np.inf)] * SPECS[name].size for name in names])
+        if not np.any(sigma > bounds):
+            return None
+        worst = int(np.argmax(sigma / bounds))
+        pixels = max(image.image.shape[0] * image.image.shape[1] for image in self.target.images)
+        return (
+            f"{component_labels(names)[worst]} is uncertain by ±{sigma[worst]:.2g}, more than the "
+            f"{bounds[worst]:g} within which a fit is held to it, and the Gauss-Newton steps rendered "
+            f"{self.final_spp} samples per pixel, not {full}, because the images hold more pixels than --batch "
+            f"{self.settings.batch}: --batch {pixels} renders every pixel at {full} (each step about "
+            f"{full / self.final_spp:.0f}x slower), which pins it better where the images can "
+            "(`warp-hair targets check` says how well they can)"
+        )
+
     @property
     def final_seed(self) -> int:
         return iteration_seed(self.settings.seed, 2**31, 0)
@@ -623,6 +650,9 @@ class FitRun:
             warnings.append(note)
         if uncertainty is not None:
             warnings += uncertainty.warnings
+            note = self.sparse_linearisation_note(uncertainty)
+            if note is not None:
+                warnings.append(note)
         return FitResult(
             target=self.target.name,
             values=descent.estimate if refinement is None else refinement.values,

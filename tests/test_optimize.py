@@ -437,6 +437,36 @@ def test_mean_covariance_counts_the_scatter_the_model_leaves_out():
     np.testing.assert_allclose(mean_covariance(few, lin), lin.step_covariance / 3)
 
 
+def test_a_large_images_sparse_gauss_newton_is_named_where_a_sigma_exceeds_its_bound():
+    """Where the images hold more pixels than --batch, the Gauss–Newton renders run at fewer samples; where a σ
+    then exceeds its acceptance bound the fit says so and names the --batch that renders every pixel at the full
+    samples. Not where every σ is within its bound, nor where the renders already had the full samples."""
+    from helpers.scenes import swatch_scene
+
+    import warp_hair as wh
+    from optimize.fit import FINAL_SPP_FACTOR, FitRun
+    from optimize.target import Target, TargetImage
+    from optimize.uncertainty import Uncertainty
+
+    scene = swatch_scene(
+        {"albedo": [0.6, 0.4, 0.3], "beta_m": 0.3, "beta_n": 0.3},
+        [{"type": "directional", "direction": [0.3, -0.4, -1.0], "irradiance": [3.0, 3.0, 3.0]}],
+        resolution=(16, 16),
+        render_table={"spp": 8, "max_depth": 8, "seed": 1},
+    )
+    target = Target("tiny", None, [TargetImage("front", scene, wh.render(scene, spp=2, seed=11), None, None)], None)
+
+    def note(batch, beta_n_sigma):
+        run = FitRun(target, FitSettings(spp=16, batch=batch), progress=False)
+        sigma = {"albedo": [0.01, 0.01, 0.01], "beta_m": 0.01, "beta_n": beta_n_sigma}
+        return run.sparse_linearisation_note(Uncertainty(sigma, {}, {}, ()))
+
+    text = note(64, 0.2)  # 256 pixels, a quarter of them per render: 16 spp instead of 64
+    assert "beta_n" in text and "±0.2" in text and "--batch 256" in text and f"not {16 * FINAL_SPP_FACTOR}" in text
+    assert note(64, 0.02) is None  # within its bound (0.03)
+    assert note(256, 0.2) is None  # every pixel already at the full samples
+
+
 def test_a_trade_off_between_two_controls_is_named_with_its_uncertainties():
     """Two columns nearly proportional (a change of one redone by the other) correlate their estimates beyond
     0.95 and draw a warning naming both with their σ; independent columns draw none."""
