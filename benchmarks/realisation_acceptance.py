@@ -19,6 +19,10 @@ error, the largest single error, the largest error over the fit's own σ (|error
 mean σ's realisation part, and whether every fit lies within the acceptance bounds (optimize.identify.BOUNDS).
 Wall times are on whatever else the machine is doing.
 
+--target-draws J renders J other realisations of each recipe with the target's renderer (Cycles) as new targets
+and fits each over random realisations: the method's bias over the targets' draws, which fits of one target
+cannot show (each under --out/target-draws/<target>/, the renders kept).
+
 --own-draw SPP fits nothing: it says where each target's own strands lie among its recipe's realisations
 (`own_draw`), which every fit of that target shares, and which half of the draw puts them there: the target's
 own seed (its strands' jitter and wander) under the realisations' shifts, and the realisations' seeds under its
@@ -43,11 +47,14 @@ from optimize.identify import ALBEDO_BOUND, BETA_BOUND
 from optimize.report import true_values
 from optimize.target import TARGET_FILE, load_target, read_target_spec, shipped_targets
 from warp_hair.cli import exit_on_interrupt
+from warp_hair.parallel import default_threads
 from warp_hair.realisation import can_realise, realisation_draw
 from warp_hair.scene import load_scene
 
 HERE = Path(__file__).resolve().parent
 CONTROLS = ("albedo", "beta_m", "beta_n")
+# Realisations that --target-draws renders as targets: far from those the fits of the shipped target use (1–5).
+TARGET_DRAW_BASE = 100
 
 
 def other_realisation(source: Path, destination: Path, index: int, mode: str, shift=None) -> None:
@@ -67,6 +74,38 @@ def other_realisation(source: Path, destination: Path, index: int, mode: str, sh
     document = tomlkit.parse(spec.read_text(encoding="utf-8"))
     document["realisations"] = mode
     spec.write_text(tomlkit.dumps(document), encoding="utf-8")
+
+
+def target_draw(source: Path, draw: int, out: Path, threads) -> dict:
+    """A fit of another *target* realisation: the recipe's realisation TARGET_DRAW_BASE + draw rendered by the
+    target's own renderer (Cycles) as a new target (kept under `out`, rendered once), then fitted over random
+    realisations of its recipe, which are drawn from its own seed and so never are its strands."""
+    from make_peer_targets import make_peer_target
+
+    directory = out / f"target{draw}"
+    rendered = directory / "rendered"  # written once the renders are done: a copy holds the source's images before
+    if not rendered.is_file():
+        shutil.rmtree(directory, ignore_errors=True)
+        other_realisation(source, directory, TARGET_DRAW_BASE + draw, "random")
+        make_peer_target(directory, threads or default_threads())
+        rendered.write_text(f"realisation {TARGET_DRAW_BASE + draw} of {source.name}\n", encoding="utf-8")
+    target = load_target(directory)
+    start = time.perf_counter()
+    result = fit(target, threads=threads)
+    seconds = time.perf_counter() - start
+    truth = true_values(target, result.values)
+    return {
+        "target": f"{source.name} (target draws)",
+        "realisation": TARGET_DRAW_BASE + draw,
+        "mode": "random",
+        "shift": None,
+        "values": result.values,
+        "truth": {name: truth[name] for name in result.values},
+        "uncertainties": result.uncertainties,
+        "parts": result.uncertainty_parts,
+        "seconds": seconds,
+        "stop_reason": result.stop_reason,
+    }
 
 
 def run_one(source: Path, index: int, mode: str, threads, shift=None) -> dict:
@@ -234,6 +273,13 @@ def main() -> None:
         help="instead of fitting: where the target's own strands lie among realisations 1..8 (`own_draw`), at SPP",
     )
     parser.add_argument("--pool", type=int, help="with --own-draw: the loss's k×k blocks (default the fit's)")
+    parser.add_argument(
+        "--target-draws",
+        type=int,
+        metavar="J",
+        help="instead: J other realisations rendered by the target's renderer as targets, each fitted over random "
+        "realisations (`target_draw`; the method's bias over target draws, not one draw's); under --out/target-draws",
+    )
     args = parser.parse_args()
     given = [Path(n) for n in args.names if Path(n).is_dir()]
     directories = given + [
@@ -257,6 +303,23 @@ def main() -> None:
                     values = draw[key][:, -1]
                     print(f"  {what}: β_n {np.round(values, 4).tolist()}, mean {values.mean():+.4f} ± "
                           f"{values.std(ddof=1) / np.sqrt(len(values)):.4f}")  # fmt: skip
+        return
+    if args.target_draws:
+        records = []
+        for directory in directories:
+            for draw in range(1, args.target_draws + 1):
+                folder = args.out / "target-draws" / directory.name
+                path = folder / f"j{draw}.json"
+                if not path.exists() and not args.table:
+                    record = target_draw(directory, draw, folder, args.threads)
+                    path.write_text(json.dumps(record, indent=1) + "\n", encoding="utf-8")
+                    print(
+                        f"{directory.name} target draw {draw}: "
+                        + ", ".join(f"{c} {_errors(record)[c]}" for c in CONTROLS)
+                    )
+                if path.exists():
+                    records.append(json.loads(path.read_text(encoding="utf-8")))
+        print(table(records))
         return
     records = []
     for directory in directories:
