@@ -89,36 +89,25 @@ def target_draw(source: Path, draw: int, out: Path, threads) -> dict:
         other_realisation(source, directory, TARGET_DRAW_BASE + draw, "random")
         make_peer_target(directory, threads or default_threads())
         rendered.write_text(f"realisation {TARGET_DRAW_BASE + draw} of {source.name}\n", encoding="utf-8")
-    target = load_target(directory)
-    start = time.perf_counter()
-    result = fit(target, threads=threads)
-    seconds = time.perf_counter() - start
-    truth = true_values(target, result.values)
-    return {
-        "target": f"{source.name} (target draws)",
-        "realisation": TARGET_DRAW_BASE + draw,
-        "mode": "random",
-        "shift": None,
-        "values": result.values,
-        "truth": {name: truth[name] for name in result.values},
-        "uncertainties": result.uncertainties,
-        "parts": result.uncertainty_parts,
-        "seconds": seconds,
-        "stop_reason": result.stop_reason,
-    }
+    return fit_record(directory, f"{source.name} (target draws)", TARGET_DRAW_BASE + draw, "random", None, threads)
 
 
 def run_one(source: Path, index: int, mode: str, threads, shift=None) -> dict:
     with tempfile.TemporaryDirectory() as tmp:
         copy = Path(tmp) / source.name
         other_realisation(source, copy, index, mode, shift)
-        target = load_target(copy)
-        start = time.perf_counter()
-        result = fit(target, threads=threads)
-        seconds = time.perf_counter() - start
+        return fit_record(copy, source.name, index, mode, shift, threads)
+
+
+def fit_record(directory: Path, label: str, index: int, mode: str, shift, threads) -> dict:
+    """The default fit of the target at `directory`, as the JSON record the table reads."""
+    target = load_target(directory)
+    start = time.perf_counter()
+    result = fit(target, threads=threads)
+    seconds = time.perf_counter() - start
     truth = true_values(target, result.values)
     return {
-        "target": source.name,
+        "target": label,
         "realisation": index,
         "mode": mode,
         "shift": shift,
