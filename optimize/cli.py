@@ -344,6 +344,13 @@ def add_targets(subparsers) -> None:
         help="relative brightness disagreement to count (default as the fit: 0 for warp-hair's own "
         "targets, 0.01 for others)",
     )
+    check.add_argument(
+        "--realisations",
+        choices=REALISATION_MODES,
+        help="random: the scenes' fibers are a recipe whose strands are not the target's, so count how far the "
+        "target's strands, one draw of it, move the estimate (8 more linearisations, 16 renders of each image); "
+        "fixed: the scenes hold the very strands (default: target.toml's realisations, else fixed)",
+    )
     _add_photo(actions)
     for sub in (listing, make, check):
         sub.set_defaults(run=run_targets)
@@ -522,6 +529,7 @@ def _check_target(args: argparse.Namespace) -> int:
         spp=args.spp,
         model_error=args.model_error,
         threads=args.threads,
+        realisations=args.realisations,
     )
     for line in card_summary(target):
         print(line)

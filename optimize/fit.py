@@ -614,7 +614,6 @@ class FitRun:
         linearizations = []
         try:
             for k in range(count):
-                index = self.realisations.pool + 1 + k
                 linearizations.append(
                     linearize(
                         self.target,
@@ -623,7 +622,7 @@ class FitRun:
                         self.final_spp,
                         iteration_seed(self.settings.seed, 2**31 + 1 + k, 0),
                         threads=self.settings.threads,
-                        scenes=self.realisations.scenes(index),
+                        scenes=self.realisations.term_scenes(k),
                     )
                 )
                 bar.update()

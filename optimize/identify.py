@@ -17,8 +17,13 @@ error on top (its refinement renders about as many samples as the target has, `f
 
 The model-error part is the estimate's shift per relative brightness disagreement (`uncertainty.
 brightness_sensitivity`, here over every linearisation's passes) times the model error counted for the target
-(`uncertainty.target_model_error`: 0 for warp-hair's own targets, 1% for others). The rule: a control is
-identified when its expected σ, √(σ_target² + (model error · shift per unit)²), is below its acceptance bound
+(`uncertainty.target_model_error`: 0 for warp-hair's own targets, 1% for others). A target whose scenes give
+its strands by their recipe only (target.toml `realisations = "random"`, optimize/realisations.py) adds the
+realisation part: the target's strands are one draw of that recipe, which no fit of them can know, and the
+estimate moves with the draw by as much as K further realisations, each linearised at the truth with both
+passes on it, move it (`realisations.realisation_spread`, the fit's own realisation term; K the fit's
+`realisation_samples`). The rule: a control is identified when its expected σ,
+√(σ_target² + (model error · shift per unit)² + σ_realisation²), is below its acceptance bound
 (BOUNDS: albedo 0.02 a channel, β_m and β_n 0.03, what `benchmarks/fit_targets.py` holds fits to); a control
 the images do not change with is not. Controls without a bound (α, η, exposure, ...) are reported, not judged.
 """
@@ -35,6 +40,7 @@ from warp_hair.renderer.prepare import prepare
 from . import camera, card_region
 from .latents import DEFAULT_FIT, SPECS, as_values, parse_control_names
 from .linearize import CHANNELS, crossed_curvature, linearize
+from .realisations import Realisations, check_mode, realisation_spread
 from .uncertainty import (
     CORRELATION_WARNING,
     check_model_error,
@@ -66,22 +72,27 @@ class Identifiability:
     bounds: np.ndarray  # (p,) the acceptance bound, NaN where there is none
     problems: list  # what keeps a control from being identified, with what to add
     camera: list = dataclasses.field(default_factory=list)  # a photo's unknowns: (label, value, relative σ)
+    realisation: np.ndarray | None = None  # (p,) σ from the target's strands being one draw; None: fixed strands
+    realisation_samples: int = 0  # K, the realisations that part comes from
 
     @property
     def sigma(self) -> np.ndarray:
-        """The expected σ: the target's noise and the model error together."""
-        return np.sqrt(self.noise**2 + (self.model_error / 0.01 * self.shift) ** 2)
+        """The expected σ: the target's noise, the model error and the target's strands' draw together."""
+        realised = 0.0 if self.realisation is None else self.realisation**2
+        return np.sqrt(self.noise**2 + (self.model_error / 0.01 * self.shift) ** 2 + realised)
 
     @property
     def identifiable(self) -> bool:
         return not self.problems
 
     def table(self) -> str:
+        realised = self.realisation is not None
         header = (
             "control",
             "value",
             "σ target noise",
             "shift per 1% brighter",
+            *(("σ strands' draw",) if realised else ()),
             "σ expected",
             "bound",
             "largest correlation",
@@ -96,6 +107,7 @@ class Identifiability:
                     f"{values[k]:.3f}",
                     f"{self.noise[k]:.4f}",
                     f"{self.shift[k]:+.4f}",
+                    *((f"{self.realisation[k]:.4f}",) if realised else ()),
                     f"{self.sigma[k]:.4f}",
                     "" if np.isnan(self.bounds[k]) else f"{self.bounds[k]:g}",
                     "" if other is None else f"{other[1]:+.2f} with {other[0]}",
@@ -120,8 +132,9 @@ class Identifiability:
         return "\n".join(lines)
 
     def summary(self) -> str:
+        drawn = "" if self.realisation is None else " + σ strands' draw²"
         rule = (
-            f"σ expected = √(σ target noise² + ({100 * self.model_error:g}% model error · shift per 1%)²), "
+            f"σ expected = √(σ target noise² + ({100 * self.model_error:g}% model error · shift per 1%)²{drawn}), "
             "below its bound for every control"
         )
         if self.identifiable:
@@ -141,12 +154,13 @@ def check_target(
     threads=None,
     settings=None,
     scenes=None,
+    realisations: str | None = None,
 ) -> Identifiability:
     """Linearise the loss at the target's true controls (or `values`, {name: float or list}, which override
     them) and judge each fitted control (see the module docstring). spp: the samples per pixel the target's
     noise is taken at (default: each image's scene [render] spp, what it was rendered with); settings: the
-    fit's (`FitSettings`: loss and pooling), default FitSettings(); scenes: the target's images' scenes,
-    prepared."""
+    fit's (`FitSettings`: loss, pooling and realisation_samples), default FitSettings(); scenes: the target's
+    images' scenes, prepared; realisations: "fixed" or "random" as the fit's (default: the target's)."""
     from .fit import FitSettings
     from .report import true_values
 
@@ -156,6 +170,7 @@ def check_target(
         raise ValueError(f"spp must be an integer >= 1, got {spp!r}")
     if not isinstance(linearisations, int) or linearisations < 2:
         raise ValueError(f"linearisations must be an integer >= 2, got {linearisations!r}")
+    random = check_mode(realisations or target.realisations) == "random"
     at = {name: as_values(name, v) for name, v in true_values(target, names).items()}
     at.update({name: as_values(name, v) for name, v in (values or {}).items()})
     missing = [name for name in names if name not in at]
@@ -179,7 +194,12 @@ def check_target(
         linearize(target, at, settings, render_spp, seed + SEED_STRIDE * k, threads=threads, scenes=scenes)
         for k in range(linearisations)
     ]
-    jacobians = np.concatenate([lin.jacobians for lin in lins])
+    # Over random realisations, K more linearisations each on one further realisation give the realisation part,
+    # and their Jacobians join the curvature's: where the images hardly change with a control (dark hair's β_n)
+    # H from the 8 Jacobians alone is too noisy, and H⁻¹ too large on average (tests/test_identify.py).
+    first = seed + SEED_STRIDE * linearisations
+    others = _realisation_linearisations(target, at, settings, render_spp, first, threads) if random else []
+    jacobians = np.concatenate([lin.jacobians for lin in lins + others])
     w = lins[0].loss_weights
     h_inv = np.linalg.pinv(crossed_curvature(jacobians, w))
     total = jacobians.sum(axis=0)
@@ -193,7 +213,7 @@ def check_target(
     noise = np.sqrt(np.maximum(np.diag(cov), 0.0))
     # `uncertainty.brightness_sensitivity` over every pass: each pass's render met with every other Jacobian.
     n = len(jacobians)
-    renders = np.concatenate([lin.residuals + lin.targets for lin in lins])
+    renders = np.concatenate([lin.residuals + lin.targets for lin in lins + others])
     crossed = sum(((total - a) / (n - 1)).T @ (w * m) for a, m in zip(jacobians, renders)) / n
     shift = 0.01 * h_inv @ crossed
 
@@ -215,6 +235,10 @@ def check_target(
     result = Identifiability(
         target.name, target.origin, at, labels, target_spp, noise, shift, model_error, correlation, bounds, []
     )
+    if random:
+        covariance, _ = realisation_spread(h_inv @ ((total / n) * w[:, None]).T, others)
+        result.realisation = np.sqrt(np.maximum(np.diag(covariance), 0.0))
+        result.realisation_samples = len(others)
     result.problems = _problems(result, flat)
     projection = lins[0].camera
     if projection is not None:
@@ -236,6 +260,16 @@ def check_target(
             for k, (label, v) in enumerate(zip(projection.labels, values))
         ]
     return result
+
+
+def _realisation_linearisations(target, at, settings, render_spp, seed, threads) -> list:
+    """settings.realisation_samples linearisations at `at`, each with both passes on one further realisation of
+    the target's strands (those the fit's realisation term renders, realisations.py), from seed on."""
+    pool = Realisations(target)
+    return [
+        linearize(target, at, settings, render_spp, seed + SEED_STRIDE * k, threads=threads, scenes=pool.term_scenes(k))
+        for k in range(settings.realisation_samples)
+    ]
 
 
 def _quantisation_variances(target, settings) -> np.ndarray | None:
@@ -314,6 +348,7 @@ def _problems(result: Identifiability, flat: np.ndarray) -> list:
     """Per control that fails the rule, what fails and what would help."""
     problems = []
     model = result.model_error / 0.01 * np.abs(result.shift)
+    drawn = np.zeros(len(model)) if result.realisation is None else result.realisation
     for k, label in enumerate(result.labels):
         bound, sigma = result.bounds[k], result.sigma[k]
         if flat[k]:
@@ -325,9 +360,20 @@ def _problems(result: Identifiability, flat: np.ndarray) -> list:
             continue
         message = (
             f"{label}: expected σ {sigma:.3g} ≥ its bound {bound:g} (target noise {result.noise[k]:.3g}, "
-            f"model error {model[k]:.3g})"
+            f"model error {model[k]:.3g}"
+            + ("" if result.realisation is None else f", strands' draw {drawn[k]:.3g}")
+            + ")"
         )
-        if model[k] >= bound:
+        beyond_samples = model[k] ** 2 + drawn[k] ** 2 >= bound**2  # what more samples of the target cannot remove
+        if beyond_samples and drawn[k] > model[k]:
+            message += (
+                f"; the target's strands, one draw of their recipe that no fit of them knows, alone move it by "
+                f"{drawn[k]:.3g} (over {result.realisation_samples} realisations), and no number of samples removes "
+                "that: show more strands (a wider swatch or more of it in view: that part falls about as one over "
+                "the square root of the strands seen), or give the scenes the very strands and fit them (realisations "
+                '= "fixed")'
+            )
+        elif beyond_samples:
             message += (
                 f"; a {100 * result.model_error:g}% brightness disagreement alone moves it by {model[k]:.3g}, "
                 "and no number of samples removes that: fit exposure as well, which absorbs a uniform "
@@ -335,7 +381,7 @@ def _problems(result: Identifiability, flat: np.ndarray) -> list:
                 "which it changes the image otherwise than brightness does"
             )
         else:
-            factor = result.noise[k] ** 2 / (bound**2 - model[k] ** 2)
+            factor = result.noise[k] ** 2 / (bound**2 - model[k] ** 2 - drawn[k] ** 2)
             spp = ", ".join(str(int(np.ceil(factor * n))) for n in sorted(set(result.target_spp)))
             samples = f"render the target with {factor:.2g}× the samples ({spp} spp; σ falls as 1/√spp)"
             other = result.correlation[k]

@@ -82,6 +82,11 @@ class Realisations:
             ]
         return self._prepared[index]
 
+    def term_scenes(self, k: int) -> list:
+        """The k-th realisation (k = 0, 1, …) the realisation term renders: after the pool's, so never one the fit
+        drew its pairs from."""
+        return self.scenes(self.pool + 1 + k)
+
     def pair(self, seed: int) -> list:
         """Per image, a pair of scenes of two different realisations drawn from the pool with `seed`."""
         a, b = np.random.default_rng(seed).choice(np.arange(1, self.pool + 1), 2, replace=False)
@@ -99,22 +104,29 @@ class RealisationTerm:
 def realisation_term(lin, linearizations) -> RealisationTerm:
     """The realisation covariance from K ≥ 2 linearisations at the fitted controls, each with both passes on one
     further realisation (see the module docstring); `lin` gives the Jacobian and curvature."""
-    k = len(linearizations)
-    if k < 2:
-        raise ValueError(f"the realisation term needs at least 2 realisations, got {k}")
     w, a = lin.loss_weights, lin.mean_jacobian
     gain = np.linalg.pinv(lin.curvature) @ (a * w[:, None]).T  # (p, N): H⁻¹ Aᵀ W
-    residuals = np.stack([other.residuals for other in linearizations])  # (K, 2, N)
-    deviations = residuals - residuals.mean(axis=0)
-    u = np.einsum("pn,khn->khp", gain, deviations)
-    crossed = np.einsum("ki,kj->ij", u[:, 0], u[:, 1]) / (k - 1)
-    covariance = 0.5 * (crossed + crossed.T)
-    variance = (deviations[:, 0] * deviations[:, 1]).sum(axis=0) / (k - 1)  # (N,) per residual
+    covariance, variance = realisation_spread(gain, linearizations)
     first = linearizations[0]
     hair = first.hair_rows  # as scatter_estimate counts them (a grey card's rows left out)
     n, p = len(w[hair]), first.jacobians.shape[2]
     scatter = first.scatter_estimate - 2.0 * float(w[hair] @ variance[hair]) / max(n - p, 1)
-    return RealisationTerm(_nearest_psd(covariance), scatter, dataclasses.replace(first, scatter=scatter), k)
+    return RealisationTerm(covariance, scatter, dataclasses.replace(first, scatter=scatter), len(linearizations))
+
+
+def realisation_spread(gain: np.ndarray, linearizations) -> tuple:
+    """The cross-pass covariance (p, p) of u_k = gain · r_k over K ≥ 2 linearisations, each with both passes on
+    one realisation k (positive semi-definite), and the cross-pass variance (N,) of each residual over them.
+    `gain` (p, N) maps weighted residuals to the estimate's move, H⁻¹ Aᵀ W (the fit's, or `targets check`'s)."""
+    k = len(linearizations)
+    if k < 2:
+        raise ValueError(f"the realisation term needs at least 2 realisations, got {k}")
+    residuals = np.stack([other.residuals for other in linearizations])  # (K, 2, N)
+    deviations = residuals - residuals.mean(axis=0)
+    u = np.einsum("pn,khn->khp", gain, deviations)
+    crossed = np.einsum("ki,kj->ij", u[:, 0], u[:, 1]) / (k - 1)
+    variance = (deviations[:, 0] * deviations[:, 1]).sum(axis=0) / (k - 1)
+    return _nearest_psd(0.5 * (crossed + crossed.T)), variance
 
 
 def _nearest_psd(matrix: np.ndarray) -> np.ndarray:
