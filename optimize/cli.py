@@ -27,7 +27,7 @@ from warp_hair.model.params import HairParams
 from .camera import GAIN_MODES, WHITE_BALANCE_MODES
 from .fit import FitSettings
 from .latents import DEFAULT_FIT, SPECS, as_values
-from .realisations import REALISATION_MODES
+from .realisations import DEFAULT_SAMPLES, REALISATION_MODES
 
 
 def resolve_target(name_or_path: str) -> Path:
@@ -348,7 +348,8 @@ def add_targets(subparsers) -> None:
         "--realisations",
         choices=REALISATION_MODES,
         help="random: the scenes' fibers are a recipe whose strands are not the target's, so count how far the "
-        "target's strands, one draw of it, move the estimate (8 more linearisations, 16 renders of each image); "
+        f"target's strands, one draw of it, move the estimate ({DEFAULT_SAMPLES} more linearisations, "
+        f"{2 * DEFAULT_SAMPLES} renders of each image); "
         "fixed: the scenes hold the very strands (default: target.toml's realisations, else fixed)",
     )
     _add_photo(actions)

@@ -91,6 +91,14 @@ def test_the_expected_sigma_is_the_scatter_that_the_targets_own_noise_gives_the_
     result = check_target(target, controls=tuple(controls), settings=settings, render_spp=32, threads=1)
     lin = linearize(target, controls, settings, spp=256, seed=9, threads=1)
     scenes = [prepare(image.scene) for image in target.images]
+    draws = [(scenes, 1000 + seed) for seed in range(200)]
+    scatter = _estimate_scatter(target, settings, lin, draws, spp=32, threads=1)
+    np.testing.assert_allclose(result.noise, scatter, rtol=0.15)
+
+
+def _estimate_scatter(target, settings, lin, draws, spp, threads):
+    """(p,): the scatter of the least-squares estimate (one step of `lin`'s linearised loss) over targets
+    rendered anew, one per (prepared scenes of the images, seed) in `draws`."""
     h_inv = np.linalg.inv(lin.curvature)
     # The loss's weights are the target's, one factor per image that does not move the minimum: the committed
     # target's weights serve for every render of it.
@@ -99,15 +107,14 @@ def test_the_expected_sigma_is_the_scatter_that_the_targets_own_noise_gives_the_
         for image in target.images
     ]
     estimates = []
-    for seed in range(200):
+    for scenes, seed in draws:
         t = []
         for image, scene, weight in zip(target.images, scenes, weights):
-            pooled, _ = pool_like_loss(image, render(scene, spp=32, seed=1000 + seed, threads=1), None, settings.pool)
+            pooled, _ = pool_like_loss(image, render(scene, spp=spp, seed=seed, threads=threads), None, settings.pool)
             t.append(pooled * weight)
         # The target enters the gradient as −Aᵀ W t: the estimate moves by H⁻¹ Aᵀ W t.
         estimates.append(h_inv @ lin.crossed(np.stack([np.concatenate(t)] * 2)))
-    scatter = np.std(estimates, axis=0, ddof=1)
-    np.testing.assert_allclose(result.noise, scatter, rtol=0.15)
+    return np.std(estimates, axis=0, ddof=1)
 
 
 def test_the_check_needs_values_to_check_at(tmp_path, capsys):
@@ -146,19 +153,7 @@ def test_over_random_realisations_the_expected_sigma_counts_the_targets_strands(
     assert "σ strands' draw" in describe(result)
 
     lin = linearize(target, controls, settings, spp=2048, seed=9, threads=2)
-    h_inv = np.linalg.inv(lin.curvature)
-    weights = [
-        loss_weights(pool_like_loss(image, image.image, None, settings.pool)[0], settings.loss)
-        for image in target.images
-    ]
-    estimates = []
-    for draw in range(60):
-        t = []
-        for image, weight in zip(target.images, weights):
-            scene = prepare(realisation(image.scene, 1000 + draw))
-            pooled, _ = pool_like_loss(image, render(scene, spp=256, seed=500 + draw, threads=2), None, settings.pool)
-            t.append(pooled * weight)
-        estimates.append(h_inv @ lin.crossed(np.stack([np.concatenate(t)] * 2)))
-    scatter = np.std(estimates, axis=0, ddof=1)
+    draws = (([prepare(realisation(image.scene, 1000 + k)) for image in target.images], 500 + k) for k in range(60))
+    scatter = _estimate_scatter(target, settings, lin, draws, spp=256, threads=2)
     assert np.all(scatter > 2 * result.noise)
     np.testing.assert_allclose(result.sigma, scatter, rtol=0.35)
