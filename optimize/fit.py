@@ -74,6 +74,11 @@ SMOOTHING = 0.9  # of the loss's exponential moving average, for the plateau tes
 AVERAGED_FRACTION = 0.2
 FINAL_SPP_FACTOR = 4
 DEFAULT_REFINE_STEPS = 8
+# A photo's unknown gains leave a valley along which its albedo trades off against the exposure, and there the
+# refinement's own Monte Carlo error at the defaults above came out 2–3× the σ the target's noise gives
+# (docs/acceptance.md, "Photographs"): a photo's Gauss–Newton steps render every pixel at the full samples and
+# take this many times the steps.
+PHOTO_REFINE_FACTOR = 3
 # Pixels per image per render at the default sample counts: the shipped own targets' 48×48, at which those were
 # chosen. A larger image's iterations render this many of its pixels (`Batches`); its linearisations render all
 # of them at proportionally fewer samples (`gauss_newton_spp`).
@@ -706,9 +711,10 @@ def gauss_newton_spp(settings: FitSettings, target: Target) -> int:
     """Samples per pixel of each linearisation's renders: FINAL_SPP_FACTOR × spp, and for an image larger than
     settings.batch proportionally fewer, so that a linearisation renders the same number of paths whatever the
     size, over every pixel (each of them carries the target's information; its noise averages over more of
-    them, so fewer samples each give the fit the same precision)."""
+    them, so fewer samples each give the fit the same precision). A photo's (its gains fitted) at the full samples
+    always (PHOTO_REFINE_FACTOR says why)."""
     spp = settings.spp * FINAL_SPP_FACTOR
-    if settings.batch is None:
+    if settings.batch is None or camera.fitted(target):
         return spp
     pixels = max(image.image.shape[0] * image.image.shape[1] for image in target.images)
     return max(1, round(spp * min(1.0, settings.batch / pixels)))
@@ -719,11 +725,13 @@ def _refine_steps(settings: FitSettings, target: Target) -> int:
     to half the samples per pixel the target was rendered with (its scenes' [render] spp). The later half of the
     steps is averaged into the estimate, so its Monte Carlo variance is then about four times what the target's
     own noise gives it (the reported σ counts both), and a target rendered at more samples to be less noisy
-    (fur_patch) gets more steps. refine.py may run more while its steps still move."""
+    (fur_patch) gets more steps, and a photo PHOTO_REFINE_FACTOR times as many. refine.py may run more while its
+    steps still move."""
     if settings.refine is not None:
         return settings.refine
     if settings.loss not in REFINABLE_LOSSES:
         return 0
     per_step = 2 * gauss_newton_spp(settings, target)  # two passes per linearisation
     target_spp = max(image.scene.render.spp for image in target.images)
-    return max(DEFAULT_REFINE_STEPS, math.ceil(target_spp / (2 * per_step)))
+    steps = max(DEFAULT_REFINE_STEPS, math.ceil(target_spp / (2 * per_step)))
+    return steps * (PHOTO_REFINE_FACTOR if camera.fitted(target) else 1)

@@ -56,6 +56,9 @@ class Linearization:
     curvature: np.ndarray | None = None  # (p, p) Gauss–Newton matrix; default: `crossed_curvature` of all Jacobians
     scatter: float | None = None  # s² of `statistical_covariance`; default: this linearisation's `scatter_estimate`
     camera: object | None = None  # a photo's gains, projected out of residuals and Jacobian (camera.Projection)
+    # (N,) a photo's weighted model ω G Ī, the passes' mean, before the projection: the gains' columns for a later
+    # linearisation (`linearize`'s gain_columns). None for other targets.
+    model: np.ndarray | None = None
     card_rows: np.ndarray | None = None  # (N,) bool: a grey card's rows (card_region.py), within their image's
 
     def __post_init__(self):
@@ -178,13 +181,17 @@ def crossed_curvature(jacobians: np.ndarray, weights: np.ndarray) -> np.ndarray:
     return a.T @ a
 
 
-def linearize(target, values: dict, settings, spp: int, seed: int, threads=None, scenes=None) -> Linearization:
+def linearize(
+    target, values: dict, settings, spp: int, seed: int, threads=None, scenes=None, gain_columns=None
+) -> Linearization:
     """Render every image of `target` twice at `values` (spp each) and linearise the loss there.
 
     `scenes`: the target's scenes prepared once (`warp_hair.prepare`, one per image, in order), so that
     repeated linearisations do not rebuild the BVH; by default each image's scene, prepared here once for both
     passes. An image's entry may be a pair of scenes, one per pass: two realisations of its fibers' recipe
-    (optimize/realisations.py)."""
+    (optimize/realisations.py). `gain_columns`: a photo's weighted model (`Linearization.model`) of an earlier,
+    independent linearisation near `values`, whose render gives the gains' columns instead of the target
+    (`_gain_projection` says when and why)."""
     hair, gain = hair_and_gain(values)
     scenes = [prepare(image.scene) for image in target.images] if scenes is None else scenes
     renders = []  # per image, its two passes' (Jacobian, image, standard error)
@@ -246,19 +253,10 @@ def linearize(target, values: dict, settings, spp: int, seed: int, threads=None,
     on_card = np.concatenate(on_card)
     card_rows = on_card if on_card.any() else None
     image_residuals = tuple(counts)
-    projection = None
+    projection, model = None, None
     if solved is not None:
-        # The loss minimised over the gains (camera.py): what no change of the gains makes, of each part. The
-        # gains' columns are ∂r/∂log g = ω G I, which at the gains' optimum is the weighted target t up to the
-        # residual: taken from t, the projection is the same at every linearisation and free of our render
-        # noise (from the renders, it would tie the two passes' noise together and move with each step's).
-        projection = camera.Projection(
-            solved,
-            camera.columns(target, targets, image_residuals),
-            weights,
-            jacobians.mean(axis=0),
-            camera.labels(target),
-        )
+        model = residuals.mean(axis=0) + targets
+        projection = _gain_projection(target, solved, targets, weights, jacobians, image_residuals, gain_columns)
         if card_rows is not None:
             # A brightness disagreement of our render scales the hair's rows, not the card's, whose radiance is
             # known (uncertainty.brightness_sensitivity takes `targets` as what it scales).
@@ -278,6 +276,28 @@ def linearize(target, values: dict, settings, spp: int, seed: int, threads=None,
         image_residuals=image_residuals,
         camera=projection,
         card_rows=card_rows,
+        model=model,
+    )
+
+
+def _gain_projection(target, solved, targets, weights, jacobians, image_residuals, gain_columns) -> camera.Projection:
+    """The loss minimised over a photo's gains (camera.py): the projection that leaves of each part what no
+    change of the gains makes. The gains' columns are ∂r/∂log g = ω G I, which at the gains' optimum is the
+    weighted target t up to the residual.
+
+    Taken from t, the projected residual P⊥(m − t) = P⊥m is linear in our render, a model that steps well from
+    afar, and the projection is free of our render noise. But the target's own noise ε is then in both the
+    columns and the residual: Cᵀ W r holds −εᵀ W ε, whose mean is not zero, and the gradient at the truth leans
+    along Aᵀ W t by the target's noise energy over its energy, towards a darker hair behind brighter gains
+    (docs/acceptance.md, "Photographs": red albedo 0.09 low one step from the truth on chestnut_straight with
+    free gains). Taken from a render independent of the target and of both passes (`gain_columns`: the mean of
+    earlier linearisations' renders, near these controls) the lean is gone. Its linear model keeps P⊥t, which
+    turns with the hair, so refine.py uses it only for its later steps, near the optimum, and holds one set of
+    columns for all of them: along the albedo–gain valley the projected curvature is so small that each step's
+    own columns, noisy, would change it from step to step (measured: the steps then scattered twice as far)."""
+    m = targets if gain_columns is None else gain_columns
+    return camera.Projection(
+        solved, camera.columns(target, m, image_residuals), weights, jacobians.mean(axis=0), camera.labels(target)
     )
 
 

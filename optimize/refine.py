@@ -125,6 +125,8 @@ class GaussNewton:
         # linearisations together are steadier, and unlike all of them they forget the start's, whose curvature
         # far from the optimum would keep the steps short.
         self.jacobians = []  # each linearisation's pair, in order
+        self.models = []  # a photo's weighted model of each linearisation (`_gain_columns`), in order
+        self.frozen_columns = None
         self.kept, self.scatters = [], []  # the kept end points and their linearisations' scatter estimates
         self.steps: list[GaussNewtonStep] = []
         self.damping = LAMBDA_START
@@ -139,12 +141,28 @@ class GaussNewton:
             self.seed + SEED_STRIDE * k,
             threads=self.settings.threads,
             scenes=self.scenes(self.seed + SEED_STRIDE * k) if callable(self.scenes) else self.scenes,
+            gain_columns=self._gain_columns(k),
         )
+
+    def _gain_columns(self, k: int):
+        """For a photo's gains, from the later half of the planned steps on (the points averaged into the
+        estimate), the mean render of the linearisations so far (the last JACOBIAN_WINDOW − 1), held from then
+        on, instead of the target (linearize._gain_projection): near the optimum it removes the lean that the
+        target's noise gives the steps, where from afar the target's columns step more surely."""
+        if k < self.planned // 2:
+            return None
+        if self.frozen_columns is None:
+            earlier = [m for m in self.models[-(JACOBIAN_WINDOW - 1) :] if m is not None]
+            if not earlier:
+                return None
+            self.frozen_columns = np.mean(earlier, axis=0)
+        return self.frozen_columns
 
     def _with_earlier(self, lin_at: Linearization) -> Linearization:
         """lin_at with the Jacobians of the JACOBIAN_WINDOW − 1 linearisations before it."""
         earlier = self.jacobians[-(JACOBIAN_WINDOW - 1) :]
         self.jacobians.append(lin_at.jacobians)
+        self.models.append(lin_at.model)
         if not earlier:
             return lin_at
         return dataclasses.replace(lin_at, earlier_jacobians=np.concatenate(earlier), curvature=None)

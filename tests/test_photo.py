@@ -16,7 +16,7 @@ from PIL import Image, ImageCms
 import targets
 from optimize import camera
 from optimize.fit import FitSettings
-from optimize.linearize import linearize
+from optimize.linearize import Linearization, _gain_projection, linearize
 from optimize.photo_target import camera_fov, horizontal_fov, make_photo_target
 from optimize.target import load_target
 from warp_hair.io import read_exr, srgb_encode
@@ -202,6 +202,48 @@ def test_linearisation_at_the_truth_recovers_the_cameras_gains(tmp_path):
     # The projected residuals have nothing left along the gains' columns.
     cols = lin.camera.columns
     assert np.abs(cols.T @ (lin.loss_weights * lin.residuals.mean(0))).max() < 1e-9 * np.abs(cols).sum()
+
+
+def _noisy_passes(rng, n, p, noise):
+    """Three renders of a linear model at its truth (two passes and an earlier, independent one), their
+    Jacobians, and a target with noise, all weighted as the loss weighs them."""
+    truth = rng.uniform(0.2, 1.0, n)
+    target = truth * (1 + noise * rng.normal(size=n))
+    renders = truth * (1 + 0.05 * rng.normal(size=(3, n)))
+    # Each control brightens some pixels more than others (a gain brightens all alike).
+    shape = np.stack([np.linspace(0, 1, n) ** (k + 1) for k in range(p)], axis=1)
+    jacobians = (shape * truth[:, None])[None] * (1 + 0.2 * rng.normal(size=(2, n, p)))
+    return renders[:2] - target, jacobians, target, renders[2]
+
+
+def test_gain_columns_from_an_independent_render_leave_no_lean_at_the_truth():
+    """At the true controls the gradient of the loss minimised over the gains has mean zero, however noisy the
+    target, when the gains' columns come from a render independent of the target and of both passes (refine.py's
+    later steps). With the target's columns it holds −εᵀWε: a lean towards dimmer hair and brighter gains
+    (docs/acceptance.md, "Photographs"), which this test must be able to see."""
+
+    class T:
+        gains, white_balance, images = "per-image", "fit", [type("I", (), {"name": "front"})()]
+
+    rng = np.random.default_rng(7)
+    n, p, draws = 300, 2, 400
+    weights = np.full(n, 1.0 / n)
+    solved = camera.Gains(np.ones(1), np.ones(3))
+    gradients = {"render": [], "target": []}
+    for _ in range(draws):
+        residuals, jacobians, target, earlier = _noisy_passes(rng, n, p, noise=0.3)
+        for source, columns in (("render", earlier), ("target", None)):
+            projection = _gain_projection(T, solved, target, weights, jacobians, (n,), columns)
+            r = np.stack([projection.apply(x) for x in residuals])
+            a = np.stack([projection.apply(x) for x in jacobians])
+            assert np.abs(projection.columns.T @ (weights * r[0])).max() < 1e-12 * np.abs(projection.columns).max()
+            lin = Linearization({}, r, np.zeros_like(r), a, [], weights, image_residuals=(n,))
+            gradients[source].append(lin.gradient)
+    unbiased, leaning = np.array(gradients["render"]), np.array(gradients["target"])
+    assert np.all(np.abs(unbiased.mean(0)) < 4 * unbiased.std(0) / np.sqrt(draws))
+    # The target's columns lean: the gradient along every control is positive (a dimmer hair looks better) by
+    # more than 10 standard errors.
+    assert np.all(leaning.mean(0) > 10 * leaning.std(0) / np.sqrt(draws))
 
 
 def test_target_from_photos_in_one_command(tmp_path):
