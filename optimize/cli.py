@@ -323,10 +323,12 @@ def add_targets(subparsers) -> None:
         description="Linearise the fit's loss at the target's true controls (truth.json, or --at) and print, per "
         "fitted control, the 1-sigma the target's own noise leaves (its Fisher information: our render's noise "
         "at the target's spp), the shift of the estimate were the target 1% brighter (another renderer's "
-        "disagreement), the expected sigma of both (the model error as the fit counts it: 0 for warp-hair's own "
-        "targets, 1% for others) and the largest correlation with another control. Identifiable when every "
-        "control's expected sigma is below its acceptance bound (albedo 0.02, beta_m and beta_n 0.03); else exit "
-        "status 1, naming the control and what to add. For photos (whose gains and white balance are fitted, "
+        "disagreement), the fit's own Monte Carlo error (the mean of its Gauss-Newton points, each from renders "
+        "at its samples), the expected sigma of all three (the model error as the fit counts it: 0 for "
+        "warp-hair's own targets, 1% for others) and the largest correlation with another control. Identifiable "
+        "when every control's expected sigma is below its acceptance bound (albedo 0.02, beta_m and beta_n 0.03), "
+        "and pinned where twice it is (a fit lands within the bound about 19 times in 20); else exit status 1, "
+        "naming the control and what to add. For photos (whose gains and white balance are fitted, "
         "optimize/camera.py) it also says which of those the images pin. Costs 8 renders of each image at 64 spp.",
     )
     check.add_argument("target", metavar="TARGET", help="a target directory, or the name of a shipped target")
@@ -337,6 +339,13 @@ def add_targets(subparsers) -> None:
         help=f"the controls a fit would fit (default {','.join(DEFAULT_FIT)})",
     )
     check.add_argument("--at", nargs="+", metavar="NAME=V", help="check at these values instead of truth.json's")
+    check.add_argument(
+        "--refine",
+        type=int,
+        metavar="K",
+        help="count the own Monte Carlo error of a fit with K Gauss-Newton steps (default: as `fit` would run, "
+        "8 or more)",
+    )
     check.add_argument(
         "--model-error",
         type=float,
@@ -516,10 +525,13 @@ def run_targets(args: argparse.Namespace) -> int:
 def _check_target(args: argparse.Namespace) -> int:
     from .card_region import summary as card_summary
     from .identify import check_target, describe
+    from .latents import parse_control_names
     from .target import load_target
     from .uncertainty import check_model_error
 
     check_model_error(args.model_error, "--model-error")
+    if args.refine is not None and args.refine < 1:
+        raise ValueError(f"--refine must be at least 1 for a check, got {args.refine}")
     target = load_target(resolve_target(args.target))
     names = [n.strip() for n in args.fit.split(",") if n.strip()]
     start = time.perf_counter()
@@ -531,6 +543,7 @@ def _check_target(args: argparse.Namespace) -> int:
         model_error=args.model_error,
         threads=args.threads,
         realisations=args.realisations,
+        settings=FitSettings(controls=parse_control_names(names, target.hair.colour_input), refine=args.refine),
     )
     for line in card_summary(target):
         print(line)

@@ -99,7 +99,7 @@ class FitSettings:
     threads: int | None = None
     device: str = "cpu"  # where to render: "cpu", "cuda", "cuda:N" (warp_hair.devices); Adam's state lives there too
     uncertainty: bool = True
-    refine: int | None = None  # Gauss–Newton steps after Adam (refine.py); None: `_refine_steps`, 0 for L1
+    refine: int | None = None  # Gauss–Newton steps after Adam (refine.py); None: `refine_steps`, 0 for L1
     batch: int | None = BATCH_PIXELS  # pixels of an image per render (see BATCH_PIXELS); None: every pixel, always
     # Relative brightness disagreement between the target's renderer and ours, counted in the uncertainties
     # (uncertainty.py); None: 0 for warp-hair's own targets, 0.01 for any other (`target_model_error`).
@@ -519,9 +519,9 @@ class FitRun:
         return iteration_seed(self.settings.seed, 2**31, 0)
 
     def refine(self, descent: Descent) -> Refinement | None:
-        """Gauss–Newton steps from the descent's estimate (none after an interruption, or where `_refine_steps`
+        """Gauss–Newton steps from the descent's estimate (none after an interruption, or where `refine_steps`
         says 0). Ctrl-C keeps the last kept step."""
-        steps = 0 if descent.stop_reason == "interrupted" else _refine_steps(self.settings, self.target)
+        steps = 0 if descent.stop_reason == "interrupted" else refine_steps(self.settings, self.target)
         if not steps:
             return None
         bar = tqdm(total=steps, desc="Gauss-Newton", unit="step", disable=not self.progress)
@@ -720,18 +720,18 @@ def gauss_newton_spp(settings: FitSettings, target: Target) -> int:
     return max(1, round(spp * min(1.0, settings.batch / pixels)))
 
 
-def _refine_steps(settings: FitSettings, target: Target) -> int:
+def refine_steps(settings: FitSettings, target: Target, target_spp: int | None = None) -> int:
     """settings.refine; by default at least DEFAULT_REFINE_STEPS, and enough that the refinement's renders add up
     to half the samples per pixel the target was rendered with (its scenes' [render] spp). The later half of the
     steps is averaged into the estimate, so its Monte Carlo variance is then about four times what the target's
     own noise gives it (the reported σ counts both), and a target rendered at more samples to be less noisy
     (fur_patch) gets more steps, and a photo PHOTO_REFINE_FACTOR times as many. refine.py may run more while its
-    steps still move."""
+    steps still move. target_spp: the target's samples per pixel, if not its scenes' (`targets check --spp`)."""
     if settings.refine is not None:
         return settings.refine
     if settings.loss not in REFINABLE_LOSSES:
         return 0
     per_step = 2 * gauss_newton_spp(settings, target)  # two passes per linearisation
-    target_spp = max(image.scene.render.spp for image in target.images)
+    target_spp = target_spp or max(image.scene.render.spp for image in target.images)
     steps = max(DEFAULT_REFINE_STEPS, math.ceil(target_spp / (2 * per_step)))
     return steps * (PHOTO_REFINE_FACTOR if camera.fitted(target) else 1)

@@ -162,7 +162,8 @@ class GaussNewton:
         """lin_at with the Jacobians of the JACOBIAN_WINDOW − 1 linearisations before it."""
         earlier = self.jacobians[-(JACOBIAN_WINDOW - 1) :]
         self.jacobians.append(lin_at.jacobians)
-        self.models.append(lin_at.model)
+        if self.frozen_columns is None:  # read only until the columns are frozen
+            self.models.append(lin_at.model)
         if not earlier:
             return lin_at
         return dataclasses.replace(lin_at, earlier_jacobians=np.concatenate(earlier), curvature=None)
@@ -275,6 +276,11 @@ def _later(kept: list) -> list:
     """The later half of the kept steps after the first: the earlier ones may still be on their way in."""
     after_first = kept[1:]
     return after_first[-((len(after_first) + 1) // 2) :]
+
+
+def averaged_points(steps: int) -> int:
+    """How many end points a refinement of `steps` steps averages into its estimate, every step kept."""
+    return len(_later(list(range(steps))))
 
 
 def mean_covariance(points: list, lin: Linearization) -> np.ndarray:

@@ -1,15 +1,17 @@
 """`warp-hair targets check`: whether a target's images identify its controls (optimize/identify.py)."""
 
 import copy
+import dataclasses
 
 import numpy as np
 import pytest
 from helpers.scenes import front_camera, toml_text
 
 from optimize.cli import main
-from optimize.fit import FitSettings
+from optimize.fit import FitSettings, gauss_newton_spp
 from optimize.identify import ALBEDO_BOUND, BETA_BOUND, BOUNDS, check_target, describe
 from optimize.linearize import linearize, loss_weights, pool_like_loss
+from optimize.refine import JACOBIAN_WINDOW
 from optimize.target import SHIPPED_TARGETS, load_target, make_target
 from warp_hair.realisation import realisation
 from warp_hair.renderer.prepare import prepare
@@ -96,6 +98,38 @@ def test_the_expected_sigma_is_the_scatter_that_the_targets_own_noise_gives_the_
     np.testing.assert_allclose(result.noise, scatter, rtol=0.15)
 
 
+def test_the_fits_part_is_the_scatter_its_own_renders_give_its_steps(tmp_path):
+    """A fit's estimate is the mean of m Gauss–Newton end points, each moved from the optimum by its own renders'
+    noise. Linearise 60 times at the truth at the fit's samples per render: the one-step estimates H⁻¹ Aᵀ W r̄
+    (H and A steady, from 256 spp, so that only the residuals' render noise moves them) scatter by √m times the
+    fit's part the check expects, which it takes from renders at another spp (32 here against the fit's 8).
+    Sampling error: ±9% for the scatter of 60, ±5% for the check's: within 25%. The steps as the fit takes them,
+    with A pooled over JACOBIAN_WINDOW linearisations (`refine.py`), scatter more, by the Jacobians' own noise,
+    which the check leaves out: its part is a lower bound (here by up to 30% on β_m: 8 spp on 16×16 pixels)."""
+    directory = write_target(tmp_path / "draped", [[0.2, -0.3, -1.0], [0.0, -0.15, 1.0]], 0.15, 32)
+    target = load_target(directory)
+    settings = FitSettings(pool=2, spp=2)
+    controls = {"albedo": HAIR["albedo"], "beta_m": HAIR["beta_m"]}
+    result = check_target(target, controls=tuple(controls), settings=settings, render_spp=32, threads=1)
+    spp = gauss_newton_spp(settings, target)
+    assert (spp, result.fit_points) == (8, 4)
+    steady = linearize(target, controls, settings, spp=256, seed=9, threads=1)
+    h_inv, a, w = np.linalg.inv(steady.curvature), steady.mean_jacobian, steady.loss_weights
+    lins = [linearize(target, controls, settings, spp=spp, seed=100 + 7919 * k, threads=1) for k in range(60)]
+    steps = [h_inv @ (a.T @ (w * lin.mean_residual)) for lin in lins]
+    np.testing.assert_allclose(result.fit_noise, np.std(steps, axis=0, ddof=1) / 2, rtol=0.25)
+    window = [
+        dataclasses.replace(
+            lin, earlier_jacobians=np.concatenate([e.jacobians for e in lins[k - JACOBIAN_WINDOW + 1 : k]])
+        )
+        for k, lin in enumerate(lins)
+        if k >= JACOBIAN_WINDOW - 1
+    ]
+    pooled = np.std([h_inv @ lin.gradient for lin in window], axis=0, ddof=1) / 2
+    assert np.all(pooled > 0.8 * result.fit_noise), (pooled, result.fit_noise)
+    assert np.all(result.sigma**2 >= result.noise**2 + result.fit_noise**2 - 1e-12)
+
+
 def _estimate_scatter(target, settings, lin, draws, spp, threads):
     """(p,): the scatter of the least-squares estimate (one step of `lin`'s linearised loss) over targets
     rendered anew, one per (prepared scenes of the images, seed) in `draws`."""
@@ -130,6 +164,9 @@ def test_the_check_needs_values_to_check_at(tmp_path, capsys):
         check_target(copy.deepcopy(target), {**HAIR, "eta": 1.5})
     result = check_target(target, HAIR, spp=4096, render_spp=8, linearisations=2, threads=1)
     assert result.target_spp == [4096]
+    # The fit of a target at 4096 spp takes 16 Gauss-Newton steps (fit.refine_steps), not its own 8 spp's 8: the
+    # check counts the mean of their later 8 points.
+    assert (result.fit_points, result.fit_spp) == (8, 64)
 
 
 def test_over_random_realisations_the_expected_sigma_counts_the_targets_strands(tmp_path):
