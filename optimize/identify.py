@@ -18,9 +18,10 @@ A fit adds its own Monte Carlo error: its estimate is the mean of m Gauss–Newt
 averaged_points` of `fit.refine_steps`), each moved from the optimum by its step's render noise, H⁻¹ Aᵀ W r̄ with
 r̄ the mean of two passes at the fit's samples per pixel (`fit.gauss_newton_spp`). So the fit's part is the same
 sandwich with our render's own C, times CHECK_SPP / (2 · the fit's spp), over m. Where the fit renders about as
-many samples in all as the target has, the two parts are alike, and a check without the fit's part promised
-what a fit kept only about 85% of the time (docs/acceptance.md, "Photographs"). The Jacobian's own noise, which
-the fit's σ counts from its points' scatter (`refine.mean_covariance`), is left out: this part is a lower bound.
+many samples in all as the target has, the two parts are alike, and a check without the fit's part promised more
+than fits kept (docs/acceptance.md, "Photographs"). The Jacobians' own noise, which the fit's σ counts from its
+points' scatter (`refine.mean_covariance`), is left out (about 3% of the expected σ on the photo-like swatches):
+a lower bound.
 
 The model-error part is the estimate's shift per relative brightness disagreement (`uncertainty.
 brightness_sensitivity`, here over every linearisation's passes) times the model error counted for the target
