@@ -26,8 +26,9 @@ from warp_hair.model.params import HairParams
 
 from .camera import GAIN_MODES, WHITE_BALANCE_MODES
 from .fit import FitSettings
+from .identify import CHECK_REALISATION_SAMPLES
 from .latents import DEFAULT_FIT, SPECS, as_values
-from .realisations import DEFAULT_SAMPLES, REALISATION_MODES
+from .realisations import REALISATION_MODES
 
 
 def resolve_target(name_or_path: str) -> Path:
@@ -340,6 +341,14 @@ def add_targets(subparsers) -> None:
     )
     check.add_argument("--at", nargs="+", metavar="NAME=V", help="check at these values instead of truth.json's")
     check.add_argument(
+        "--realisation-samples",
+        type=int,
+        default=CHECK_REALISATION_SAMPLES,
+        metavar="K",
+        help=f"with --realisations random: the further realisations the strands' draw part comes from (default "
+        f"{CHECK_REALISATION_SAMPLES}; its uncertainty falls about as 1/sqrt(2(K-1)))",
+    )
+    check.add_argument(
         "--refine",
         type=int,
         metavar="K",
@@ -357,8 +366,8 @@ def add_targets(subparsers) -> None:
         "--realisations",
         choices=REALISATION_MODES,
         help="random: the scenes' fibers are a recipe whose strands are not the target's, so count how far the "
-        f"target's strands, one draw of it, move the estimate ({DEFAULT_SAMPLES} more linearisations, "
-        f"{2 * DEFAULT_SAMPLES} renders of each image); "
+        "target's strands, one draw of it, move the estimate (--realisation-samples more linearisations, two "
+        "renders of each image each); "
         "fixed: the scenes hold the very strands (default: target.toml's realisations, else fixed)",
     )
     _add_photo(actions)
@@ -544,6 +553,7 @@ def _check_target(args: argparse.Namespace) -> int:
         threads=args.threads,
         realisations=args.realisations,
         settings=FitSettings(controls=parse_control_names(names, target.hair.colour_input), refine=args.refine),
+        realisation_samples=args.realisation_samples,
     )
     for line in card_summary(target):
         print(line)

@@ -29,8 +29,9 @@ brightness_sensitivity`, here over every linearisation's passes) times the model
 its strands by their recipe only (target.toml `realisations = "random"`, optimize/realisations.py) adds the
 realisation part: the target's strands are one draw of that recipe, which no fit of them can know, and the
 estimate moves with the draw by as much as K further realisations, each linearised at the truth with both
-passes on it, move it (`realisations.realisation_spread`, the fit's own realisation term; K the fit's
-`realisation_samples`). The rule: a control is identified when its expected σ,
+passes on it, move it (`realisations.realisation_spread`, the fit's own realisation term; K
+CHECK_REALISATION_SAMPLES, more than the fit's 8, whose spread is too uncertain to judge by). The rule: a
+control is identified when its expected σ,
 √(σ_target² + σ_fit² + (model error · shift per unit)² + σ_realisation²), is below its acceptance bound
 (BOUNDS: albedo 0.02 a channel, β_m and β_n 0.03, what `benchmarks/fit_targets.py` holds fits to); a control
 the images do not change with is not. Controls without a bound (α, η, exposure, ...) are reported, not judged.
@@ -67,6 +68,10 @@ CAMERA_BOUND = 0.02  # a photo's gain or white balance is pinned when its expect
 # A control is pinned when this many expected σ fit within its bound: a fit then lands within it about 19 times in
 # 20. One whose σ alone fits is identified (the exit status) but only likely: within its bound about 2 times in 3.
 PINNED_SIGMAS = 2.0
+# Realisations the strands' draw part comes from. A spread estimated from K of them is uncertain by about
+# 1/√(2(K − 1)) and more: at the fit's 8 the check of cycles_dark_straight put β_n's part at 0.0075 or 0.0152 by
+# the seed alone, which flips its verdict; at 24, 0.0117 (docs/acceptance.md, "Strands the fit does not know").
+CHECK_REALISATION_SAMPLES = 24
 
 
 @dataclasses.dataclass
@@ -201,12 +206,14 @@ def check_target(
     settings=None,
     scenes=None,
     realisations: str | None = None,
+    realisation_samples: int = CHECK_REALISATION_SAMPLES,
 ) -> Identifiability:
     """Linearise the loss at the target's true controls (or `values`, {name: float or list}, which override
     them) and judge each fitted control (see the module docstring). spp: the samples per pixel the target's
     noise is taken at (default: each image's scene [render] spp, what it was rendered with); settings: the
-    fit's (`FitSettings`: loss, pooling and realisation_samples), default FitSettings(); scenes: the target's
-    images' scenes, prepared; realisations: "fixed" or "random" as the fit's (default: the target's)."""
+    fit's (`FitSettings`: loss, pooling, Gauss–Newton steps and samples), default FitSettings(); scenes: the
+    target's images' scenes, prepared; realisations: "fixed" or "random" as the fit's (default: the target's);
+    realisation_samples: K, the further realisations the strands' draw part comes from."""
     from .fit import FitSettings, gauss_newton_spp, refine_steps
     from .report import true_values
 
@@ -216,6 +223,8 @@ def check_target(
         raise ValueError(f"spp must be an integer >= 1, got {spp!r}")
     if not isinstance(linearisations, int) or linearisations < 2:
         raise ValueError(f"linearisations must be an integer >= 2, got {linearisations!r}")
+    if not isinstance(realisation_samples, int) or isinstance(realisation_samples, bool) or realisation_samples < 2:
+        raise ValueError(f"realisation samples must be an integer >= 2, got {realisation_samples!r}")
     random = check_mode(realisations or target.realisations) == "random"
     at = {name: as_values(name, v) for name, v in true_values(target, names).items()}
     at.update({name: as_values(name, v) for name, v in (values or {}).items()})
@@ -244,7 +253,11 @@ def check_target(
     # and their Jacobians join the curvature's: where the images hardly change with a control (dark hair's β_n)
     # H from the 8 Jacobians alone is too noisy, and H⁻¹ too large on average (tests/test_identify.py).
     first = seed + SEED_STRIDE * linearisations
-    others = _realisation_linearisations(target, at, settings, render_spp, first, threads) if random else []
+    others = (
+        _realisation_linearisations(target, at, settings, render_spp, first, threads, realisation_samples)
+        if random
+        else []
+    )
     jacobians = np.concatenate([lin.jacobians for lin in lins + others])
     w = lins[0].loss_weights
     h_inv = np.linalg.pinv(crossed_curvature(jacobians, w))
@@ -320,13 +333,13 @@ def check_target(
     return result
 
 
-def _realisation_linearisations(target, at, settings, render_spp, seed, threads) -> list:
-    """settings.realisation_samples linearisations at `at`, each with both passes on one further realisation of
-    the target's strands (those the fit's realisation term renders, realisations.py), from seed on."""
+def _realisation_linearisations(target, at, settings, render_spp, seed, threads, count) -> list:
+    """`count` linearisations at `at`, each with both passes on one further realisation of the target's strands
+    (those the fit's realisation term renders, realisations.py), from seed on."""
     pool = Realisations(target)
     return [
         linearize(target, at, settings, render_spp, seed + SEED_STRIDE * k, threads=threads, scenes=pool.term_scenes(k))
-        for k in range(settings.realisation_samples)
+        for k in range(count)
     ]
 
 

@@ -159,6 +159,8 @@ def test_the_check_needs_values_to_check_at(tmp_path, capsys):
         "no true value for albedo, beta_m, beta_n (the target has no truth.json); give the controls to check "
         "at (--at NAME=V)" in capsys.readouterr().err
     )
+    assert main(["targets", "check", str(directory), "--realisation-samples", "1"]) == 2
+    assert "realisation samples must be an integer >= 2, got 1" in capsys.readouterr().err
     target = load_target(directory)
     with pytest.raises(ValueError, match=r"values given for \['eta'\], which are not checked"):
         check_target(copy.deepcopy(target), {**HAIR, "eta": 1.5})
@@ -181,9 +183,9 @@ def test_over_random_realisations_the_expected_sigma_counts_the_targets_strands(
     spec = directory / "target.toml"
     spec.write_text('realisations = "random"\n' + spec.read_text())
     target = load_target(directory)
-    settings = FitSettings(pool=2, realisation_samples=48)
+    settings = FitSettings(pool=2)
     controls = {"beta_n": dark["beta_n"]}
-    result = check_target(target, controls=tuple(controls), settings=settings, threads=2)
+    result = check_target(target, controls=tuple(controls), settings=settings, threads=2, realisation_samples=48)
     assert result.realisation_samples == 48 and result.target_spp == [256, 256]
     fixed = check_target(target, controls=tuple(controls), settings=settings, threads=2, realisations="fixed")
     assert fixed.realisation is None and "strands' draw" not in describe(fixed)
