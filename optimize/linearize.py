@@ -191,7 +191,7 @@ def linearize(
     passes. An image's entry may be a pair of scenes, one per pass: two realisations of its fibers' recipe
     (optimize/realisations.py). `gain_columns`: a photo's weighted model (`Linearization.model`) of an earlier,
     independent linearisation near `values`, whose render gives the gains' columns instead of the target
-    (`_gain_projection` says when and why)."""
+    (`gain_projection` says when and why)."""
     hair, gain = hair_and_gain(values)
     scenes = [prepare(image.scene) for image in target.images] if scenes is None else scenes
     renders = []  # per image, its two passes' (Jacobian, image, standard error)
@@ -256,7 +256,7 @@ def linearize(
     projection, model = None, None
     if solved is not None:
         model = residuals.mean(axis=0) + targets
-        projection = _gain_projection(target, solved, targets, weights, jacobians, image_residuals, gain_columns)
+        projection = gain_projection(target, solved, targets, weights, jacobians, image_residuals, gain_columns)
         if card_rows is not None:
             # A brightness disagreement of our render scales the hair's rows, not the card's, whose radiance is
             # known (uncertainty.brightness_sensitivity takes `targets` as what it scales).
@@ -280,7 +280,7 @@ def linearize(
     )
 
 
-def _gain_projection(target, solved, targets, weights, jacobians, image_residuals, gain_columns) -> camera.Projection:
+def gain_projection(target, solved, targets, weights, jacobians, image_residuals, gain_columns) -> camera.Projection:
     """The loss minimised over a photo's gains (camera.py): the projection that leaves of each part what no
     change of the gains makes. The gains' columns are ∂r/∂log g = ω G I, which at the gains' optimum is the
     weighted target t up to the residual.
