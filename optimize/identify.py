@@ -108,18 +108,8 @@ class Identifiability:
 
     @property
     def verdicts(self) -> list:
-        """Per component: "pinned" (PINNED_SIGMAS expected σ within its bound), "likely" (one σ within it), "not
-        pinned", or "" where it has no bound."""
-        return [
-            ""
-            if np.isnan(bound)
-            else "pinned"
-            if PINNED_SIGMAS * s <= bound
-            else "likely"
-            if s < bound
-            else "not pinned"
-            for s, bound in zip(self.sigma, self.bounds)
-        ]
+        """Per component, `verdict` of its expected σ against its bound."""
+        return [verdict(s, bound) for s, bound in zip(self.sigma, self.bounds)]
 
     def table(self) -> str:
         realised, fitted = self.realisation is not None, self.fit_noise is not None
@@ -191,6 +181,16 @@ class Identifiability:
         if self.identifiable:
             return f"identifiable and pinned (a fit within the bound about 19 times in 20): {rule}"
         return "not identifiable (" + rule + " fails):\n" + "\n".join(f"  {p}" for p in self.problems)
+
+
+def verdict(sigma: float, bound: float) -> str:
+    """ "pinned" where PINNED_SIGMAS expected σ are within the bound, "likely" where one σ is, else "not pinned";
+    "" for a control without a bound."""
+    if np.isnan(bound):
+        return ""
+    if PINNED_SIGMAS * sigma <= bound:
+        return "pinned"
+    return "likely" if sigma < bound else "not pinned"
 
 
 def check_target(
