@@ -69,8 +69,9 @@ STACK_SIZE ints; the builder bounds the depth so that it cannot overflow) and, a
 
 1. tests the ray against the four child boxes at once (slab test with 1/direction computed once per ray;
    zero direction components become TINY, since 0 · inf gives NaN for a ray exactly in a box face; the near
-   and far plane of each axis picked once per ray by the sign of the direction, as rows of the bound matrix),
-   giving each child's entry distance, or NO_HIT where the ray misses it before the best hit so far;
+   and far plane of each axis picked once per ray by the sign of the direction, as rows of the bound matrix;
+   on the CPU as four-lane vectors, `_CHILD_ENTRIES_SNIPPET`), giving each child's entry distance, or NO_HIT
+   where the ray misses it before the best hit so far;
 2. for a closest hit, descends into the one child the ray enters, or into the nearer of two, pushing the
    other (most nodes: 1.3–1.4 children entered on average); for three or four, sorts the (entry, child) pairs
    with a 5-comparator network, pushes the second to fourth nearest that the ray enters (farthest first,
