@@ -10,10 +10,11 @@ Writes OUT/scaling.md (the tables) and OUT/scaling.png (log-log plots), and prin
   bounce 8, the scene's default).
 * segments: a draped wavy swatch in the same view at every size (brown_wavy's shape, 40 segments per strand),
   filled with more and thinner strands from 10³ to 10⁶ segments (√(strands / 10) layers, the spacing 3 radii:
-  the same volume, ever more finely); 128×128, 8 spp, depth 16. Each size runs in its own process, so that its peak
-  resident memory (ru_maxrss: the
-  interpreter, Warp and the kernels included, about 0.2 GiB) is its own; "BVH bytes" is what the render reads
-  (nodes, tubes, segment and strand indices), "SAH" the tree's surface area heuristic cost (node visits at cost
+  the same volume, ever more finely), and issue 24's 10⁵-strand groom (10⁶ segments, 10 a strand), whose render
+  the last line holds to 10⁴ segments' times their SAH cost ratio; 128×128, 8 spp, depth 16. Each size runs in
+  its own process, so that its peak resident memory (ru_maxrss: the interpreter, Warp and the kernels included,
+  about 0.2 GiB) is its own; "BVH bytes" is what the render reads (nodes, tubes, segment and strand indices),
+  "SAH" the tree's surface area heuristic cost (node visits at cost
   1 plus tube tests, each weighted by its box's area over the root's: the expected work of a ray through the
   root, lower is better). With --numpy-build the NumPy reference build (tests/helpers/reference_bvh.py,
   the same tree) is timed on the same boxes too.
@@ -46,9 +47,10 @@ SWEEPS = {
     "spp": (1, 2, 4, 8, 16, 32),
     "depth": (1, 2, 4, 8, 16, 32),
 }
-SEGMENTS = (1_000, 10_000, 100_000, 1_000_000)
-QUICK_SEGMENTS = (1_000, 10_000, 100_000)
 SEGMENTS_PER_STRAND = 40
+# (segments, segments per strand); the last is issue 24's 10⁵-strand groom: 10⁶ segments of 10 per strand.
+SEGMENTS = ((1_000, 40), (10_000, 40), (100_000, 40), (1_000_000, 40), (1_000_000, 10))
+QUICK_SEGMENTS = SEGMENTS[:3]
 SWATCH_WIDTH = 0.4
 
 
@@ -82,11 +84,12 @@ def sweep_swatch(threads) -> list:
     return rows
 
 
-def draped_swatch(segments: int):
-    """The segments sweep's scene: `segments` segments (rounded to whole strands) in brown_wavy's view."""
+def draped_swatch(segments: int, per_strand: int = SEGMENTS_PER_STRAND):
+    """The segments sweep's scene: `segments` segments (rounded to whole strands of `per_strand`) in brown_wavy's
+    view."""
     from warp_hair.scene import scene_from_dict
 
-    strands = max(4, round(segments / SEGMENTS_PER_STRAND))
+    strands = max(4, round(segments / per_strand))
     # Layers and strands per layer both grow as √strands, the spacing shrinks as 1/√strands: the swatch fills
     # the same volume (about 0.4 × 0.5 × 0.04) ever more finely.
     layers = max(2, round(math.sqrt(strands / 10)))
@@ -115,7 +118,7 @@ def draped_swatch(segments: int):
                 "radius": spacing / 3,
                 "amplitude": 0.01,
                 "wavelength": 0.15,
-                "segments": SEGMENTS_PER_STRAND,
+                "segments": per_strand,
                 "seed": 12,
             },
             "hair": {"albedo": [0.45, 0.28, 0.15], "beta_m": 0.3, "beta_n": 0.4},
@@ -141,7 +144,7 @@ def sah_cost(nodes: np.ndarray) -> float:
     return float(TRAVERSAL_COST + cost.sum() / root_area)
 
 
-def segments_case(segments: int, threads, numpy_build: bool) -> dict:
+def segments_case(segments: int, per_strand: int, threads, numpy_build: bool) -> dict:
     """One size of the segments sweep, in this process: preparation, BVH size and cost, render time, peak memory."""
     import warp as wp
 
@@ -150,13 +153,15 @@ def segments_case(segments: int, threads, numpy_build: bool) -> dict:
 
     wp.init()
     render(draped_swatch(1000), spp=1, threads=threads)  # compile or load the kernels
-    scene = draped_swatch(segments)
+    scene = draped_swatch(segments, per_strand)
     prepared, prep_wall, prep_cpu = timed(lambda: prepare(scene))
     g = prepared.bvh.geometry
     nbytes = sum(a.capacity for a in (g.nodes, g.tubes, g.segment, g.strand))
     _, wall, cpu = timed(lambda: render(prepared, spp=BASE["spp"], threads=threads))
     out = {
         "segments": g.num_segments,
+        "strands": int(scene.fibers.segments()[4].max()) + 1,
+        "per_strand": per_strand,
         "prepare_wall": prep_wall,
         "prepare_cpu": prep_cpu,
         "bvh_bytes": nbytes,
@@ -187,8 +192,9 @@ def build_times(scene, threads) -> dict:
 
 def sweep_segments(sizes, threads, numpy_build) -> list:
     rows = []
-    for segments in tqdm(sizes, desc="segments sweep", unit="size"):
-        command = [sys.executable, __file__, "--segments-case", str(segments)] + ["--numpy-build"] * numpy_build
+    for segments, per_strand in tqdm(sizes, desc="segments sweep", unit="size"):
+        command = [sys.executable, __file__, "--segments-case", str(segments), str(per_strand)]
+        command += ["--numpy-build"] * numpy_build
         if threads:
             command += ["--threads", str(threads)]
         result = subprocess.run(command, capture_output=True, text=True, check=True)
@@ -218,23 +224,43 @@ def tables(swatch_rows, segment_rows, threads) -> str:
         f"### Draped wavy swatch, segments varied ({BASE['resolution']}×{BASE['resolution']}, {BASE['spp']} spp, "
         f"depth {BASE['depth']})",
         "",
-        "| segments | prepare wall s | prepare CPU µs/segment | BVH bytes/segment | SAH | peak RSS MiB | "
+        "| segments | strands | prepare wall s | prepare CPU µs/segment | BVH bytes/segment | SAH | peak RSS MiB | "
         "render wall s | render CPU s |" + extra,
-        "|---:" * (8 + bool(numpy_build)) + "|",
+        "|---:" * (9 + bool(numpy_build)) + "|",
     ]
     for r in segment_rows:
         m = r["segments"]
         line = (
-            f"| {m} | {r['prepare_wall']:.3f} | {r['prepare_cpu'] / m * 1e6:.2f} | {r['bvh_bytes'] / m:.0f} | "
+            f"| {m} | {r['strands']} | {r['prepare_wall']:.3f} | {r['prepare_cpu'] / m * 1e6:.2f} | "
+            f"{r['bvh_bytes'] / m:.0f} | "
             f"{r['sah']:.1f} | {r['peak_rss'] / 2**20:.0f} | {r['render_wall']:.3f} | {r['render_cpu']:.3f} |"
         )
         if numpy_build:
             line += f" {r['build_warp_cpu'] / m * 1e6:.2f}, {r['build_numpy_cpu'] / m * 1e6:.2f} |"
         lines.append(line)
+    lines += ["", groom_goal(segment_rows)]
     return "\n".join(lines) + "\n"
 
 
+def groom_goal(segment_rows) -> str:
+    """Issue 24's goal for the 10⁵-strand groom: its render no slower per sample than 10⁴ segments' times the ratio
+    of their SAH costs (the same image size and samples, so render CPU seconds compare as they are)."""
+    base = next((r for r in segment_rows if r["segments"] == 10_000), None)
+    groom = next((r for r in segment_rows if r["strands"] >= 100_000), None)
+    if base is None or groom is None:
+        return "The 10⁵-strand groom is not in this sweep (--quick)."
+    time_ratio = groom["render_cpu"] / base["render_cpu"]
+    sah_ratio = groom["sah"] / base["sah"]
+    verdict = "met" if time_ratio <= sah_ratio else "not met"
+    return (
+        f"The {groom['strands']}-strand groom ({groom['segments']} segments) renders in {time_ratio:.2f}× the CPU time "
+        f"of {base['segments']} segments, where the SAH cost ratio is {sah_ratio:.2f}×: issue 24's goal (at most the "
+        f"SAH ratio) {verdict}."
+    )
+
+
 def plot(swatch_rows, segment_rows, path: Path) -> None:
+    segment_rows = [r for r in segment_rows if r["per_strand"] == SEGMENTS_PER_STRAND]  # one curve: one strand shape
     import matplotlib
 
     matplotlib.use("Agg")
@@ -275,10 +301,10 @@ def main() -> None:
         action="store_true",
         help="also time the NumPy reference BVH build (tests/helpers/reference_bvh.py; slow at 10⁶ segments)",
     )
-    parser.add_argument("--segments-case", type=int, help=argparse.SUPPRESS)
+    parser.add_argument("--segments-case", type=int, nargs=2, help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.segments_case:
-        print(json.dumps(segments_case(args.segments_case, args.threads, args.numpy_build)))
+        print(json.dumps(segments_case(*args.segments_case, args.threads, args.numpy_build)))
         return
     from warp_hair.parallel import default_threads
 
