@@ -3,6 +3,7 @@ machine does not change (valgrind's callgrind counts instructions; wall-clock ra
 
     python benchmarks/ray_instructions.py [--scene benchmarks/standard_swatch.toml] [--rays 5000] [--record-spp 1]
     python benchmarks/ray_instructions.py --render [--scene …]
+    python benchmarks/ray_instructions.py --time [--scene …] [--rays 400000] [--record-spp 4] [--repeat 3]
 
 The paths of a render of the scene (`profile_render.recorded_rays`: camera rays, a shadow ray per vertex,
 BSDF-sampled continuations) are recorded once, a fixed random sample of `--rays` of each kind is kept, and each
@@ -13,7 +14,9 @@ traversal, the tube tests, and for closest hits the hit point and shading frame 
 The rays do not depend on the BVH (its hits are the same), so the counts compare BVH and traversal designs.
 With --render, the count is instead that of a whole render, one thread, of 1024 random pixels of the scene
 at 4 spp (everything the process runs inside `render`: traversal, BSDF, sampling, libm), per path.
-Needs valgrind (`apt-get install valgrind`).
+With --time, the recorded rays are instead timed on the clock, one launch (one core) per kind, the best of
+--repeat: µs a ray, the closest hits' shading frame and writes included. Needs a quiet machine, and runs of two
+versions alternated to compare them. The counts need valgrind (`apt-get install valgrind`).
 """
 
 from __future__ import annotations
@@ -90,6 +93,33 @@ def render_pixels(scene_path, _unused, _kind):
     _instrument("off")
 
 
+def time_rays(scene_path, rays_file, repeat) -> dict:
+    """µs a ray of each kind of the saved rays, one launch on one core, the best of `repeat`."""
+    import time
+
+    import warp as wp
+
+    from warp_hair.geometry.rays import intersect, occluded
+    from warp_hair.renderer.prepare import prepare
+    from warp_hair.scene import load_scene
+
+    bvh = prepare(load_scene(scene_path)).bvh
+    saved = np.load(rays_file)
+    out = {}
+    for kind in KINDS:
+        o, d = saved[f"{kind}_o"], saved[f"{kind}_d"]
+        run = occluded if kind == "shadow" else intersect
+        run(bvh, o[:10], d[:10])  # load the kernel outside the timing
+        best = np.inf
+        for _ in range(repeat):
+            start = time.perf_counter()
+            run(bvh, o, d)
+            wp.synchronize()
+            best = min(best, time.perf_counter() - start)
+        out[kind] = best / len(o) * 1e6
+    return out
+
+
 def _instrument(flag):
     subprocess.run(["callgrind_control", "-i", flag, str(os.getpid())], check=True, capture_output=True)
 
@@ -109,6 +139,8 @@ def main() -> None:
     parser.add_argument("--rays", type=int, default=5000, help="rays of each kind (default 5000)")
     parser.add_argument("--record-spp", type=int, default=1)
     parser.add_argument("--render", action="store_true", help="count a whole render's instructions a path instead")
+    parser.add_argument("--time", action="store_true", help="time the recorded rays on one core instead")
+    parser.add_argument("--repeat", type=int, default=3, help="with --time: the best of this many runs")
     parser.add_argument("--trace", nargs=2, metavar=("RAYS_FILE", "KIND"), help=argparse.SUPPRESS)
     args = parser.parse_args()
     scene = args.scene
@@ -132,6 +164,11 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         rays_file = os.path.join(tmp, "rays.npz")
         record(scene, rays_file, args.record_spp, args.rays)
+        if args.time:
+            rates = time_rays(scene, rays_file, args.repeat)
+            print(f"{scene}, {args.rays} recorded rays of each kind at most, one core, best of {args.repeat}")
+            print("\n| rays | µs a ray |\n|---|---:|\n" + "\n".join(f"| {k} | {v:.3f} |" for k, v in rates.items()))
+            return
         print(f"{args.scene}, {args.rays} recorded rays of each kind\n\n| rays | instructions a ray |\n|---|---:|")
         command = [sys.executable, __file__, "--scene", scene, "--trace", rays_file]
         # Compile or load the kernels natively first: under valgrind a compile takes minutes.

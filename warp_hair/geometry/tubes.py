@@ -189,24 +189,32 @@ def segment_pieces(seg, lowers, uppers):
         reach = np.maximum(reach, radius * np.sqrt(np.maximum(0.0, 1.0 - cos**2)) / np.maximum(cos, 1e-6))
     fits = np.floor(length / (1.01 * reach + 1e-3 * radius + 1e-30)).astype(np.int64)
     pieces = np.maximum(1, np.minimum(pieces, fits))
-    if np.all(pieces == 1):
-        return np.arange(n), lowers, uppers
     reference = np.repeat(np.arange(n), pieces)
-    j = np.arange(len(reference)) - np.repeat(np.cumsum(pieces) - pieces, pieces)
-    k = pieces[reference]
-    p0, d = seg["p0"][reference], (seg["p1"] - seg["p0"])[reference]
+    cut = np.flatnonzero(pieces > 1)
+    if len(cut) == 0:
+        return reference, lowers, uppers
+    lo, hi = lowers[reference], uppers[reference]
+    # Only the cut segments' pieces get boxes of their own (the arrays below are as long as those alone).
+    rows = np.flatnonzero(pieces[reference] > 1)
+    which = reference[rows]
+    k = pieces[which]
+    j = rows - (np.cumsum(pieces) - pieces)[which]
+    p0, d = seg["p0"][which], (seg["p1"] - seg["p0"])[which]
     cut0, cut1 = p0 + d * (j / k)[:, None], p0 + d * ((j + 1) / k)[:, None]
-    r = radius[reference, None]
-    disc = r * np.sqrt(np.maximum(0.0, 1.0 - axis[reference] ** 2))  # a disc's extent along e_k: r·|e_k − a_k a|
-    lo, hi = np.minimum(cut0, cut1) - disc, np.maximum(cut0, cut1) + disc
-    pad = 0.01 * r + 1e-6 * np.maximum(np.abs(lo), np.abs(hi))  # as segment_boxes pads
-    lo, hi = lo - pad, hi + pad
+    r = radius[which, None]
+    disc = r * np.sqrt(np.maximum(0.0, 1.0 - axis[which] ** 2))  # a disc's extent along e_k: r·|e_k − a_k a|
+    piece_lo, piece_hi = np.minimum(cut0, cut1) - disc, np.maximum(cut0, cut1) + disc
+    pad = 0.01 * r + 1e-6 * np.maximum(np.abs(piece_lo), np.abs(piece_hi))  # as segment_boxes pads
+    piece_lo, piece_hi = piece_lo - pad, piece_hi + pad
     for end, at_end in (("0", j == 0), ("1", j == k - 1)):
-        ellipse = {name: seg[name][reference] for name in ("axis", "radius")}
-        ellipse["p0"] = ellipse["p1"] = seg["p" + end][reference]
-        ellipse["mitre0"] = ellipse["mitre1"] = seg["mitre" + end][reference]
+        ends = which[at_end]
+        ellipse = {name: seg[name][ends] for name in ("axis", "radius")}
+        ellipse["p0"] = ellipse["p1"] = seg["p" + end][ends]
+        ellipse["mitre0"] = ellipse["mitre1"] = seg["mitre" + end][ends]
         end_lo, end_hi = segment_boxes(ellipse)
-        lo = np.where(at_end[:, None], np.minimum(lo, end_lo), lo)
-        hi = np.where(at_end[:, None], np.maximum(hi, end_hi), hi)
+        piece_lo[at_end] = np.minimum(piece_lo[at_end], end_lo)
+        piece_hi[at_end] = np.maximum(piece_hi[at_end], end_hi)
     # Never beyond the whole segment's box.
-    return reference, np.maximum(lo, lowers[reference]), np.minimum(hi, uppers[reference])
+    lo[rows] = np.maximum(piece_lo, lo[rows])
+    hi[rows] = np.minimum(piece_hi, hi[rows])
+    return reference, lo, hi
