@@ -55,8 +55,8 @@ def record(scene_path, out, spp, count, seed=7):
     np.savez(out, **arrays)
 
 
-def trace(scene_path, rays_file, kind):
-    """Trace one kind of the saved rays, with callgrind's instrumentation on around the launch only."""
+def _saved_rays(scene_path, rays_file, kinds):
+    """(bvh, {kind: (run, origins, directions)}) for the saved rays, each kind's kernel loaded on a few of them."""
     import warp as wp
 
     from warp_hair.geometry.rays import intersect, occluded
@@ -66,10 +66,19 @@ def trace(scene_path, rays_file, kind):
     wp.init()
     bvh = prepare(load_scene(scene_path)).bvh
     saved = np.load(rays_file)
-    o, d = saved[f"{kind}_o"], saved[f"{kind}_d"]
-    run = occluded if kind == "shadow" else intersect
-    run(bvh, o[:10], d[:10])  # load the kernel outside the count
+    out = {}
+    for kind in kinds:
+        o, d = saved[f"{kind}_o"], saved[f"{kind}_d"]
+        run = occluded if kind == "shadow" else intersect
+        run(bvh, o[:10], d[:10])  # load the kernel outside the count or the timing
+        out[kind] = (run, o, d)
+    return bvh, out
 
+
+def trace(scene_path, rays_file, kind):
+    """Trace one kind of the saved rays, with callgrind's instrumentation on around the launch only."""
+    bvh, rays = _saved_rays(scene_path, rays_file, (kind,))
+    run, o, d = rays[kind]
     _instrument("on")
     run(bvh, o, d)
     _instrument("off")
@@ -97,24 +106,13 @@ def time_rays(scene_path, rays_file, repeat) -> dict:
     """µs a ray of each kind of the saved rays, one launch on one core, the best of `repeat`."""
     import time
 
-    import warp as wp
-
-    from warp_hair.geometry.rays import intersect, occluded
-    from warp_hair.renderer.prepare import prepare
-    from warp_hair.scene import load_scene
-
-    bvh = prepare(load_scene(scene_path)).bvh
-    saved = np.load(rays_file)
+    bvh, rays = _saved_rays(scene_path, rays_file, KINDS)
     out = {}
-    for kind in KINDS:
-        o, d = saved[f"{kind}_o"], saved[f"{kind}_d"]
-        run = occluded if kind == "shadow" else intersect
-        run(bvh, o[:10], d[:10])  # load the kernel outside the timing
+    for kind, (run, o, d) in rays.items():
         best = np.inf
         for _ in range(repeat):
             start = time.perf_counter()
             run(bvh, o, d)
-            wp.synchronize()
             best = min(best, time.perf_counter() - start)
         out[kind] = best / len(o) * 1e6
     return out

@@ -160,7 +160,7 @@ def segments_case(segments: int, per_strand: int, threads, numpy_build: bool) ->
     _, wall, cpu = timed(lambda: render(prepared, spp=BASE["spp"], threads=threads))
     out = {
         "segments": g.num_segments,
-        "strands": int(scene.fibers.segments()[4].max()) + 1,
+        "strands": scene.fibers.num_strands,
         "per_strand": per_strand,
         "prepare_wall": prep_wall,
         "prepare_cpu": prep_cpu,

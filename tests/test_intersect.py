@@ -16,7 +16,7 @@ from warp_hair.geometry.formats import load_fibers
 from warp_hair.geometry.generators import wavy
 from warp_hair.geometry.intersect import STACK_SIZE
 from warp_hair.geometry.rays import intersect, occluded
-from warp_hair.geometry.tubes import FiberBVH
+from warp_hair.geometry.tubes import FiberBVH, segment_boxes, segment_frames, segment_pieces
 
 BENCH_FIBERS = Path(__file__).parents[1] / "benchmarks" / "standard_swatch_fibers.txt"
 T_MIN_RADII = 1e-3
@@ -765,8 +765,6 @@ def slanted_strands(rng, count=30, segments=4, step=0.3, radius=0.002):
 def test_pieces_of_long_slanted_segments_hold_their_tube():
     """`segment_pieces` cuts long segments that run across the axes into references with smaller boxes; every
     point of each clipped tube (its surface, sampled in float64) lies in one of its segment's pieces' boxes."""
-    from warp_hair.geometry.tubes import segment_boxes, segment_frames, segment_pieces
-
     fibers = slanted_strands(np.random.default_rng(4))
     p0, p1, r0, r1, strand, _ = fibers.segments()
     seg = segment_frames(p0, p1, r0, r1, strand)

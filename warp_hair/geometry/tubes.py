@@ -152,10 +152,13 @@ def segment_boxes(seg):
         half = radius[:, None] * np.linalg.norm(spread, axis=2)
         lowers.append(end - half)
         uppers.append(end + half)
-    lo = np.minimum(*lowers)
-    hi = np.maximum(*uppers)
-    # The joint overlap reaches a few 1e-3·r past the plane; float32 rounding of the corners is relative.
-    pad = 0.01 * radius[:, None] + 1e-6 * np.maximum(np.abs(lo), np.abs(hi))
+    return _padded(np.minimum(*lowers), np.maximum(*uppers), radius[:, None])
+
+
+def _padded(lo, hi, radius):
+    """A box grown for what it must also hold: the joint overlap reaches a few 1e-3·r past the mitre plane, and
+    float32 rounding of the corners is relative."""
+    pad = 0.01 * radius + 1e-6 * np.maximum(np.abs(lo), np.abs(hi))
     return lo - pad, hi + pad
 
 
@@ -163,9 +166,10 @@ def segment_boxes(seg):
 # a thin strand, as in a groom of few segments a strand. The BVH then holds it as pieces (Martinek et al., VMV
 # 2018, subdivide such fibers; Embree splits curve references spatially): references to the same tube, each with
 # the box of one stretch of it. A segment is cut into one piece per SPLIT_RADII radii it runs across its main
-# axis, at most MAX_PIECES: on a 10⁵-strand groom of 10 segments a strand (benchmarks/scaling.py) that is 3.0
-# references a segment, the SAH cost 772 → 350 and the render 2× faster; 8 radii and 4 pieces, or 4 and 8, cost
-# 3.8 and 7.6 references for little more (docs/scaling.md). Swatches of short or axis-aligned segments are not cut.
+# axis, at most MAX_PIECES: on the 10⁵-strand groom of 10 segments a strand in benchmarks/scaling.py that is 3.0
+# references a segment, the SAH cost 7263 → 2116 and the render 4.8× faster; 8 radii and 4 pieces, or 4 and 8,
+# cost 3.8 and 7.6 references for little more (docs/benchmarks.md, "Long segments"). Swatches of short or
+# axis-aligned segments are not cut.
 SPLIT_RADII = 16.0
 MAX_PIECES = 4
 
@@ -190,8 +194,7 @@ def segment_pieces(seg, lowers, uppers):
     fits = np.floor(length / (1.01 * reach + 1e-3 * radius + 1e-30)).astype(np.int64)
     pieces = np.maximum(1, np.minimum(pieces, fits))
     reference = np.repeat(np.arange(n), pieces)
-    cut = np.flatnonzero(pieces > 1)
-    if len(cut) == 0:
+    if np.all(pieces == 1):
         return reference, lowers, uppers
     lo, hi = lowers[reference], uppers[reference]
     # Only the cut segments' pieces get boxes of their own (the arrays below are as long as those alone).
@@ -203,9 +206,7 @@ def segment_pieces(seg, lowers, uppers):
     cut0, cut1 = p0 + d * (j / k)[:, None], p0 + d * ((j + 1) / k)[:, None]
     r = radius[which, None]
     disc = r * np.sqrt(np.maximum(0.0, 1.0 - axis[which] ** 2))  # a disc's extent along e_k: r·|e_k − a_k a|
-    piece_lo, piece_hi = np.minimum(cut0, cut1) - disc, np.maximum(cut0, cut1) + disc
-    pad = 0.01 * r + 1e-6 * np.maximum(np.abs(piece_lo), np.abs(piece_hi))  # as segment_boxes pads
-    piece_lo, piece_hi = piece_lo - pad, piece_hi + pad
+    piece_lo, piece_hi = _padded(np.minimum(cut0, cut1) - disc, np.maximum(cut0, cut1) + disc, r)
     for end, at_end in (("0", j == 0), ("1", j == k - 1)):
         ends = which[at_end]
         ellipse = {name: seg[name][ends] for name in ("axis", "radius")}
