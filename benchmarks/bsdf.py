@@ -7,7 +7,12 @@ Two views of the same work, each on one core and on all cores:
              per item on pre-allocated Warp arrays, spread over the cores by `launch_ranges`.
 Inputs: wo uniform on the sphere, h uniform in [−1, 1], u uniform in [0, 1)³; a typical brown material.
 
-    python benchmarks/bsdf.py [--n N] [--repeat R]
+`--parts` times the renderer's BSDF calls apart instead, on one core, in nanoseconds a call: `lobe_setup` (once a
+path vertex), `hair_sample` and `hair_value_pdf` toward another direction; a vertex of a path does one setup, one
+sample and two evaluations (the sampled direction and the light's), which the last line adds up. Each part is the
+difference of two kernels that differ by that call only.
+
+    python benchmarks/bsdf.py [--n N] [--repeat R] [--parts]
 """
 
 from __future__ import annotations
@@ -24,7 +29,7 @@ import warp_hair
 from warp_hair import HairParams, bsdf
 from warp_hair.cli import exit_on_interrupt
 from warp_hair.model.bsdf import sample_kernel
-from warp_hair.model.hair_bsdf import hair_coefficients
+from warp_hair.model.hair_bsdf import HairCoefficients, hair_coefficients, hair_sample, hair_value_pdf, lobe_setup
 from warp_hair.parallel import default_threads, launch_ranges
 
 MATERIAL = HairParams(albedo=(0.6, 0.4, 0.2), beta_m=0.3, beta_n=0.3)
@@ -65,6 +70,66 @@ def kernels(wo, h, u, threads: int):
     return run
 
 
+@wp.kernel
+def _setup_kernel(
+    c: HairCoefficients,
+    wo: wp.array(dtype=wp.vec3),
+    h: wp.array(dtype=float),
+    out: wp.array(dtype=wp.vec3),
+    first: int,
+):
+    i = wp.tid() + first
+    setup = lobe_setup(c, wo[i], h[i])
+    out[i] = wp.vec3(setup.prob[0], float(setup.phi_center[1]), setup.A[1, 0])
+
+
+@wp.kernel
+def _sample_kernel(
+    c: HairCoefficients,
+    wo: wp.array(dtype=wp.vec3),
+    h: wp.array(dtype=float),
+    u: wp.array(dtype=wp.vec3),
+    out: wp.array(dtype=wp.vec3),
+    first: int,
+):
+    i = wp.tid() + first
+    setup = lobe_setup(c, wo[i], h[i])
+    out[i] = hair_sample(setup, u[i]) + wp.vec3(setup.prob[0], float(setup.phi_center[1]), setup.A[1, 0])
+
+
+@wp.kernel
+def _value_kernel(
+    c: HairCoefficients,
+    wo: wp.array(dtype=wp.vec3),
+    h: wp.array(dtype=float),
+    wi: wp.array(dtype=wp.vec3),
+    out: wp.array(dtype=wp.vec3),
+    first: int,
+):
+    i = wp.tid() + first
+    setup = lobe_setup(c, wo[i], h[i])
+    value, pdf = hair_value_pdf(setup, wi[i])
+    out[i] = value + wp.vec3(pdf + setup.prob[0], float(setup.phi_center[1]), setup.A[1, 0])
+
+
+def parts(n: int, repeat: int) -> dict:
+    """Nanoseconds a call on one core: the setup, and what a sample and an evaluation add to it."""
+    wo, h, u = random_inputs(n)
+    wi, _, _ = random_inputs(n, seed=2)
+    c = hair_coefficients(MATERIAL)
+    vec = {name: wp.array(x.astype(np.float32), dtype=wp.vec3) for name, x in (("wo", wo), ("wi", wi), ("u", u))}
+    h_arr = wp.array(h.astype(np.float32), dtype=float)
+    out = wp.empty(n, dtype=wp.vec3)
+
+    def timed(kernel, inputs):
+        return best_seconds(lambda: launch_ranges(kernel, n, inputs, 1), repeat) / n * 1e9
+
+    setup = timed(_setup_kernel, [c, vec["wo"], h_arr, out])
+    sample = timed(_sample_kernel, [c, vec["wo"], h_arr, vec["u"], out]) - setup
+    value = timed(_value_kernel, [c, vec["wo"], h_arr, vec["wi"], out]) - setup
+    return {"lobe_setup": setup, "hair_sample": sample, "hair_value_pdf": value}
+
+
 def best_seconds(run, repeat: int) -> float:
     run()  # warm-up: compiles or loads the kernels, touches the memory
     times = []
@@ -88,6 +153,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--n", type=int, default=2_000_000, help="items per launch (default 2 000 000)")
     parser.add_argument("--repeat", type=int, default=3, help="timed runs per measurement; the best counts (default 3)")
+    parser.add_argument("--parts", action="store_true", help="time the renderer's BSDF calls apart, on one core")
     args = parser.parse_args()
     if args.n < 1 or args.repeat < 1:
         parser.error("--n and --repeat must be at least 1")
@@ -95,6 +161,14 @@ def main() -> None:
     cores = default_threads()
     wo, h, u = random_inputs(args.n)
     print(f"warp-hair {warp_hair.__version__}, Warp {wp.config.version}; CPU: {cpu_name()}, {cores} cores")
+    if args.parts:
+        ns = parts(args.n, args.repeat)
+        print(f"one core, best of {args.repeat} launches of {args.n:,} items; ns a call\n")
+        for name, value in ns.items():
+            print(f"{name:38}{value:8.0f} ns")
+        vertex = ns["lobe_setup"] + ns["hair_sample"] + 2 * ns["hair_value_pdf"]
+        print(f"{'a path vertex (setup, sample, 2 values)':38}{vertex:8.0f} ns")
+        return
     print(f"sample + eval of {args.n:,} items, best of {args.repeat}; M/s = millions of items per second\n")
     print(f"{'':34}{'1 core':>12}{f'{cores} cores':>12}{'speed-up':>10}")
     for name, make in (("batch API (NumPy in/out)", batch_api), ("kernels (setup+sample+value+pdf)", kernels)):
