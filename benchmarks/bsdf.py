@@ -71,45 +71,26 @@ def kernels(wo, h, u, threads: int):
 
 
 @wp.kernel
-def _setup_kernel(
-    c: HairCoefficients,
-    wo: wp.array(dtype=wp.vec3),
-    h: wp.array(dtype=float),
-    out: wp.array(dtype=wp.vec3),
-    first: int,
-):
-    i = wp.tid() + first
-    setup = lobe_setup(c, wo[i], h[i])
-    out[i] = wp.vec3(setup.prob[0], float(setup.phi_center[1]), setup.A[1, 0])
-
-
-@wp.kernel
-def _sample_kernel(
+def _part_kernel(
     c: HairCoefficients,
     wo: wp.array(dtype=wp.vec3),
     h: wp.array(dtype=float),
     u: wp.array(dtype=wp.vec3),
-    out: wp.array(dtype=wp.vec3),
-    first: int,
-):
-    i = wp.tid() + first
-    setup = lobe_setup(c, wo[i], h[i])
-    out[i] = hair_sample(setup, u[i]) + wp.vec3(setup.prob[0], float(setup.phi_center[1]), setup.A[1, 0])
-
-
-@wp.kernel
-def _value_kernel(
-    c: HairCoefficients,
-    wo: wp.array(dtype=wp.vec3),
-    h: wp.array(dtype=float),
     wi: wp.array(dtype=wp.vec3),
+    part: int,
     out: wp.array(dtype=wp.vec3),
     first: int,
 ):
+    """The setup (part 0), then a sample (part 1) or a value and pdf toward wi (part 2); every result is written."""
     i = wp.tid() + first
     setup = lobe_setup(c, wo[i], h[i])
-    value, pdf = hair_value_pdf(setup, wi[i])
-    out[i] = value + wp.vec3(pdf + setup.prob[0], float(setup.phi_center[1]), setup.A[1, 0])
+    result = wp.vec3(setup.prob[0], float(setup.phi_center[1]), setup.A[1, 0])
+    if part == 1:
+        result += hair_sample(setup, u[i])
+    elif part == 2:
+        value, pdf = hair_value_pdf(setup, wi[i])
+        result += value + wp.vec3(pdf, 0.0, 0.0)
+    out[i] = result
 
 
 def parts(n: int, repeat: int) -> dict:
@@ -121,12 +102,13 @@ def parts(n: int, repeat: int) -> dict:
     h_arr = wp.array(h.astype(np.float32), dtype=float)
     out = wp.empty(n, dtype=wp.vec3)
 
-    def timed(kernel, inputs):
-        return best_seconds(lambda: launch_ranges(kernel, n, inputs, 1), repeat) / n * 1e9
+    def timed(part):
+        inputs = [c, vec["wo"], h_arr, vec["u"], vec["wi"], part, out]
+        return best_seconds(lambda: launch_ranges(_part_kernel, n, inputs, 1), repeat) / n * 1e9
 
-    setup = timed(_setup_kernel, [c, vec["wo"], h_arr, out])
-    sample = timed(_sample_kernel, [c, vec["wo"], h_arr, vec["u"], out]) - setup
-    value = timed(_value_kernel, [c, vec["wo"], h_arr, vec["wi"], out]) - setup
+    setup = timed(0)
+    sample = timed(1) - setup
+    value = timed(2) - setup
     return {"lobe_setup": setup, "hair_sample": sample, "hair_value_pdf": value}
 
 
