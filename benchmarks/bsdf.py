@@ -10,7 +10,7 @@ Inputs: wo uniform on the sphere, h uniform in [−1, 1], u uniform in [0, 1)³;
 `--parts` times the renderer's BSDF calls apart instead, on one core, in nanoseconds a call: `lobe_setup` (once a
 path vertex), `hair_sample` and `hair_value_pdf` toward another direction; a vertex of a path does one setup, one
 sample and two evaluations (the sampled direction and the light's), which the last line adds up. Each part is the
-difference of two kernels that differ by that call only.
+difference of two launches of one kernel that differ by that call only.
 
     python benchmarks/bsdf.py [--n N] [--repeat R] [--parts]
 """
