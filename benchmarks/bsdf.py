@@ -10,7 +10,7 @@ Inputs: wo uniform on the sphere, h uniform in [−1, 1], u uniform in [0, 1)³;
 `--parts` times the renderer's BSDF calls apart instead, on one core, in nanoseconds a call: `lobe_setup` (once a
 path vertex), `hair_sample` and `hair_value_pdf` toward another direction; a vertex of a path does one setup, one
 sample and two evaluations (the sampled direction and the light's), which the last line adds up. Each part is the
-difference of two launches of one kernel that differ by that call only.
+difference of two kernels that differ by that call only.
 
     python benchmarks/bsdf.py [--n N] [--repeat R] [--parts]
 """
@@ -71,26 +71,45 @@ def kernels(wo, h, u, threads: int):
 
 
 @wp.kernel
-def _part_kernel(
+def _setup_kernel(
+    c: HairCoefficients,
+    wo: wp.array(dtype=wp.vec3),
+    h: wp.array(dtype=float),
+    out: wp.array(dtype=wp.vec3),
+    first: int,
+):
+    i = wp.tid() + first
+    setup = lobe_setup(c, wo[i], h[i])
+    out[i] = wp.vec3(setup.prob[0], float(setup.phi_center[1]), setup.A[1, 0])
+
+
+@wp.kernel
+def _sample_kernel(
     c: HairCoefficients,
     wo: wp.array(dtype=wp.vec3),
     h: wp.array(dtype=float),
     u: wp.array(dtype=wp.vec3),
-    wi: wp.array(dtype=wp.vec3),
-    part: int,
     out: wp.array(dtype=wp.vec3),
     first: int,
 ):
-    """The setup (part 0), then a sample (part 1) or a value and pdf toward wi (part 2); every result is written."""
     i = wp.tid() + first
     setup = lobe_setup(c, wo[i], h[i])
-    result = wp.vec3(setup.prob[0], float(setup.phi_center[1]), setup.A[1, 0])
-    if part == 1:
-        result += hair_sample(setup, u[i])
-    elif part == 2:
-        value, pdf = hair_value_pdf(setup, wi[i])
-        result += value + wp.vec3(pdf, 0.0, 0.0)
-    out[i] = result
+    out[i] = hair_sample(setup, u[i]) + wp.vec3(setup.prob[0], float(setup.phi_center[1]), setup.A[1, 0])
+
+
+@wp.kernel
+def _value_kernel(
+    c: HairCoefficients,
+    wo: wp.array(dtype=wp.vec3),
+    h: wp.array(dtype=float),
+    wi: wp.array(dtype=wp.vec3),
+    out: wp.array(dtype=wp.vec3),
+    first: int,
+):
+    i = wp.tid() + first
+    setup = lobe_setup(c, wo[i], h[i])
+    value, pdf = hair_value_pdf(setup, wi[i])
+    out[i] = value + wp.vec3(pdf + setup.prob[0], float(setup.phi_center[1]), setup.A[1, 0])
 
 
 def parts(n: int, repeat: int) -> dict:
@@ -102,13 +121,12 @@ def parts(n: int, repeat: int) -> dict:
     h_arr = wp.array(h.astype(np.float32), dtype=float)
     out = wp.empty(n, dtype=wp.vec3)
 
-    def timed(part):
-        inputs = [c, vec["wo"], h_arr, vec["u"], vec["wi"], part, out]
-        return best_seconds(lambda: launch_ranges(_part_kernel, n, inputs, 1), repeat) / n * 1e9
+    def timed(kernel, inputs):
+        return best_seconds(lambda: launch_ranges(kernel, n, inputs, 1), repeat) / n * 1e9
 
-    setup = timed(0)
-    sample = timed(1) - setup
-    value = timed(2) - setup
+    setup = timed(_setup_kernel, [c, vec["wo"], h_arr, out])
+    sample = timed(_sample_kernel, [c, vec["wo"], h_arr, vec["u"], out]) - setup
+    value = timed(_value_kernel, [c, vec["wo"], h_arr, vec["wi"], out]) - setup
     return {"lobe_setup": setup, "hair_sample": sample, "hair_value_pdf": value}
 
 
