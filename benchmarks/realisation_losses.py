@@ -1,10 +1,10 @@
 """Which loss depends least on where the target's strands lie (issue 23, section 1): the spread of the estimate
 over the strands' draw, for the fit's loss and for the alternatives studied, linearised at the truth.
 
-    python benchmarks/realisation_losses.py [NAME] [--jacobian-spp 256] [--jacobian-pairs 12]
+    python benchmarks/realisation_losses.py [NAME | DIR] [--jacobian-spp 256] [--jacobian-pairs 12]
         [--realisations 64] [--spp 128] [--threads N]
 
-For a shipped Cycles target (default cycles_dark_straight) at its true controls:
+For a target (a shipped one's name, default cycles_dark_straight, or a target directory) at its true controls:
 - A, the Jacobian of its images by the fitted controls: `--jacobian-pairs` linearisations over random pairs of
   realisations, two passes each at `--jacobian-spp`. A Jacobian of few passes inflates H = AᵀΩ²A along a weakly
   determined control and so shrinks every estimate, which looks like a small spread (docs/acceptance.md, "Weighing
@@ -123,16 +123,18 @@ def study(source: Path, jacobian_spp: int, jacobian_pairs: int, count: int, spp:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("name", nargs="?", default="cycles_dark_straight", help="a shipped Cycles target")
+    parser.add_argument(
+        "name", nargs="?", default="cycles_dark_straight", help="a shipped target's name or a target directory"
+    )
     parser.add_argument("--jacobian-spp", type=int, default=256)
     parser.add_argument("--jacobian-pairs", type=int, default=12)
     parser.add_argument("--realisations", type=int, default=64)
     parser.add_argument("--spp", type=int, default=128, help="samples per pixel of each realisation's render")
     parser.add_argument("--threads", type=int)
     args = parser.parse_args()
-    source = HERE.parent / "targets" / args.name
+    source = Path(args.name) if Path(args.name).is_dir() else HERE.parent / "targets" / args.name
     if not source.is_dir():
-        parser.error(f"no shipped target {args.name!r} (targets/{args.name} does not exist)")
+        parser.error(f"no shipped target {args.name!r} (targets/{args.name} does not exist) and no such directory")
     data = study(source, args.jacobian_spp, args.jacobian_pairs, args.realisations, args.spp, args.threads)
     held = args.realisations - MEAN_COUNT - WEIGHT_COUNT
     print(f"\n{args.name}: spread (standard deviation) of the estimate over {held} held-out realisations and over "
