@@ -29,7 +29,7 @@ from tqdm import tqdm
 
 from optimize.fit import FitSettings
 from optimize.latents import hair_and_gain
-from optimize.linearize import linearize
+from optimize.linearize import linearize, loss_weights
 from optimize.realisations import Realisations
 from optimize.report import true_values
 from optimize.target import load_target
@@ -83,6 +83,8 @@ def spreads(study: dict, shape, epsilon, back: float) -> dict:
     omega[1:] *= np.sqrt(back)  # the back-lit image (the second) weighed `back` times as much
     w2 = (omega * omega).reshape(-1)
     j = jac.reshape(*jac.shape[:2], -1).transpose(0, 2, 1)  # (passes, N, p)
+    # The crossed product as linearize.crossed_curvature forms it, without its fallback to the mean Jacobian's
+    # product where the crossed one is not positive definite: that fallback is the inflated H this measures against.
     n, total = len(j), j.sum(axis=0)
     crossed = (total.T @ (w2[:, None] * total) - np.einsum("kni,n,knj->ij", j, w2, j)) / (n * (n - 1))
     gain = np.linalg.solve(0.5 * (crossed + crossed.T), (total / n * w2[:, None]).T)
@@ -98,7 +100,7 @@ def study(source: Path, jacobian_spp: int, jacobian_pairs: int, count: int, spp:
     target = load_target(source)
     truth = true_values(target, NAMES)
     realisations = Realisations(target)
-    scale = np.array([1.0 / np.sqrt(np.mean(image.image**2)) for image in target.images])  # linearize's L2 weight
+    scale = np.array([loss_weights(image.image, "l2").flat[0] for image in target.images])  # linearize's, pool 1
     shape = target.images[0].image.shape
     jacobians = []
     for k in tqdm(range(jacobian_pairs), desc="Jacobian", unit="pair"):
