@@ -202,7 +202,7 @@ def test_warp_mappings_build_the_host_coefficients():
             wp.launch(_coefficients_kernel, 1, [bsdf_grad.hair_controls(params), out])
             host = hair_coefficients(params)
             for field in HairCoefficients.vars:
-                if field != "n_tail":  # sampling only; not built for derivatives
+                if field not in ("n_tail", "cone"):  # sampling only; not built for derivatives
                     warp_value, host_value = out.numpy()[field][0], np.array(getattr(host, field))
                     np.testing.assert_allclose(warp_value, host_value, rtol=2e-6, atol=1e-7, err_msg=field)
 

@@ -46,7 +46,7 @@ from warp_hair.model.jacobian import (
 )
 from warp_hair.model.lobes import logistic_norm, longitudinal_norm
 from warp_hair.model.params import BETA_FLOOR
-from warp_hair.numerics import bessel_i0e_with_log_slope
+from warp_hair.numerics import bessel_i0e_times_exp_with_log_slope
 
 wp.set_module_options({"enable_backward": False})
 
@@ -267,20 +267,28 @@ def test_coefficient_derivatives_match_central_differences():
 
 
 @wp.kernel
-def _bessel_slope_kernel(x: wp.array(dtype=float), out: wp.array(dtype=float)):
+def _bessel_kernel(x: wp.array(dtype=float), y: float, value: wp.array(dtype=float), slope: wp.array(dtype=float)):
     i = wp.tid()
-    _value, slope = bessel_i0e_with_log_slope(x[i])
-    out[i] = slope
+    v, s = bessel_i0e_times_exp_with_log_slope(x[i], y)
+    value[i] = v
+    slope[i] = s
 
 
-def test_bessel_log_slope():
-    """d ln I0e/dx of the polynomial forms against I1/I0 − 1 (scipy): 5e-6 relative, through the branch switch."""
+@pytest.mark.parametrize("y", [0.0, -0.7, -40.0])
+def test_bessel_value_and_log_slope(y):
+    """I0(x) e^(−x) e^y and d ln I0e/dx of the polynomial forms against scipy's i0e and I1/I0 − 1, through the
+    branch switch, with M's other exponent y folded into the one exponential. The value's bound: the polynomials'
+    5e-7 and the exponential's rounding, plus float32's rounding of the exponent y − x below the switch
+    (2^−24 |y − x| relative: what rounding y itself already costs M)."""
     x = np.concatenate([np.linspace(0.0, 3.75, 2000, endpoint=False), np.geomspace(3.75, 1e6, 2000)]).astype(np.float32)
-    out = wp.empty(len(x), dtype=float)
-    wp.launch(_bessel_slope_kernel, len(x), [wp.array(x, dtype=float), out])
+    value = wp.empty(len(x), dtype=float)
+    slope = wp.empty(len(x), dtype=float)
+    wp.launch(_bessel_kernel, len(x), [wp.array(x, dtype=float), y, value, slope])
     x64 = x.astype(np.float64)
-    exact = i1e(x64) / i0e(x64) - 1.0
-    np.testing.assert_allclose(out.numpy(), exact, rtol=1e-5)
+    exponent_rounding = 2.0**-24 * (abs(y) + np.where(x64 < 3.75, x64, 0.0))
+    relative = np.abs(value.numpy() / (i0e(x64) * np.exp(np.float32(y))) - 1.0)
+    assert np.all(relative <= 6e-7 + exponent_rounding), relative.max()
+    np.testing.assert_allclose(slope.numpy(), i1e(x64) / i0e(x64) - 1.0, rtol=1e-5)
 
 
 if __name__ == "__main__":

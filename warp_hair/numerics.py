@@ -1,9 +1,9 @@
 """Numeric helpers shared by the model, the geometry and the renderer, each defined once (pbrt's util/math.h).
 
 Constants, then the float32 functions that keep the model and the integrator accurate at the extremes: the
-scaled Bessel function of M, log1p and 1 − e^(−y) for narrow cones, cos from sin near grazing; the power
-heuristic, local frames and pairs of random numbers for the integrator. Warp constants are folded into the
-kernels that use them; the float32 ones round the exact value once.
+scaled Bessel function of M (with M's exponential), log1p for narrow cones, cos from sin near
+grazing; the power heuristic, local frames and pairs of random numbers for the integrator. Warp constants are
+folded into the kernels that use them; the float32 ones round the exact value once.
 """
 
 import math
@@ -32,21 +32,15 @@ NO_HIT = wp.constant(1.0e30)
 
 
 @wp.func
-def bessel_i0e(x: float):
-    """I0(x)·e^(−x) for x ≥ 0 (Abramowitz & Stegun 9.8.1–9.8.2, relative error < 5e-7).
+def _i0_series(t: float):
+    """I0(x) for x < 3.75 as a polynomial in t = (x / 3.75)² (Abramowitz & Stegun 9.8.1, relative error < 2e-7)."""
+    return 1.0 + t * (3.5156229 + t * (3.0899424 + t * (1.2067492 + t * (0.2659732 + t * (0.0360768 + t * 0.0045813)))))
 
-    The scaled form never overflows, and its e^(−x) cancels the e^(+a) of M analytically
-    (`lobes.longitudinal_scattering`).
-    """
-    if x < 3.75:
-        t = x / 3.75
-        t = t * t
-        i0 = 1.0 + t * (
-            3.5156229 + t * (3.0899424 + t * (1.2067492 + t * (0.2659732 + t * (0.0360768 + t * 0.0045813))))
-        )
-        return i0 * wp.exp(-x)
-    y = 3.75 / x
-    poly = 0.39894228 + y * (
+
+@wp.func
+def _i0e_asymptotic(y: float):
+    """√x I0(x) e^(−x) for x ≥ 3.75 as a polynomial in y = 3.75 / x (Abramowitz & Stegun 9.8.2, < 2e-7)."""
+    return 0.39894228 + y * (
         0.01328592
         + y
         * (
@@ -58,14 +52,28 @@ def bessel_i0e(x: float):
             )
         )
     )
-    return poly / wp.sqrt(x)
 
 
 @wp.func
-def bessel_i0e_with_log_slope(x: float):
-    """(bessel_i0e(x), d ln bessel_i0e(x)/dx) from one evaluation of the same polynomials: the value by the same
-    operations as `bessel_i0e` (so the same float32 result), the slope the exact one of that value (within
-    5e-6 relative of I1(x)/I0(x) − 1 over [0, 1e6]).
+def bessel_i0e_times_exp(x: float, y: float):
+    """I0(x)·e^(−x)·e^y for x ≥ 0 and y ≤ 0, with one exponential: below 3.75 the series gives I0 itself and the
+    e^(−x) joins the e^y, above it the asymptotic form gives I0·e^(−x) without one (relative error < 5e-7).
+
+    The scaled form never overflows, and its e^(−x) cancels the e^(+a) of M analytically
+    (`lobes.longitudinal_scattering`, where y ≤ 0 is M's other exponent); y − x sums two non-positive terms, so
+    it does not cancel.
+    """
+    if x < 3.75:
+        t = x / 3.75
+        return _i0_series(t * t) * wp.exp(y - x)
+    return _i0e_asymptotic(3.75 / x) / wp.sqrt(x) * wp.exp(y)
+
+
+@wp.func
+def bessel_i0e_times_exp_with_log_slope(x: float, y: float):
+    """(bessel_i0e_times_exp(x, y), d ln(I0(x) e^(−x))/dx) from one evaluation of the same polynomials: the value
+    by the same operations as `bessel_i0e_times_exp` (so the same float32 result), the slope the exact one of that
+    value's Bessel factor (within 5e-6 relative of I1(x)/I0(x) − 1 over [0, 1e6]).
 
     Both slopes are sums of terms of one sign: for large x it is −(1/2 + y q'(y)/q(y))/x, with no 1 − I1/I0
     cancellation.
@@ -73,48 +81,27 @@ def bessel_i0e_with_log_slope(x: float):
     if x < 3.75:
         t = x / 3.75
         t = t * t
-        i0 = 1.0 + t * (
-            3.5156229 + t * (3.0899424 + t * (1.2067492 + t * (0.2659732 + t * (0.0360768 + t * 0.0045813))))
-        )
+        i0 = _i0_series(t)
         d_i0 = 3.5156229 + t * (
             2.0 * 3.0899424
             + t * (3.0 * 1.2067492 + t * (4.0 * 0.2659732 + t * (5.0 * 0.0360768 + t * (6.0 * 0.0045813))))
         )
-        return i0 * wp.exp(-x), d_i0 * (x * (2.0 / (3.75 * 3.75))) / i0 - 1.0
-    y = 3.75 / x
-    poly = 0.39894228 + y * (
-        0.01328592
-        + y
-        * (
-            0.00225319
-            + y
-            * (
-                -0.00157565
-                + y * (0.00916281 + y * (-0.02057706 + y * (0.02635537 + y * (-0.01647633 + y * 0.00392377))))
-            )
-        )
-    )
-    d_poly = 0.01328592 + y * (
+        return i0 * wp.exp(y - x), d_i0 * (x * (2.0 / (3.75 * 3.75))) / i0 - 1.0
+    z = 3.75 / x
+    poly = _i0e_asymptotic(z)
+    d_poly = 0.01328592 + z * (
         2.0 * 0.00225319
-        + y
+        + z
         * (
             3.0 * -0.00157565
-            + y
+            + z
             * (
                 4.0 * 0.00916281
-                + y * (5.0 * -0.02057706 + y * (6.0 * 0.02635537 + y * (7.0 * -0.01647633 + y * (8.0 * 0.00392377))))
+                + z * (5.0 * -0.02057706 + z * (6.0 * 0.02635537 + z * (7.0 * -0.01647633 + z * (8.0 * 0.00392377))))
             )
         )
     )
-    return poly / wp.sqrt(x), -(0.5 + y * d_poly / poly) * (y * (1.0 / 3.75))  # 1/x = y/3.75: one division fewer
-
-
-@wp.func
-def one_minus_exp_neg(y: float):
-    """1 − e^(−y) for y ≥ 0 without the cancellation of the direct form at small y (rough lobes, v ≫ 1)."""
-    if y < 0.1:
-        return y * (1.0 - y * (0.5 - y * (1.0 / 6.0 - y * (1.0 / 24.0))))
-    return 1.0 - wp.exp(-y)
+    return poly / wp.sqrt(x) * wp.exp(y), -(0.5 + z * d_poly / poly) * (z * (1.0 / 3.75))  # 1/x = z/3.75
 
 
 @wp.func

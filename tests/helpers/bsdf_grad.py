@@ -159,7 +159,7 @@ def sigma_a_from_controls(theta: controls_vec, colour_mode: int, inversion: inve
 def longitudinal_norm(v: float):
     """1 / (v (1 − e^(−2/v))), in float64 like `lobes.longitudinal_norm` on the host.
 
-    Not `lobes.one_minus_exp_neg`: its 4-term series is exact enough for the value, but its derivative is
+    Not a short series for 1 − e^(−y): one of 4 terms is exact enough for the value, but its derivative is
     off by up to (2/v)³/24 relative, and d log norm/dv ≈ −1/v + 1/v − 1/v² + … cancels to O(1/v²) for rough
     lobes: the series would put errors of up to 2 % in ∂S/∂β_m near β_m ≈ 0.9. In float64, 1 − e^(−y) keeps 1e-12 of
     its digits even at y = 2/v ~ 1e-4, and no series is needed.
@@ -172,16 +172,19 @@ def longitudinal_norm(v: float):
 def coefficients_from_controls(theta: controls_vec, colour_mode: int, inversion: inversion_vec):
     """The HairCoefficients of the controls, as `hair_coefficients` builds them, but differentiable.
 
-    `n_tail` (used only by sampling) is left at 0: nothing differentiated here samples.
+    `n_tail` and `cone` (used only by sampling) are left at 0: nothing differentiated here samples.
     """
     c = HairCoefficients()
     c.sigma_a = sigma_a_from_controls(theta, colour_mode, inversion)
     c.eta = theta[ETA]
     v = longitudinal_variance(theta[BETA_M])
-    c.v = wp.vec4(v * theta[R_ROUGHNESS_SCALE], 0.25 * v, 4.0 * v, 4.0 * v)
-    c.inv_v = wp.vec4(1.0 / c.v[0], 1.0 / c.v[1], 1.0 / c.v[2], 1.0 / c.v[3])
+    lobe_v = wp.vec4(v * theta[R_ROUGHNESS_SCALE], 0.25 * v, 4.0 * v, 4.0 * v)
+    c.inv_v = wp.vec4(1.0 / lobe_v[0], 1.0 / lobe_v[1], 1.0 / lobe_v[2], 1.0 / lobe_v[3])
     c.m_norm = wp.vec4(
-        longitudinal_norm(c.v[0]), longitudinal_norm(c.v[1]), longitudinal_norm(c.v[2]), longitudinal_norm(c.v[3])
+        longitudinal_norm(lobe_v[0]),
+        longitudinal_norm(lobe_v[1]),
+        longitudinal_norm(lobe_v[2]),
+        longitudinal_norm(lobe_v[3]),
     )
     s = logistic_scale(theta[BETA_N])
     c.s = s

@@ -1,8 +1,8 @@
 """The Chiang et al. hair/fur BSDF as Warp functions for the renderer's kernels.
 
 Local frame (docs/MODEL.md, pbrt-v4): x along the fiber, z the surface normal at the hit, y = z × x;
-sin θ = w.x, φ = atan2(w.z, w.y). wo points toward the viewer, wi toward the light, h ∈ [−1, 1] is the
-signed offset of the hit from the fiber axis.
+sin θ = w.x, φ = atan2(w.z, w.y), used only as Δφ = φ_i − φ_o (`incident_angles`). wo points toward the viewer,
+wi toward the light, h ∈ [−1, 1] is the signed offset of the hit from the fiber axis.
 
 Usage inside a kernel:
     setup = lobe_setup(coeffs, wo, h)          # everything that depends on wo and h only
@@ -19,6 +19,7 @@ import warp as wp
 from ..numerics import INV_TWO_PI, PI64, TWO_PI64, cos_from_sin
 from .lobes import (
     attenuation,
+    cone_constants,
     fresnel_dielectric,
     logistic_norm,
     logistic_tail,
@@ -39,9 +40,9 @@ class HairCoefficients:
 
     sigma_a: wp.vec3  # absorption per unit fiber radius, RGB
     eta: float
-    v: wp.vec4  # longitudinal variance of R, TT, TRT, residual
-    inv_v: wp.vec4
+    inv_v: wp.vec4  # 1 / the longitudinal variance of R, TT, TRT, residual
     m_norm: wp.vec4  # longitudinal_norm(v)
+    cone: wp.mat44  # cone_constants(v), a row per lobe (sampling only)
     s: float  # logistic scale of the azimuthal lobes
     inv_s: float
     n_norm: float  # logistic_norm(s)
@@ -57,9 +58,9 @@ def hair_coefficients(params: HairParams) -> HairCoefficients:
     # The per-lobe normalisations are per material: formed here once, in float64.
     v = params.lobe_variances
     s = params.logistic_scale
-    c.v = wp.vec4(*v)
     c.inv_v = wp.vec4(*(1.0 / v))
     c.m_norm = wp.vec4(*longitudinal_norm(v))
+    c.cone = wp.mat44(*cone_constants(v).ravel())
     c.s = float(s)
     c.inv_s = float(1.0 / s)
     c.n_norm = float(logistic_norm(s))
@@ -76,7 +77,7 @@ class LobeSetup:
 
     sin_o: wp.vec4  # sin θ_o tilted per lobe (R: θ_o + 2α, TT: θ_o − α, TRT: θ_o − 4α, residual: θ_o)
     cos_o: wp.vec4  # |cos| of the same angles
-    phi_o: wp.float64
+    azimuth_o: wp.vec2d  # (cos φ_o, sin φ_o); (1, 0) where wo runs along the fiber
     phi_center: wp.vec3d  # Φ(p) = 2pγ_t − 2γ_o + pπ, the azimuthal centre of R, TT, TRT
     A: mat43  # attenuation per lobe (rows), RGB
     prob: wp.vec4  # lobe selection probabilities ∝ channel mean of A_p
@@ -135,7 +136,14 @@ def lobe_setup(c: HairCoefficients, wo: wp.vec3, h: float):
     gamma_o = wp.asin(h_d)
     q_d = wp.max(wp.sqrt(eta_d * eta_d - sin_o_d * sin_o_d), wp.float64(1.0e-37))
     gamma_t = wp.asin(wp.clamp(h_d * cos_o_d / q_d, wp.float64(-1.0), wp.float64(1.0)))
-    L.phi_o = wp.atan2(wp.float64(wo[2]), wp.float64(wo[1]))
+    # φ_o as a unit vector: Δφ is then one atan2 of a cross and a dot product (`incident_angles`), and a sample's
+    # φ_i one rotation of it, where an angle would cost an atan2 more per vertex.
+    y_o = wp.float64(wo[1])
+    z_o = wp.float64(wo[2])
+    r_o = wp.sqrt(y_o * y_o + z_o * z_o)
+    L.azimuth_o = wp.vec2d(wp.float64(1.0), wp.float64(0.0))
+    if r_o > wp.float64(0.0):
+        L.azimuth_o = wp.vec2d(y_o / r_o, z_o / r_o)
     L.phi_center = wp.vec3d(
         wp.float64(-2.0) * gamma_o,
         wp.float64(2.0) * gamma_t - wp.float64(2.0) * gamma_o + PI64,
@@ -146,11 +154,20 @@ def lobe_setup(c: HairCoefficients, wo: wp.vec3, h: float):
 
 
 @wp.func
+def incident_angles(L: LobeSetup, wi: wp.vec3):
+    """(sin θ_i, cos θ_i, Δφ = φ_i − φ_o in [−π, π]): Δφ in float64 from the cross and dot products of the two
+    azimuths, as exact as the inputs (the difference of two atan2 would round twice)."""
+    sin_i = wp.clamp(wi[0], -1.0, 1.0)
+    y = wp.float64(wi[1])
+    z = wp.float64(wi[2])
+    a = L.azimuth_o
+    return sin_i, cos_from_sin(sin_i), wp.atan2(a[0] * z - a[1] * y, a[0] * y + a[1] * z)
+
+
+@wp.func
 def lobe_densities(L: LobeSetup, wi: wp.vec3):
     """M_p N_p for each lobe (N_3 = 1/2π): the solid-angle density each lobe would sample alone."""
-    sin_i = wp.clamp(wi[0], -1.0, 1.0)
-    cos_i = cos_from_sin(sin_i)
-    dphi = wp.atan2(wp.float64(wi[2]), wp.float64(wi[1])) - L.phi_o
+    sin_i, cos_i, dphi = incident_angles(L, wi)
     d = wp.vec4(0.0)
     for p in range(3):
         m = longitudinal_scattering(sin_i, cos_i, L.sin_o[p], L.cos_o[p], L.c.inv_v[p], L.c.m_norm[p])
@@ -222,9 +239,12 @@ def hair_sample(L: LobeSetup, u: wp.vec3):
     float32 rounding in the logistic's tails.
     """
     p, u_rot = choose_lobe(L.prob, u[0])
-    sin_i, cos_i = sample_longitudinal_sin(u[1], u_rot, L.sin_o[p], L.cos_o[p], L.c.v[p])
+    sin_i, cos_i = sample_longitudinal_sin(u[1], u_rot, L.sin_o[p], L.cos_o[p], L.c.cone[p])
     dphi = TWO_PI64 * wp.float64(u[2])
     if p < 3:
         dphi = L.phi_center[p] + wp.float64(sample_trimmed_logistic(u[2], L.c.s, L.c.n_tail))
-    phi_i = L.phi_o + dphi
-    return wp.vec3(sin_i, cos_i * float(wp.cos(phi_i)), cos_i * float(wp.sin(phi_i)))
+    # φ_i = φ_o + Δφ, by rotating φ_o's unit vector.
+    c = wp.cos(dphi)
+    s = wp.sin(dphi)
+    a = L.azimuth_o
+    return wp.vec3(sin_i, cos_i * float(a[0] * c - a[1] * s), cos_i * float(a[1] * c + a[0] * s))

@@ -40,7 +40,7 @@ import warp as wp
 
 from ..controls import COLOUR_CONTROL_NAMES, CONTROLS, SCALAR_CONTROLS, THETA_SIZE, column
 from ..numerics import INV_TWO_PI, cos_from_sin
-from .hair_bsdf import LobeSetup
+from .hair_bsdf import LobeSetup, incident_angles
 from .lobes import (
     attenuation_partials,
     fresnel_dielectric_d_eta,
@@ -230,9 +230,7 @@ def hair_value_pdf_lobes(L: LobeSetup, wi: wp.vec3):
     """(S, pdf, E): `hair_value_pdf(L, wi)` (the same operations on the same values, so the same floats) and the
     LobeEvaluation of `hair_value_jacobian`."""
     E = LobeEvaluation()
-    sin_i = wp.clamp(wi[0], -1.0, 1.0)
-    cos_i = cos_from_sin(sin_i)
-    dphi = wp.atan2(wp.float64(wi[2]), wp.float64(wi[1])) - L.phi_o
+    sin_i, cos_i, dphi = incident_angles(L, wi)
     for p in range(4):
         m, log_v, theta_o = longitudinal_scattering_with_slopes(
             sin_i, cos_i, L.sin_o[p], L.cos_o[p], L.c.inv_v[p], L.c.m_norm[p]

@@ -9,7 +9,15 @@ grazing angles, h = ±1, σ_a = 0).
 import numpy as np
 import warp as wp
 
-from ..numerics import PI, PI64, TWO_PI, TWO_PI64, bessel_i0e, bessel_i0e_with_log_slope, log1p, one_minus_exp_neg
+from ..numerics import (
+    PI,
+    PI64,
+    TWO_PI,
+    TWO_PI64,
+    bessel_i0e_times_exp,
+    bessel_i0e_times_exp_with_log_slope,
+    log1p,
+)
 
 mat43 = wp.types.matrix(shape=(4, 3), dtype=wp.float32)
 
@@ -46,43 +54,55 @@ def longitudinal_scattering(sin_i: float, cos_i: float, sin_o: float, cos_o: flo
     With a = cos θ_i cos θ_o / v and 2 sinh(1/v) = e^(1/v)(1 − e^(−2/v)):
         M = I0e(a) · exp((cos(θ_i + θ_o) − 1) / v) / (v (1 − e^(−2/v))),
     because a − sin θ_i sin θ_o / v − 1/v = (cos(θ_i + θ_o) − 1)/v. Every factor is ≤ 1 or a plain
-    division, so tiny v (log-space territory in pbrt) and huge v are both exact to float32 precision.
+    division, so tiny v (log-space territory in pbrt) and huge v are both exact to float32 precision; the two
+    exponentials are taken as one (`bessel_i0e_times_exp`).
     `inv_v` = 1/v and `norm` = 1/(v (1 − e^(−2/v))) depend on the material only: `longitudinal_norm`.
     """
     e = cos_sum_minus_one(sin_i, cos_i, sin_o, cos_o)
-    return bessel_i0e(cos_i * cos_o * inv_v) * wp.exp(e * inv_v) * norm
+    return bessel_i0e_times_exp(cos_i * cos_o * inv_v, e * inv_v) * norm
+
+
+def cone_constants(v):
+    """Rows (v, 1 − e^(−2/v), e^(−2/v), e^(2/v) − 1) per lobe variance v, in float64 on the host: what
+    `sample_longitudinal_cone` needs of the material, formed once rather than by three float32 exponentials a sample.
+    The last is 0 where it would overflow float32 (v ≤ 0.025), where the sampler does not use it."""
+    v = np.asarray(v, dtype=np.float64)
+    growth = np.where(v > 0.025, np.expm1(2.0 / np.maximum(v, 0.025)), 0.0)
+    return np.stack([v, -np.expm1(-2.0 / v), np.exp(-2.0 / v), growth], axis=-1)
 
 
 @wp.func
-def sample_longitudinal_cone(u: float, v: float):
-    """(1 − cos θ, 1 + cos θ) for a sample of the cone angle θ about the mirror direction of M(·, θ_o; v).
+def sample_longitudinal_cone(u: float, cone: wp.vec4):
+    """(1 − cos θ, 1 + cos θ) for a sample of the cone angle θ about the mirror direction of M(·, θ_o; v), with
+    `cone` the lobe's row of `cone_constants(v)`.
 
     d'Eon's inversion is 1 − cos θ = −v ln(u + (1 − u) e^(−2/v)). Each factor is formed where it is
     small: ln(1 − x) through log1p when u is near 1 (narrow cones), and 1 + cos θ = v ln(1 + u(e^(2/v) − 1))
     when the sample lands in the far hemisphere (very rough lobes), so sin θ = sqrt((1 − cos)(1 + cos))
     keeps its digits at both poles. The floor −2/v catches e^(−2/v) underflowing for narrow lobes.
     """
-    x = (1.0 - u) * one_minus_exp_neg(2.0 / v)
+    v = cone[0]
+    x = (1.0 - u) * cone[1]
     log_arg = float(0.0)
     if x < 0.5:
         log_arg = log1p(-x)
     else:
-        log_arg = wp.log(u + (1.0 - u) * wp.exp(-2.0 / v))
+        log_arg = wp.log(u + (1.0 - u) * cone[2])
     a = float(2.0)
     if log_arg > -2.0 / v:
         a = wp.min(-v * log_arg, 2.0)
     b = 2.0 - a
     if a > 1.0 and v > 0.025:  # e^(2/v) stays finite in float32
-        b = v * log1p(u * wp.exp(2.0 / v) * one_minus_exp_neg(2.0 / v))
+        b = v * log1p(u * cone[3])
     return a, b
 
 
 @wp.func
-def sample_longitudinal_sin(u_cone: float, u_rot: float, sin_o: float, cos_o: float, v: float):
+def sample_longitudinal_sin(u_cone: float, u_rot: float, sin_o: float, cos_o: float, cone: wp.vec4):
     """(sin θ_i, cos θ_i) of a sample of M(·, θ_o; v): a cone of angle θ about the mirror direction −θ_o,
     rotated by 2π u_rot. cos θ_i is built from the orthogonal components, not from 1 − sin² θ_i.
     """
-    a, b = sample_longitudinal_cone(u_cone, v)
+    a, b = sample_longitudinal_cone(u_cone, cone)
     cos_t = 1.0 - a
     if a > 1.0:
         cos_t = b - 1.0
@@ -205,8 +225,8 @@ def longitudinal_scattering_with_slopes(
     """
     e = cos_sum_minus_one(sin_i, cos_i, sin_o, cos_o)
     a = cos_i * cos_o * inv_v
-    i0e, slope = bessel_i0e_with_log_slope(a)
-    m = i0e * wp.exp(e * inv_v) * norm
+    i0e_exp, slope = bessel_i0e_times_exp_with_log_slope(a, e * inv_v)
+    m = i0e_exp * norm
     return m, -a * slope - e * inv_v, -(sin_i * cos_o + cos_i * sin_o + slope * cos_i * sin_o) * inv_v
 
 
