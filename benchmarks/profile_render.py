@@ -39,7 +39,7 @@ from warp_hair.geometry.bvh import TRAVERSAL_COST, build_bvh
 from warp_hair.geometry.intersect import intersect_fibers
 from warp_hair.geometry.rays import intersect, occluded
 from warp_hair.geometry.tubes import MAX_LEAF, segment_boxes, segment_frames
-from warp_hair.model.hair_bsdf import hair_sample, hair_value_pdf, lobe_setup
+from warp_hair.model.hair_bsdf import hair_sample_incident, hair_value_pdf_at, lobe_setup
 from warp_hair.numerics import NO_HIT, rand2, to_local, to_world
 from warp_hair.parallel import default_threads
 from warp_hair.renderer.camera import generate_ray
@@ -140,8 +140,9 @@ def record_paths(
                         to_light = d_env
                 shadow_o[slot] = hit.position
                 shadow_d[slot] = to_light
-            wi = hair_sample(setup, wp.vec3(wp.randf(rng), wp.randf(rng), wp.randf(rng)))
-            value, pdf = hair_value_pdf(setup, wi)
+            sample = hair_sample_incident(setup, wp.vec3(wp.randf(rng), wp.randf(rng), wp.randf(rng)))
+            value, pdf = hair_value_pdf_at(setup, sample)
+            wi = sample.w
             if pdf <= 0.0:
                 break
             throughput = wp.cw_mul(throughput, value / pdf)

@@ -35,7 +35,7 @@ from helpers import bsdf_grad
 from scipy.special import i0e, i1e
 
 import warp_hair as wh
-from warp_hair.model.hair_bsdf import HairCoefficients, hair_coefficients, lobe_setup
+from warp_hair.model.hair_bsdf import HairCoefficients, hair_coefficients, incident, lobe_setup
 from warp_hair.model.jacobian import (
     CoefficientDerivatives,
     coefficient_derivatives,
@@ -70,7 +70,7 @@ def _jacobian_kernel(
 ):
     i = wp.tid()
     setup = lobe_setup(c, wo[i], h[i])
-    s, pdf, lobes = hair_value_pdf_lobes(setup, wi[i])
+    s, pdf, lobes = hair_value_pdf_lobes(setup, incident(setup, wi[i]))
     value[i] = s
     density[i] = pdf
     jacobian[i] = hair_value_jacobian(setup, lobe_setup_grad(setup, wo[i], h[i]), derivs, lobes)

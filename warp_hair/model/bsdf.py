@@ -28,6 +28,7 @@ from .hair_bsdf import (
     hair_sample,
     hair_value,
     hair_value_pdf,
+    incident_angles,
     lobe_densities,
     lobe_setup,
 )
@@ -79,6 +80,7 @@ def sample_kernel(
     i = wp.tid() + first
     L = lobe_setup(c, wo[i], h[i])
     wi = hair_sample(L, u[i])
+    # At the returned direction (not the sample's own angles, as the renderer does): pdf(wi) of what is returned.
     value, density = hair_value_pdf(L, wi)
     weight = wp.vec3(0.0)
     # A direction whose density underflowed (the far tail of a very narrow lobe) carries no weight rather than
@@ -101,7 +103,8 @@ def _lobes_kernel(
 ):
     i = wp.tid() + first
     L = lobe_setup(c, wo[i], h[i])
-    d = lobe_densities(L, wi[i])
+    sin_i, cos_i, dphi = incident_angles(L, wi[i])
+    d = lobe_densities(L, sin_i, cos_i, dphi)
     for p in range(4):
         out[i, p] = d[p] * L.A[p]
 

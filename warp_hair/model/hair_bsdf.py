@@ -1,7 +1,7 @@
 """The Chiang et al. hair/fur BSDF as Warp functions for the renderer's kernels.
 
 Local frame (docs/MODEL.md, pbrt-v4): x along the fiber, z the surface normal at the hit, y = z × x;
-sin θ = w.x, φ = atan2(w.z, w.y), used only as Δφ = φ_i − φ_o (`incident_angles`). wo points toward the viewer,
+sin θ = w.x, φ = atan2(w.z, w.y), used only as Δφ = φ_i − φ_o (`incident`). wo points toward the viewer,
 wi toward the light, h ∈ [−1, 1] is the signed offset of the hit from the fiber axis.
 
 Usage inside a kernel:
@@ -10,7 +10,9 @@ Usage inside a kernel:
     density = hair_pdf(setup, wi)              # solid-angle pdf of hair_sample
     s_value, density = hair_value_pdf(setup, wi)   # both from one evaluation of the lobes
     wi = hair_sample(setup, u)                 # u: three uniforms in [0, 1)
-Nothing allocates; everything is float32.
+    d = hair_sample_incident(setup, u)         # the sample with its angles (d.w the direction), and
+    s_value, density = hair_value_pdf_at(setup, d)  # its value and pdf without recovering them from d.w
+Nothing allocates; everything is float32 but the azimuths (float64: `LobeSetup.phi_center`).
 """
 
 import numpy as np
@@ -21,6 +23,7 @@ from .lobes import (
     attenuation,
     cone_constants,
     fresnel_dielectric,
+    lobe_sum,
     logistic_norm,
     logistic_tail,
     longitudinal_norm,
@@ -77,7 +80,7 @@ class LobeSetup:
 
     sin_o: wp.vec4  # sin θ_o tilted per lobe (R: θ_o + 2α, TT: θ_o − α, TRT: θ_o − 4α, residual: θ_o)
     cos_o: wp.vec4  # |cos| of the same angles
-    azimuth_o: wp.vec2d  # (cos φ_o, sin φ_o); (1, 0) where wo runs along the fiber
+    azimuth_o: wp.vec2d  # (cos φ_o, sin φ_o)
     phi_center: wp.vec3d  # Φ(p) = 2pγ_t − 2γ_o + pπ, the azimuthal centre of R, TT, TRT
     A: mat43  # attenuation per lobe (rows), RGB
     prob: wp.vec4  # lobe selection probabilities ∝ channel mean of A_p
@@ -141,9 +144,11 @@ def lobe_setup(c: HairCoefficients, wo: wp.vec3, h: float):
     y_o = wp.float64(wo[1])
     z_o = wp.float64(wo[2])
     r_o = wp.sqrt(y_o * y_o + z_o * z_o)
-    L.azimuth_o = wp.vec2d(wp.float64(1.0), wp.float64(0.0))
     if r_o > wp.float64(0.0):
         L.azimuth_o = wp.vec2d(y_o / r_o, z_o / r_o)
+    else:  # along the fiber: φ_o = atan2(±0, ±0), 0 or ±π by the zeros' signs
+        phi_o = wp.atan2(z_o, y_o)
+        L.azimuth_o = wp.vec2d(wp.cos(phi_o), wp.sin(phi_o))
     L.phi_center = wp.vec3d(
         wp.float64(-2.0) * gamma_o,
         wp.float64(2.0) * gamma_t - wp.float64(2.0) * gamma_o + PI64,
@@ -153,21 +158,47 @@ def lobe_setup(c: HairCoefficients, wo: wp.vec3, h: float):
     return L
 
 
+@wp.struct
+class Incident:
+    """A local direction wi and the angles the lobes read of it: sin θ_i, cos θ_i and Δφ = φ_i − φ_o (float64, up
+    to a multiple of 2π). A sample carries the angles it was built from, so evaluating it costs no atan2."""
+
+    w: wp.vec3
+    sin_i: float
+    cos_i: float
+    dphi: wp.float64
+
+
 @wp.func
 def incident_angles(L: LobeSetup, wi: wp.vec3):
-    """(sin θ_i, cos θ_i, Δφ = φ_i − φ_o in [−π, π]): Δφ in float64 from the cross and dot products of the two
+    """(sin θ_i, cos θ_i, Δφ) of a local direction: Δφ in float64 from the cross and dot products of the two
     azimuths, as exact as the inputs (the difference of two atan2 would round twice)."""
     sin_i = wp.clamp(wi[0], -1.0, 1.0)
     y = wp.float64(wi[1])
     z = wp.float64(wi[2])
     a = L.azimuth_o
-    return sin_i, cos_from_sin(sin_i), wp.atan2(a[0] * z - a[1] * y, a[0] * y + a[1] * z)
+    dphi = wp.atan2(a[0] * z - a[1] * y, a[0] * y + a[1] * z)
+    if y == wp.float64(0.0) and z == wp.float64(0.0):
+        # Along the fiber φ_i is atan2(±0, ±0), 0 or ±π by the zeros' signs, as φ = atan2(w.z, w.y) defines it.
+        dphi = wp.atan2(z, y) - wp.atan2(a[1], a[0])
+    return sin_i, cos_from_sin(sin_i), dphi
 
 
 @wp.func
-def lobe_densities(L: LobeSetup, wi: wp.vec3):
-    """M_p N_p for each lobe (N_3 = 1/2π): the solid-angle density each lobe would sample alone."""
+def incident(L: LobeSetup, wi: wp.vec3):
+    """The Incident of a local direction (`incident_angles`)."""
+    d = Incident()
+    d.w = wi
     sin_i, cos_i, dphi = incident_angles(L, wi)
+    d.sin_i = sin_i
+    d.cos_i = cos_i
+    d.dphi = dphi
+    return d
+
+
+@wp.func
+def lobe_densities(L: LobeSetup, sin_i: float, cos_i: float, dphi: wp.float64):
+    """M_p N_p for each lobe (N_3 = 1/2π): the solid-angle density each lobe would sample alone."""
     d = wp.vec4(0.0)
     for p in range(3):
         m = longitudinal_scattering(sin_i, cos_i, L.sin_o[p], L.cos_o[p], L.c.inv_v[p], L.c.m_norm[p])
@@ -179,20 +210,33 @@ def lobe_densities(L: LobeSetup, wi: wp.vec3):
 @wp.func
 def hair_value(L: LobeSetup, wi: wp.vec3):
     """S(wo, wi, h) = Σ_p A_p M_p N_p, the cosine-weighted BSDF (pbrt's f times |cos θ_i|, Mitsuba's eval)."""
-    d = lobe_densities(L, wi)
-    return d[0] * L.A[0] + d[1] * L.A[1] + d[2] * L.A[2] + d[3] * L.A[3]
+    value, _density = hair_value_pdf(L, wi)
+    return value
 
 
 @wp.func
 def hair_pdf(L: LobeSetup, wi: wp.vec3):
-    return wp.dot(L.prob, lobe_densities(L, wi))
+    _value, density = hair_value_pdf(L, wi)
+    return density
 
 
 @wp.func
 def hair_value_pdf(L: LobeSetup, wi: wp.vec3):
-    """(S, pdf) at wi from one evaluation of the lobes: what a path tracer needs at every vertex."""
-    d = lobe_densities(L, wi)
-    return d[0] * L.A[0] + d[1] * L.A[1] + d[2] * L.A[2] + d[3] * L.A[3], wp.dot(L.prob, d)
+    """(S, pdf) at wi from one evaluation of the lobes: what a path tracer needs at every vertex.
+
+    The angles go as a tuple, not an Incident: Warp's reverse mode, which tests/helpers/bsdf_grad.py runs through
+    this function, differentiated the assignments to an Incident's fields wrongly (tests/test_bsdf_grad.py).
+    """
+    sin_i, cos_i, dphi = incident_angles(L, wi)
+    d = lobe_densities(L, sin_i, cos_i, dphi)
+    return lobe_sum(L.A, d), wp.dot(L.prob, d)
+
+
+@wp.func
+def hair_value_pdf_at(L: LobeSetup, wi: Incident):
+    """`hair_value_pdf` toward an Incident, from its angles: a sample's are those it was built from."""
+    d = lobe_densities(L, wi.sin_i, wi.cos_i, wi.dphi)
+    return lobe_sum(L.A, d), wp.dot(L.prob, d)
 
 
 @wp.func
@@ -231,8 +275,9 @@ def choose_lobe(prob: wp.vec4, u: float):
 
 
 @wp.func
-def hair_sample(L: LobeSetup, u: wp.vec3):
-    """A direction wi drawn exactly from hair_pdf: lobe by u[0], then M_p by u[1] and N_p by u[2].
+def hair_sample_incident(L: LobeSetup, u: wp.vec3):
+    """An Incident drawn exactly from hair_pdf: lobe by u[0], then M_p by u[1] and N_p by u[2]; its angles are
+    those the direction was built from.
 
     The remainder of u[0] after the lobe choice drives the rotation about the longitudinal cone, where an
     error in it moves wi linearly; reusing it for the logistic azimuth (as pbrt does) would amplify its
@@ -240,11 +285,24 @@ def hair_sample(L: LobeSetup, u: wp.vec3):
     """
     p, u_rot = choose_lobe(L.prob, u[0])
     sin_i, cos_i = sample_longitudinal_sin(u[1], u_rot, L.sin_o[p], L.cos_o[p], L.c.cone[p])
+    d = Incident()
+    d.sin_i = sin_i
+    d.cos_i = cos_i
     dphi = TWO_PI64 * wp.float64(u[2])
     if p < 3:
         dphi = L.phi_center[p] + wp.float64(sample_trimmed_logistic(u[2], L.c.s, L.c.n_tail))
-    # φ_i = φ_o + Δφ, by rotating φ_o's unit vector.
-    c = wp.cos(dphi)
-    s = wp.sin(dphi)
+    d.dphi = wrap_angle(dphi)
+    # φ_i = φ_o + Δφ, by rotating φ_o's unit vector. Δφ is wrapped to [−π, π) in float64 first, so that float32's
+    # cos and sin round it by about 1e-7 rad, as the float32 direction they build rounds anyway.
+    x = float(d.dphi)
+    c = wp.float64(wp.cos(x))
+    s = wp.float64(wp.sin(x))
     a = L.azimuth_o
-    return wp.vec3(sin_i, cos_i * float(a[0] * c - a[1] * s), cos_i * float(a[1] * c + a[0] * s))
+    d.w = wp.vec3(d.sin_i, d.cos_i * float(a[0] * c - a[1] * s), d.cos_i * float(a[1] * c + a[0] * s))
+    return d
+
+
+@wp.func
+def hair_sample(L: LobeSetup, u: wp.vec3):
+    """The direction of `hair_sample_incident`."""
+    return hair_sample_incident(L, u).w

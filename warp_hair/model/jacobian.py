@@ -6,10 +6,10 @@
     # in a kernel, at a fiber vertex:
     setup = lobe_setup(coeffs, wo, h)
     d_setup = lobe_setup_grad(setup, wo, h)          # the wo- and h-dependent derivatives, shared by every wi
-    value, density, lobes = hair_value_pdf_lobes(setup, wi)     # = hair_value_pdf(setup, wi), and ...
+    value, density, lobes = hair_value_pdf_lobes(setup, wi)     # wi an Incident: = hair_value_pdf_at(setup, wi), and
     J = hair_value_jacobian(setup, d_setup, derivs, lobes)      # ... J[c, k] = ∂S_c/∂θ_k there
 
-S and pdf are those of `hair_value_pdf` (the same operations on the same values), so the gradient tracer follows
+S and pdf are those of `hair_value_pdf_at` (the same operations on the same values), so the gradient tracer follows
 the renderer's paths, and J differentiates that same evaluation of the lobes. tests/helpers/bsdf_grad.py (Warp's
 reverse mode through the model as written) is the independent check of J: tests/test_bsdf_jacobian.py.
 
@@ -40,10 +40,11 @@ import warp as wp
 
 from ..controls import COLOUR_CONTROL_NAMES, CONTROLS, SCALAR_CONTROLS, THETA_SIZE, column
 from ..numerics import INV_TWO_PI, cos_from_sin
-from .hair_bsdf import LobeSetup, incident_angles
+from .hair_bsdf import Incident, LobeSetup
 from .lobes import (
     attenuation_partials,
     fresnel_dielectric_d_eta,
+    lobe_sum,
     longitudinal_scattering_with_slopes,
     mat43,
     trimmed_logistic_with_slope,
@@ -205,12 +206,6 @@ def lobe_setup_grad(L: LobeSetup, wo: wp.vec3, h: float):
     return G
 
 
-@wp.func
-def lobe_sum(A: mat43, w: wp.vec4):
-    """Σ_p w_p A_p (the rows of A): one channel-vector per lobe weighted per lobe."""
-    return w[0] * A[0] + w[1] * A[1] + w[2] * A[2] + w[3] * A[3]
-
-
 @wp.struct
 class LobeEvaluation:
     """One evaluation of the lobes toward wi, with the log-derivatives of each D_p = M_p N_p in its own
@@ -226,11 +221,13 @@ class LobeEvaluation:
 
 
 @wp.func
-def hair_value_pdf_lobes(L: LobeSetup, wi: wp.vec3):
-    """(S, pdf, E): `hair_value_pdf(L, wi)` (the same operations on the same values, so the same floats) and the
+def hair_value_pdf_lobes(L: LobeSetup, wi: Incident):
+    """(S, pdf, E): `hair_value_pdf_at(L, wi)` (the same operations on the same values, so the same floats) and the
     LobeEvaluation of `hair_value_jacobian`."""
     E = LobeEvaluation()
-    sin_i, cos_i, dphi = incident_angles(L, wi)
+    sin_i = wi.sin_i
+    cos_i = wi.cos_i
+    dphi = wi.dphi
     for p in range(4):
         m, log_v, theta_o = longitudinal_scattering_with_slopes(
             sin_i, cos_i, L.sin_o[p], L.cos_o[p], L.c.inv_v[p], L.c.m_norm[p]
@@ -246,7 +243,7 @@ def hair_value_pdf_lobes(L: LobeSetup, wi: wp.vec3):
         else:
             E.d[p] = m * INV_TWO_PI
     d = E.d
-    return d[0] * L.A[0] + d[1] * L.A[1] + d[2] * L.A[2] + d[3] * L.A[3], wp.dot(L.prob, d), E
+    return lobe_sum(L.A, d), wp.dot(L.prob, d), E
 
 
 @wp.func

@@ -149,6 +149,12 @@ def attenuation(f: float, T: wp.vec3):
 
 
 @wp.func
+def lobe_sum(A: mat43, w: wp.vec4):
+    """Σ_p w_p A_p (the rows of A): one channel-vector per lobe weighted per lobe."""
+    return w[0] * A[0] + w[1] * A[1] + w[2] * A[2] + w[3] * A[3]
+
+
+@wp.func
 def wrap_angle(x: wp.float64):
     """x wrapped to [−π, π), in float64 (see LobeSetup.phi_center)."""
     return x - TWO_PI64 * wp.floor((x + PI64) / TWO_PI64)

@@ -37,6 +37,7 @@ from .material import (
     bsdf_setup_grad,
     bsdf_value_jacobian,
     depends_on_controls,
+    local_incident,
     scattering_vertex,
 )
 
@@ -212,7 +213,7 @@ def make_sample_ld(differentiable: bool):
         if light_pdf > 0.0:
             w_light = to_local(to_light, v.x, v.y, v.z)
             if light_visible(scene, v, to_light, w_light):
-                value, pdf_bsdf, lobes = f_bsdf(v, w_light)
+                value, pdf_bsdf, lobes = f_bsdf(v, local_incident(v, w_light))
                 if pdf_bsdf > 0.0:
                     lit = True
                     f = wp.cw_mul(throughput, wp.cw_mul(value, light_radiance(scene, k, to_light)))
@@ -306,7 +307,7 @@ def make_trace_path(differentiable: bool):
             throughput = wp.cw_mul(throughput, value / pdf)
             prev_pdf = pdf
             o = v.position
-            d = wp.normalize(to_world(wi, v.x, v.y, v.z))
+            d = wp.normalize(to_world(wi.w, v.x, v.y, v.z))
             strand = v.strand
             depth += 1
 

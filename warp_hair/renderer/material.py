@@ -1,9 +1,10 @@
 """What a path meets at a scattering vertex: a material in its shading frame, behind one interface (pbrt's BSDF).
 
     v = scattering_vertex(fibers, hair, card, hit, t_card, o, d)   # the nearer surface, its frame, wo (GetBSDF)
-    value, pdf, lobes = bsdf_f(v, wi)    # cosine-weighted S and solid-angle pdf toward local wi (f and PDF);
+    d = local_incident(v, wi)            # a local direction wi with the angles the hair's lobes read of it
+    value, pdf, lobes = bsdf_f(v, d)     # cosine-weighted S and solid-angle pdf toward d (f and PDF);
                                          # bsdf_f_grad also evaluates the lobes for ∂S/∂θ
-    wi, rng = bsdf_sample(v, rng)        # a local direction drawn from the material (Sample_f)
+    d, rng = bsdf_sample(v, rng)         # a direction drawn from the material, d.w (Sample_f), with its angles
     bsdf_can_reach(v, wi)                # False where S is 0 whatever the controls: no shadow ray is traced
 
 Two materials, told apart by `Vertex.kind`: the hair BSDF (model/hair_bsdf.py) at a fiber, and the backing
@@ -13,14 +14,22 @@ kind, which keeps the kernels short and allocation-free.
 
 Derivatives (the gradient tracer, docs/gradients.md): only the hair depends on the controls θ.
 `depends_on_controls(v)` says whether a vertex's S does, `bsdf_setup_grad(v)` gives what of ∂S/∂θ depends on wo
-and h, and `bsdf_value_jacobian` the (3, 8) ∂S/∂θ toward the direction `bsdf_f_grad(v, wi)` was evaluated at.
+and h, and `bsdf_value_jacobian` the (3, 8) ∂S/∂θ toward the direction `bsdf_f_grad(v, d)` was evaluated at.
 """
 
 import warp as wp
 
 from ..geometry.card import CardData
 from ..geometry.intersect import FiberGeometry, FiberHit, shading_frame
-from ..model.hair_bsdf import HairCoefficients, LobeSetup, hair_sample, hair_value_pdf, lobe_setup
+from ..model.hair_bsdf import (
+    HairCoefficients,
+    Incident,
+    LobeSetup,
+    hair_sample_incident,
+    hair_value_pdf_at,
+    incident,
+    lobe_setup,
+)
 from ..model.jacobian import (
     CoefficientDerivatives,
     LobeEvaluation,
@@ -110,11 +119,21 @@ def scattering_vertex(
 
 
 @wp.func
-def bsdf_value_pdf(v: Vertex, wi: wp.vec3):
-    """(cosine-weighted value, solid-angle pdf) of the vertex's material toward local direction wi."""
+def local_incident(v: Vertex, wi: wp.vec3):
+    """The local direction wi as the vertex's material reads it (at the card, the direction alone)."""
+    if v.kind == HAIR:
+        return incident(v.hair, wi)
+    d = Incident()
+    d.w = wi
+    return d
+
+
+@wp.func
+def bsdf_value_pdf(v: Vertex, wi: Incident):
+    """(cosine-weighted value, solid-angle pdf) of the vertex's material toward a local direction."""
     if v.kind == CARD:
-        return diffuse_value_pdf(v.albedo, wi)
-    return hair_value_pdf(v.hair, wi)
+        return diffuse_value_pdf(v.albedo, wi.w)
+    return hair_value_pdf_at(v.hair, wi)
 
 
 @wp.func
@@ -128,26 +147,26 @@ def bsdf_can_reach(v: Vertex, wi: wp.vec3):
 
 @wp.func
 def bsdf_sample(v: Vertex, rng: wp.uint32):
-    """(local direction, rng): a direction drawn from the vertex's material (2 uniforms at the card, 3 at a
-    fiber)."""
-    wi = wp.vec3(0.0)
+    """(Incident, rng): a local direction drawn from the vertex's material (2 uniforms at the card, 3 at a
+    fiber), with the angles a fiber's sample was built from, which `bsdf_f` then reads instead of recovering them."""
+    d = Incident()
     if v.kind == CARD:
         u2, rng = rand2(rng)
-        wi = cosine_hemisphere(u2)
+        d.w = cosine_hemisphere(u2)
     else:
-        wi = hair_sample(v.hair, wp.vec3(wp.randf(rng), wp.randf(rng), wp.randf(rng)))
-    return wi, rng
+        d = hair_sample_incident(v.hair, wp.vec3(wp.randf(rng), wp.randf(rng), wp.randf(rng)))
+    return d, rng
 
 
 @wp.func
-def bsdf_f(v: Vertex, wi: wp.vec3):
+def bsdf_f(v: Vertex, wi: Incident):
     """(value, pdf, lobes): `bsdf_value_pdf`, with an empty lobe evaluation (the forward tracer's variant)."""
     value, density = bsdf_value_pdf(v, wi)
     return value, density, LobeEvaluation()
 
 
 @wp.func
-def bsdf_f_grad(v: Vertex, wi: wp.vec3):
+def bsdf_f_grad(v: Vertex, wi: Incident):
     """(value, pdf, lobes): `bsdf_value_pdf` (the same floats), and at a fiber also the evaluation of its lobes
     that `bsdf_value_jacobian` differentiates (the gradient tracer's variant)."""
     if v.kind == HAIR:
