@@ -62,12 +62,18 @@ def longitudinal_scattering(sin_i: float, cos_i: float, sin_o: float, cos_o: flo
     return bessel_i0e_times_exp(cos_i * cos_o * inv_v, e * inv_v) * norm
 
 
+# Below this variance e^(2/v) overflows float32: the far-hemisphere form of the cone sample is not used there.
+_FAR_FORM_MIN_V = 0.025
+
+
 def cone_constants(v):
     """Rows (v, 1 − e^(−2/v), e^(−2/v), e^(2/v) − 1) per lobe variance v, in float64 on the host: what
     `sample_longitudinal_cone` needs of the material, formed once rather than by three float32 exponentials a sample.
-    The last is 0 where it would overflow float32 (v ≤ 0.025), where the sampler does not use it."""
+    The last is 0 where it would overflow float32 (v ≤ 0.025 as the kernel reads v, in float32), which tells the
+    sampler not to use it."""
     v = np.asarray(v, dtype=np.float64)
-    growth = np.where(v > 0.025, np.expm1(2.0 / np.maximum(v, 0.025)), 0.0)
+    usable = v.astype(np.float32) > np.float32(_FAR_FORM_MIN_V)
+    growth = np.where(usable, np.expm1(2.0 / np.maximum(v, _FAR_FORM_MIN_V)), 0.0)
     return np.stack([v, -np.expm1(-2.0 / v), np.exp(-2.0 / v), growth], axis=-1)
 
 
@@ -92,7 +98,7 @@ def sample_longitudinal_cone(u: float, cone: wp.vec4):
     if log_arg > -2.0 / v:
         a = wp.min(-v * log_arg, 2.0)
     b = 2.0 - a
-    if a > 1.0 and v > 0.025:  # e^(2/v) stays finite in float32
+    if a > 1.0 and cone[3] > 0.0:  # 0 where e^(2/v) would overflow float32 (`cone_constants`)
         b = v * log1p(u * cone[3])
     return a, b
 
