@@ -36,7 +36,7 @@ import numpy as np
 import warp as wp
 
 from warp_hair.geometry.bvh import TRAVERSAL_COST, build_bvh
-from warp_hair.geometry.intersect import intersect_fibers
+from warp_hair.geometry.intersect import BVH_WIDTH, intersect_fibers
 from warp_hair.geometry.rays import intersect, occluded
 from warp_hair.geometry.tubes import MAX_LEAF, segment_boxes, segment_frames
 from warp_hair.model.hair_bsdf import hair_sample_incident, hair_value_pdf_at, lobe_setup
@@ -80,7 +80,7 @@ def preparation(scene) -> list:
         lowers, uppers = segment_boxes(seg)
     rows.append(("tube boxes", c.wall, c.cpu))
     with Clock() as c:
-        build_bvh(lowers, uppers, max_leaf=MAX_LEAF, width=4, traversal_cost=TRAVERSAL_COST)
+        build_bvh(lowers, uppers, max_leaf=MAX_LEAF, width=BVH_WIDTH, traversal_cost=TRAVERSAL_COST)
     rows.append(("BVH build", c.wall, c.cpu))
     with Clock() as c:
         prepare(scene)

@@ -128,10 +128,10 @@ def draped_swatch(segments: int, per_strand: int = SEGMENTS_PER_STRAND):
 
 
 def sah_cost(nodes: np.ndarray) -> float:
-    """The surface area heuristic cost of a 4-wide fiber BVH (its BvhNode records), relative to its root box."""
+    """The surface area heuristic cost of the fiber BVH (its BvhNode records, any width), relative to its root box."""
     from warp_hair.geometry.bvh import TRAVERSAL_COST, leaf_range
 
-    bounds = nodes["bounds"].transpose(0, 2, 1).astype(np.float64)  # (N, 4 children, lo xyz + hi xyz)
+    bounds = nodes["bounds"].transpose(0, 2, 1).astype(np.float64)  # (N, children, lo xyz + hi xyz)
     lo, hi = bounds[..., :3], bounds[..., 3:]
     child = nodes["child"].astype(np.int64)
     d = hi - lo

@@ -14,7 +14,7 @@ from warp_hair.geometry import bvh as bvh_module
 from warp_hair.geometry.assembly import FiberAssembly
 from warp_hair.geometry.formats import load_fibers
 from warp_hair.geometry.generators import wavy
-from warp_hair.geometry.intersect import STACK_SIZE
+from warp_hair.geometry.intersect import BVH_WIDTH, STACK_SIZE
 from warp_hair.geometry.rays import intersect, occluded
 from warp_hair.geometry.tubes import FiberBVH, segment_boxes, segment_frames, segment_pieces
 
@@ -571,10 +571,10 @@ def check_tree(tree, lowers, uppers, max_leaf):
     np.testing.assert_array_equal(covered, 1)
     if m:
         assert tree.depth == tree.level.max() + 1
-        assert tree.depth <= bvh_module.MAX_DEPTH * 2 // tree.width
+        assert tree.depth <= -(-bvh_module.MAX_DEPTH // (tree.width.bit_length() - 1))
 
 
-@pytest.mark.parametrize("width", [2, 4])
+@pytest.mark.parametrize("width", [2, 4, 8])
 @pytest.mark.parametrize("case", ["empty", "one", "two", "three", "random", "coincident", "geometric", "swatch"])
 def test_bvh_layout(case, width):
     rng = np.random.default_rng(1)
@@ -595,8 +595,8 @@ def test_bvh_layout(case, width):
     for max_leaf in (1, 2, 4):
         tree = bvh_module.build_bvh(lowers, uppers, max_leaf=max_leaf, width=width)
         check_tree(tree, lowers, uppers, max_leaf)
-        if width == 4:
-            assert 3 * tree.depth <= STACK_SIZE
+        if width == BVH_WIDTH:
+            assert (BVH_WIDTH - 1) * tree.depth + 1 <= STACK_SIZE
 
 
 def agrees_with_the_brute_force(fibers, bvh, origins, directions, rng, hits=(0.2, 0.9, 0.2), min_sin=0.0):

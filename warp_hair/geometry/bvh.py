@@ -2,7 +2,7 @@
 
 Layout
 ------
-`build_bvh` returns a `Tree` of flat arrays, ready to become Warp arrays; `width` is 2 (binary) or 4:
+`build_bvh` returns a `Tree` of flat arrays, ready to become Warp arrays; `width` is 2 (binary), 4 or 8:
 
 * `order` (M,): the primitives in leaf order. Every leaf covers a contiguous range of it, so the caller
   stores its per-primitive data in this order and a leaf reads one contiguous block.
@@ -11,7 +11,7 @@ Layout
 * `child` (N, width) int32: a child >= 0 is an interior node; a child < 0 is a leaf, `leaf_range(child)` =
   (start, count) into `order`, count <= `MAX_LEAF_SIZE`.
 
-Node 0 is the root. Unused child slots (a 4-wide node may have only 2 or 3 children, a one-primitive tree has
+Node 0 is the root. Unused child slots (a wide node may have fewer children than slots, a one-primitive tree has
 one) are empty leaves (count 0) in a box at 1e30 in every coordinate: no ray of unit direction gets there
 before t ≈ 1e30, and one that does finds nothing. An empty set has no nodes at all and must not be traversed.
 
@@ -29,8 +29,9 @@ the median instead (sorted in NumPy: rare), so the depth never exceeds MAX_DEPTH
 in float64 and deterministic: tests/helpers/reference_bvh.py, the same algorithm in NumPy, gives the same tree.
 Build time and memory per segment, 10³ to 10⁶ segments: `benchmarks/scaling.py`.
 
-The 4-wide tree collapses the binary one: its nodes are the binary nodes at even depth, and their children
-are their binary grandchildren (or a child itself, where that is a leaf).
+A wider tree collapses the binary one: the 4-wide tree's nodes are the binary nodes at even depth, and their
+children are their binary grandchildren (or a child itself, where that is a leaf); the 8-wide tree's are the
+binary nodes at depths 0, 3, 6, …, with the descendants three levels down as children.
 """
 
 from __future__ import annotations
@@ -49,11 +50,13 @@ wp.set_module_options({"enable_backward": False, "optimization_level": 3})
 LEAF_BITS = 3
 MAX_LEAF_SIZE = (1 << LEAF_BITS) - 1
 BINS = 16
-# Most interior nodes on any root-to-leaf path of the binary tree (MAX_DEPTH / 2 in the 4-wide one), which
+# Most interior nodes on any root-to-leaf path of the binary tree (ceil(MAX_DEPTH / 3) in the 8-wide one), which
 # bounds what a traversal stack must hold.
 MAX_DEPTH = 40
-# Cost of testing a node's child boxes, relative to one primitive test.
-TRAVERSAL_COST = 1.0
+# Cost of testing a node's child boxes, relative to one primitive test: an 8-wide visit takes about half a tube
+# test's instructions, and of 0.25, 0.35, 0.5, 1 and 2 the value 0.5 gives the fewest instructions a ray on both
+# benchmark swatches (docs/benchmarks.md, "The traversal, step by step").
+TRAVERSAL_COST = 0.5
 # Levels with fewer ranges than this are split in one launch, not over the thread pool.
 PARALLEL_RANGES = 256
 # Corner of the box of an empty child slot.
@@ -91,13 +94,13 @@ def build_bvh(
     traversal_cost: float = TRAVERSAL_COST,
     threads: int | None = None,
 ) -> Tree:
-    """The tree of the given `width` (2 or 4) over the boxes (lowers, uppers) (M, 3); see the module docstring.
+    """The tree of the given `width` (2, 4 or 8) over the boxes (lowers, uppers) (M, 3); see the module docstring.
     The ranges of a level are split by `threads` threads (default: one per core); the tree does not depend on
     their number."""
-    if width not in (2, 4):
-        raise ValueError(f"width must be 2 or 4, got {width}")
+    if width not in (2, 4, 8):
+        raise ValueError(f"width must be 2, 4 or 8, got {width}")
     tree = build_binary(lowers, uppers, max_leaf, traversal_cost, threads)
-    return tree if width == 2 else _widen(tree)
+    return tree if width == 2 else _widen(tree, width)
 
 
 def half_area(box):
@@ -246,37 +249,43 @@ def _median_partition(prims, start, count, axis):
     index[pos], lowers[pos], uppers[pos] = index[sort], lowers[sort], uppers[sort]
 
 
-def _widen(tree: Tree) -> Tree:
-    """The 4-wide tree of a binary one: its nodes at even depth, each with its grandchildren as children."""
+def _widen(tree: Tree, width: int) -> Tree:
+    """The `width`-wide tree (4 or 8) of a binary one: its nodes at depths that are multiples of log2(width), each
+    with its descendants that many levels down as children (or a leaf met on the way, in the slot its subtree
+    would have had: the children keep the binary tree's left-to-right order)."""
+    levels = width.bit_length() - 1
     n = len(tree.child)
     if n == 0:
-        return Tree(
-            tree.order,
-            np.zeros((0, 4, 3), np.float32),
-            np.zeros((0, 4, 3), np.float32),
-            np.zeros((0, 4), np.int32),
-            0,
-            tree.level,
-        )
-    keep = np.flatnonzero(tree.level % 2 == 0)
+        empty = np.zeros((0, width, 3), np.float32)
+        return Tree(tree.order, empty, empty.copy(), np.zeros((0, width), np.int32), 0, tree.level)
+    keep = np.flatnonzero(tree.level % levels == 0)
     index = np.full(n, -1, dtype=np.int64)
     index[keep] = np.arange(len(keep))
-    lo = np.full((len(keep), 4, 3), EMPTY_BOX, dtype=np.float32)
-    hi = np.full((len(keep), 4, 3), EMPTY_BOX, dtype=np.float32)
-    child = np.full((len(keep), 4), leaf_code(0, 0), dtype=np.int64)
-    for side in (0, 1):
-        c = tree.child[keep, side].astype(np.int64)
-        inner = c >= 0
-        # A leaf child keeps its slot; an interior child hands over its own two children.
-        lo[~inner, 2 * side] = tree.lo[keep[~inner], side]
-        hi[~inner, 2 * side] = tree.hi[keep[~inner], side]
-        child[~inner, 2 * side] = c[~inner]
-        for grand in (0, 1):
-            lo[inner, 2 * side + grand] = tree.lo[c[inner], grand]
-            hi[inner, 2 * side + grand] = tree.hi[c[inner], grand]
-            child[inner, 2 * side + grand] = tree.child[c[inner], grand]
+    lo = tree.lo[keep]
+    hi = tree.hi[keep]
+    child = tree.child[keep].astype(np.int64)
+    # Each pass doubles the slots: slot s becomes slots 2s and 2s + 1, an interior child's two children, or a leaf
+    # child and an empty slot.
+    for _ in range(levels - 1):
+        k = len(keep)
+        slots = child.shape[1]
+        lo2 = np.full((k, 2 * slots, 3), EMPTY_BOX, dtype=np.float32)
+        hi2 = np.full((k, 2 * slots, 3), EMPTY_BOX, dtype=np.float32)
+        child2 = np.full((k, 2 * slots), leaf_code(0, 0), dtype=np.int64)
+        for s in range(slots):
+            c = child[:, s]
+            inner = c >= 0
+            lo2[~inner, 2 * s] = lo[~inner, s]
+            hi2[~inner, 2 * s] = hi[~inner, s]
+            child2[~inner, 2 * s] = c[~inner]
+            for grand in (0, 1):
+                lo2[inner, 2 * s + grand] = tree.lo[c[inner], grand]
+                hi2[inner, 2 * s + grand] = tree.hi[c[inner], grand]
+                child2[inner, 2 * s + grand] = tree.child[c[inner], grand]
+        lo, hi, child = lo2, hi2, child2
     child = np.where(child >= 0, index[np.maximum(child, 0)], child)
-    return Tree(tree.order, lo, hi, child.astype(np.int32), (tree.depth + 1) // 2, tree.level[keep] // 2)
+    depth = -(-tree.depth // levels)
+    return Tree(tree.order, lo, hi, child.astype(np.int32), depth, tree.level[keep] // levels)
 
 
 # Per-bin values of all three axes (axis · BINS + bin).

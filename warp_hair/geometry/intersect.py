@@ -1,4 +1,4 @@
-"""Ray–fiber intersection: exact hits on the round tubes of a `FiberAssembly`, through a 4-wide BVH.
+"""Ray–fiber intersection: exact hits on the round tubes of a `FiberAssembly`, through an 8-wide BVH.
 
 Geometry
 --------
@@ -61,28 +61,32 @@ consistent as the BSDF assumes. The geometry stays the mitred tubes.
 
 BVH traversal
 -------------
-The tubes' boxes go into a 4-wide BVH (`warp_hair.geometry.bvh`, which documents the layout and the build): each
-`BvhNode` holds the boxes of its four children as a 6×4 matrix (one row per bound, children 0..3 in the
-columns) and their references, and the per-tube data sits in one `Tube` struct array in leaf order, so that a
-leaf reads one contiguous block. A traversal keeps a fixed-size local stack (`NodeStack`, a Warp vector of
-STACK_SIZE ints; the builder bounds the depth so that it cannot overflow) and, at each node:
+The tubes' boxes go into an 8-wide BVH (`warp_hair.geometry.bvh`, which documents the layout and the build:
+three levels of the binary SAH tree a node): each `BvhNode` holds the boxes of its eight children as a 6×8
+matrix (one row per bound, children 0..7 in the columns) and their references, and the per-tube data sits in one
+`Tube` struct array in leaf order, so that a leaf reads one contiguous block. A traversal keeps a fixed-size
+local stack (`NodeStack`, a Warp vector of STACK_SIZE ints; the builder bounds the depth so that it cannot
+overflow) and, at each node:
 
-1. tests the ray against the four child boxes at once (slab test with 1/direction computed once per ray;
+1. tests the ray against the eight child boxes at once (slab test with 1/direction computed once per ray;
    zero direction components become TINY, since 0 · inf gives NaN for a ray exactly in a box face; the near
    and far plane of each axis picked once per ray by the sign of the direction, as rows of the bound matrix;
-   on the CPU as four-lane vectors, `_CHILD_ENTRIES_SNIPPET`), giving each child's entry distance, or NO_HIT
-   where the ray misses it before the best hit so far;
-2. for a closest hit, descends into the one child the ray enters, or into the nearer of two, pushing the
-   other (most nodes: 1.3–1.4 children entered on average); for three or four, sorts the (entry, child) pairs
-   with a 5-comparator network, pushes the second to fourth nearest that the ray enters (farthest first,
-   without branches: a miss is written and the stack pointer not advanced) and descends into the nearest.
+   on the CPU as eight-lane vectors, `_CHILD_ENTRIES_SNIPPET`, reading the node where it lies), giving each
+   child's entry distance, or NO_HIT where the ray misses it before the best hit so far, and a bit mask of the
+   children it enters;
+2. for a closest hit, descends into the one child the ray enters (most nodes), or into the nearer of two,
+   pushing the other; for three or more, inserts them into the stack in order of entry and pops the nearest.
 
 `intersect_fibers` keeps the entry distance beside each pushed child (`EntryStack`) and skips, when popping,
 subtrees that the ray enters only beyond the closest hit found since: front to back, with pruning.
 `fibers_occluded` returns at the first hit, which needs no order: it pushes the children the ray enters
 unsorted, as Embree's shadow rays do. Which of two hits at the same t wins (only possible in the 1e-3·r seam
-overlap of a joint, where both are valid) depends on the order of the visit; the two-child path keeps the
-sorting network's order (equal entries in child order).
+overlap of a joint, where both are valid and give the same t to the last bit) depends on the order of the
+visit; equal entries are visited in child order.
+
+Why 8 wide (docs/benchmarks.md, "The traversal, step by step"): a visit's slab test costs the same in eight
+lanes as in four (one AVX register a row), and a ray visits a fifth to a third fewer nodes than in the 4-wide
+tree of the same binary tree, with the same leaves.
 """
 
 from __future__ import annotations
@@ -90,7 +94,7 @@ from __future__ import annotations
 import warp as wp
 
 from ..numerics import NO_HIT
-from .bvh import LEAF_BITS, MAX_LEAF_SIZE
+from .bvh import LEAF_BITS, MAX_DEPTH, MAX_LEAF_SIZE
 
 wp.set_module_options({"enable_backward": False})
 
@@ -102,11 +106,18 @@ SURFACE_BAND2 = wp.constant(1.002001)
 MIN_SIN2 = wp.constant(1.0e-12)
 # Stand-in for zero direction components in the BVH slab test.
 TINY = wp.constant(1.0e-30)
-# Slots of the traversal stack. A 4-wide node leaves at most 3 children pending and a traversal writes up to
-# 3 slots past those, so a tree of depth D needs 3·D slots; `build_bvh` keeps D <= bvh.MAX_DEPTH / 2 = 20.
-STACK_SIZE = 64
+# Children of a BVH node: the fiber BVH is 8-wide (`build_bvh(width=BVH_WIDTH)`, three binary levels a node).
+# The native snippets below (`_CHILD_ENTRIES_SNIPPET`, `_entered`) are written for eight lanes.
+BVH_WIDTH = 8
+# Slots of the traversal stack. A node leaves at most BVH_WIDTH − 1 children pending, and a visit holds one more
+# for a moment (all it enters, before the nearest is popped), so a tree of depth D needs (BVH_WIDTH − 1)·D + 1
+# slots; `build_bvh` keeps D <= ceil(bvh.MAX_DEPTH / 3) = 14.
+STACK_SIZE = (BVH_WIDTH - 1) * -(-MAX_DEPTH // 3) + 1
 NodeStack = wp.types.vector(length=STACK_SIZE, dtype=wp.int32)
 EntryStack = wp.types.vector(length=STACK_SIZE, dtype=float)
+# A node's children's entry distances, and their references.
+Entries = wp.types.vector(length=BVH_WIDTH, dtype=float)
+Children = wp.types.vector(length=BVH_WIDTH, dtype=wp.int32)
 # A leaf reference is −1 − ((first tube << LEAF_SHIFT) | count).
 LEAF_SHIFT = wp.constant(LEAF_BITS)
 LEAF_MASK = wp.constant(MAX_LEAF_SIZE)
@@ -126,20 +137,20 @@ class Tube:
     radius: float
 
 
-# A node's child boxes: rows lo_x, lo_y, lo_z, hi_x, hi_y, hi_z, each with children 0..3 in its columns, so
+# A node's child boxes: rows lo_x, lo_y, lo_z, hi_x, hi_y, hi_z, each with children 0..7 in its columns, so
 # that a ray picks its near and far plane of each axis by row index (`SlabRows`).
-NodeBounds = wp.types.matrix(shape=(6, 4), dtype=float)
+NodeBounds = wp.types.matrix(shape=(6, BVH_WIDTH), dtype=float)
 # Row of the near x, y, z plane and of the far ones for a ray: the lower plane where the direction is positive.
 SlabRows = wp.types.vector(length=6, dtype=wp.int32)
 
 
 @wp.struct
 class BvhNode:
-    """A node of the 4-wide fiber BVH (`warp_hair.geometry.bvh`): the boxes of its four children (`NodeBounds`)
+    """A node of the 8-wide fiber BVH (`warp_hair.geometry.bvh`): the boxes of its eight children (`NodeBounds`)
     and what the children are."""
 
     bounds: NodeBounds
-    child: wp.vec4i  # >= 0: an interior node; < 0: a leaf, −1 − child = (first tube << LEAF_SHIFT) | count
+    child: Children  # >= 0: an interior node; < 0: a leaf, −1 − child = (first tube << LEAF_SHIFT) | count
 
 
 @wp.struct
@@ -250,14 +261,15 @@ def _slab_rows(inv: wp.vec3):
     return SlabRows(wp.int32(nx), wp.int32(ny), wp.int32(nz), wp.int32(3 - nx), wp.int32(5 - ny), wp.int32(7 - nz))
 
 
-# The slab test of `_child_entries` on the CPU as four-lane vectors (clang's vector extension, one SSE register a
-# row): Warp's element-wise vec4 code for it, with the row picked at run time, compiles to a mix of scalar and
-# two-lane operations. CUDA, one ray a thread, takes the same arithmetic per lane. Both give the values the
-# element-wise form gives, operation for operation: (plane − o) · inv, then max/min as `a > b ? a : b`.
+# The slab test of `_child_entries` on the CPU as eight-lane vectors (clang's vector extension, one AVX register a
+# row): Warp's element-wise code for it, with the row picked at run time, compiles to a mix of scalar and two-lane
+# operations. CUDA, one ray a thread, takes the same arithmetic per lane. Both give the values the element-wise
+# form gives, operation for operation: (plane − o) · inv, then max/min as `a > b ? a : b`.
 _CHILD_ENTRIES_SNIPPET = """
 #if defined(__CUDA_ARCH__)
-    float out[4];
-    for (int k = 0; k < 4; ++k) {
+    const auto& bounds = wp::address(nodes, ref)->bounds;
+    wp::vec_t<8, float> out;
+    for (int k = 0; k < 8; ++k) {
         float x0 = (bounds.data[rows[0]][k] - origin[0]) * inv[0];
         float y0 = (bounds.data[rows[1]][k] - origin[1]) * inv[1];
         float z0 = (bounds.data[rows[2]][k] - origin[2]) * inv[2];
@@ -270,28 +282,28 @@ _CHILD_ENTRIES_SNIPPET = """
         float e = x1 < y1 ? x1 : y1;
         float f = z1 < t_hi ? z1 : t_hi;
         float fr = e < f ? e : f;
-        out[k] = nr <= fr ? nr : no_hit;
+        out.c[k] = nr <= fr ? nr : no_hit;
     }
-    return wp::vec4(out[0], out[1], out[2], out[3]);
+    return out;
 #else
-    typedef float lanes __attribute__((vector_size(16)));
-    const float* b = &bounds.data[0][0];
+    typedef float lanes __attribute__((vector_size(32)));
+    const float* b = &wp::address(nodes, ref)->bounds.data[0][0];
     lanes x0, y0, z0, x1, y1, z1;
-    __builtin_memcpy(&x0, b + 4 * rows[0], 16);
-    __builtin_memcpy(&y0, b + 4 * rows[1], 16);
-    __builtin_memcpy(&z0, b + 4 * rows[2], 16);
-    __builtin_memcpy(&x1, b + 4 * rows[3], 16);
-    __builtin_memcpy(&y1, b + 4 * rows[4], 16);
-    __builtin_memcpy(&z1, b + 4 * rows[5], 16);
+    __builtin_memcpy(&x0, b + 8 * rows[0], 32);
+    __builtin_memcpy(&y0, b + 8 * rows[1], 32);
+    __builtin_memcpy(&z0, b + 8 * rows[2], 32);
+    __builtin_memcpy(&x1, b + 8 * rows[3], 32);
+    __builtin_memcpy(&y1, b + 8 * rows[4], 32);
+    __builtin_memcpy(&z1, b + 8 * rows[5], 32);
     x0 = (x0 - origin[0]) * inv[0];
     y0 = (y0 - origin[1]) * inv[1];
     z0 = (z0 - origin[2]) * inv[2];
     x1 = (x1 - origin[0]) * inv[0];
     y1 = (y1 - origin[1]) * inv[1];
     z1 = (z1 - origin[2]) * inv[2];
-    lanes zero = {0.0f, 0.0f, 0.0f, 0.0f};
-    lanes hi = {t_hi, t_hi, t_hi, t_hi};
-    lanes miss = {no_hit, no_hit, no_hit, no_hit};
+    lanes zero = {0, 0, 0, 0, 0, 0, 0, 0};
+    lanes hi = zero + t_hi;
+    lanes miss = zero + no_hit;
     lanes a = x0 > y0 ? x0 : y0;
     lanes c = z0 > zero ? z0 : zero;
     lanes nr = a > c ? a : c;
@@ -299,42 +311,71 @@ _CHILD_ENTRIES_SNIPPET = """
     lanes f = z1 < hi ? z1 : hi;
     lanes fr = e < f ? e : f;
     lanes out = nr <= fr ? nr : miss;
-    return wp::vec4(out[0], out[1], out[2], out[3]);
+    wp::vec_t<8, float> result;
+    __builtin_memcpy(&result.c[0], &out, 32);
+    return result;
 #endif
 """
 
 
 @wp.func_native(_CHILD_ENTRIES_SNIPPET)
 def _child_entries_native(
-    bounds: NodeBounds, origin: wp.vec3, inv: wp.vec3, rows: SlabRows, t_hi: float, no_hit: float
-) -> wp.vec4: ...
+    nodes: wp.array(dtype=BvhNode), ref: int, origin: wp.vec3, inv: wp.vec3, rows: SlabRows, t_hi: float, no_hit: float
+) -> Entries: ...
 
 
 @wp.func
-def _child_entries(node: BvhNode, origin: wp.vec3, inv: wp.vec3, rows: SlabRows, t_hi: float):
-    """Where the ray enters each child box of the node (0 if it starts inside), NO_HIT for a miss before t_hi.
+def _child_entries(g: FiberGeometry, ref: int, origin: wp.vec3, inv: wp.vec3, rows: SlabRows, t_hi: float):
+    """Where the ray enters each child box of node `ref` (0 if it starts inside), NO_HIT for a miss before t_hi.
     The same values as the slab test with the min and max of each axis's two planes: (plane − o) · inv is
-    monotonic in the plane for a fixed sign of inv, and never NaN (inv is finite)."""
-    return _child_entries_native(node.bounds, origin, inv, rows, t_hi, NO_HIT)
+    monotonic in the plane for a fixed sign of inv, and never NaN (inv is finite). The node is read where it lies
+    (a copy of it, which Warp's `g.nodes[ref]` makes, costs a store and a load a row)."""
+    return _child_entries_native(g.nodes, ref, origin, inv, rows, t_hi, NO_HIT)
+
+
+@wp.func_native("return wp::address(nodes, ref)->child.c[k];")
+def _child_native(nodes: wp.array(dtype=BvhNode), ref: int, k: int) -> int: ...
 
 
 @wp.func
-def _compare_swap(ta: float, tb: float, a: int, b: int):
-    """The two (entry, child) pairs in order of entry."""
-    swap = tb < ta
-    return wp.where(swap, tb, ta), wp.where(swap, ta, tb), wp.where(swap, b, a), wp.where(swap, a, b)
+def _child(g: FiberGeometry, ref: int, k: int):
+    """Child k of node `ref`, read where it lies."""
+    return _child_native(g.nodes, ref, k)
 
 
-@wp.func
-def _sort_entries(entry: wp.vec4, child: wp.vec4i):
-    """The node's four children and their entry distances, nearest first (misses, at NO_HIT, last):
-    a five-comparator sorting network, no branches."""
-    t0, t1, c0, c1 = _compare_swap(entry[0], entry[1], child[0], child[1])
-    t2, t3, c2, c3 = _compare_swap(entry[2], entry[3], child[2], child[3])
-    t0, t2, c0, c2 = _compare_swap(t0, t2, c0, c2)
-    t1, t3, c1, c3 = _compare_swap(t1, t3, c1, c3)
-    t1, t2, c1, c2 = _compare_swap(t1, t2, c1, c2)
-    return t0, t1, t2, t3, c0, c1, c2, c3
+@wp.func_native(
+    """
+#if defined(__AVX__) && !defined(__CUDA_ARCH__)
+    typedef float lanes __attribute__((vector_size(32)));
+    lanes e;
+    __builtin_memcpy(&e, &entry.c[0], 32);
+    lanes hi = {t_hi, t_hi, t_hi, t_hi, t_hi, t_hi, t_hi, t_hi};
+    return __builtin_ia32_movmskps256((lanes)(e < hi));
+#else
+    int mask = 0;
+    for (int k = 0; k < 8; ++k)
+        mask |= (entry.c[k] < t_hi ? 1 : 0) << k;
+    return mask;
+#endif
+"""
+)
+def _entered(entry: Entries, t_hi: float) -> int:
+    """Bit k set where the ray enters child k before t_hi."""
+    ...
+
+
+@wp.func_native(
+    """
+#if defined(__CUDA_ARCH__)
+    return __ffs(mask) - 1;
+#else
+    return __builtin_ctz(mask);
+#endif
+"""
+)
+def _lowest_bit(mask: int) -> int:
+    """The index of the lowest set bit of a nonzero mask."""
+    ...
 
 
 @wp.func
@@ -433,47 +474,44 @@ def _closest_hit(g: FiberGeometry, origin: wp.vec3, direction: wp.vec3, t_max: f
     ref = int(0)
     while ref != DONE:
         if ref >= 0:
-            node = g.nodes[ref]
-            entry = _child_entries(node, origin, inv, rows, t_best)
-            h0 = entry[0] < t_best
-            h1 = entry[1] < t_best
-            h2 = entry[2] < t_best
-            h3 = entry[3] < t_best
-            hits = wp.where(h0, 1, 0) + wp.where(h1, 1, 0) + wp.where(h2, 1, 0) + wp.where(h3, 1, 0)
-            # Most nodes have one or two children the ray enters: no sort for one, one comparison for two (the
-            # order the sorting network gives, which keeps two equal entries in child order).
-            if hits == 1:
-                ref = wp.where(
-                    h0, node.child[0], wp.where(h1, node.child[1], wp.where(h2, node.child[2], node.child[3]))
-                )
-                continue
-            if hits == 2:
-                ia = wp.where(h0, 0, wp.where(h1, 1, 2))
-                ib = wp.where(h3, 3, wp.where(h2, 2, 1))
-                ta = entry[ia]
-                tb = entry[ib]
-                near = wp.where(tb < ta, ib, ia)
-                far = ia + ib - near
-                stack[sp] = wp.int32(node.child[far])
-                stack_t[sp] = entry[far]
-                sp += 1
-                ref = node.child[near]
-                continue
-            t0, t1, t2, t3, c0, c1, c2, c3 = _sort_entries(entry, node.child)
-            # Push the children the ray enters after the nearest, farthest first (a miss is written and left) ...
-            stack[sp] = wp.int32(c3)
-            stack_t[sp] = t3
-            sp += wp.where(t3 < t_best, 1, 0)
-            stack[sp] = wp.int32(c2)
-            stack_t[sp] = t2
-            sp += wp.where(t2 < t_best, 1, 0)
-            stack[sp] = wp.int32(c1)
-            stack_t[sp] = t1
-            sp += wp.where(t1 < t_best, 1, 0)
-            # ... and visit the nearest next.
-            if t0 < t_best:
-                ref = c0
-                continue
+            entry = _child_entries(g, ref, origin, inv, rows, t_best)
+            mask = _entered(entry, t_best)
+            if mask != 0:
+                # Most nodes have one or two children the ray enters: no sort for one, one comparison for two
+                # (equal entries in child order).
+                ia = _lowest_bit(mask)
+                rest = mask & (mask - 1)
+                if rest == 0:
+                    ref = _child(g, ref, ia)
+                    continue
+                if (rest & (rest - 1)) == 0:
+                    ib = _lowest_bit(rest)
+                    ta = entry[ia]
+                    tb = entry[ib]
+                    near = wp.where(tb < ta, ib, ia)
+                    far = ia + ib - near
+                    stack[sp] = _child(g, ref, far)
+                    stack_t[sp] = entry[far]
+                    sp += 1
+                    ref = _child(g, ref, near)
+                    continue
+                # Three or more: each inserted into the stack in order of entry, nearest on top (equal entries in
+                # child order), and the nearest popped below.
+                base = sp
+                while mask != 0:
+                    i = _lowest_bit(mask)
+                    mask = mask & (mask - 1)
+                    e = entry[i]
+                    j = sp
+                    while j > base:
+                        if stack_t[j - 1] > e:
+                            break
+                        stack[j] = stack[j - 1]
+                        stack_t[j] = stack_t[j - 1]
+                        j -= 1
+                    stack[j] = _child(g, ref, i)
+                    stack_t[j] = e
+                    sp += 1
         else:
             code = -1 - ref
             first = code >> LEAF_SHIFT
@@ -526,17 +564,16 @@ def _any_hit(g: FiberGeometry, origin: wp.vec3, direction: wp.vec3, t_max: float
     while ref != DONE:
         if ref >= 0:
             # Any hit ends the search, so the order of the visit does not matter: the children the ray enters are
-            # pushed as they come, unsorted, and the last of them popped next.
-            node = g.nodes[ref]
-            entry = _child_entries(node, origin, inv, rows, t_hi)
-            stack[sp] = wp.int32(node.child[3])
-            sp += wp.where(entry[3] < t_hi, 1, 0)
-            stack[sp] = wp.int32(node.child[2])
-            sp += wp.where(entry[2] < t_hi, 1, 0)
-            stack[sp] = wp.int32(node.child[1])
-            sp += wp.where(entry[1] < t_hi, 1, 0)
-            if entry[0] < t_hi:
-                ref = node.child[0]
+            # pushed as they come, unsorted, and the first of them visited next.
+            mask = _entered(_child_entries(g, ref, origin, inv, rows, t_hi), t_hi)
+            if mask != 0:
+                first = _lowest_bit(mask)
+                mask = mask & (mask - 1)
+                while mask != 0:
+                    stack[sp] = _child(g, ref, _lowest_bit(mask))
+                    sp += 1
+                    mask = mask & (mask - 1)
+                ref = _child(g, ref, first)
                 continue
         else:
             code = -1 - ref

@@ -1,5 +1,5 @@
 """`FiberBVH`: a `FiberAssembly` turned into the tubes the device ray test reads (mitred joints, open clipped ends,
-vertex tangents for the shading frame) and their 4-wide BVH, kept alive on one device. intersect.py's
+vertex tangents for the shading frame) and their 8-wide BVH, kept alive on one device. intersect.py's
 docstring explains the tube geometry."""
 
 from __future__ import annotations
@@ -8,11 +8,12 @@ import numpy as np
 import warp as wp
 
 from .bvh import TRAVERSAL_COST, build_bvh
-from .intersect import STACK_SIZE, BvhNode, FiberGeometry, Tube
+from .intersect import BVH_WIDTH, STACK_SIZE, BvhNode, FiberGeometry, Tube
 
-# Tubes per BVH leaf, at most (the cost of a node visit relative to a tube test is bvh.TRAVERSAL_COST): leaves
-# of 1 or 4 tubes take no fewer instructions a ray than leaves of 2 (docs/benchmarks.md, "The traversal, step
-# by step"), and leaves of 4 or 7 render a swatch a few percent slower.
+# Tubes per BVH leaf, at most (the cost of a node visit relative to a tube test is bvh.TRAVERSAL_COST): with
+# the SAH's node cost at 0.5 no other size takes fewer instructions a ray on both benchmark swatches
+# (docs/benchmarks.md, "The traversal, step by step", has 1, 3 and 4), and leaves of 4 or 7 render a swatch a
+# few percent slower.
 MAX_LEAF = 2
 # Mitre joints overlap by this many radii past the mitre plane (see the module docstring).
 JOINT_OVERLAP = 1.0e-3
@@ -23,7 +24,7 @@ MIN_LENGTH_RADII = 1.0e-6
 
 
 class FiberBVH:
-    """The tube data and 4-wide BVH of a `FiberAssembly` on a device; keeps them alive.
+    """The tube data and 8-wide BVH of a `FiberAssembly` on a device; keeps them alive.
 
     `geometry` is the `FiberGeometry` that kernels take; `bounds` is (lo (3,), hi (3,)) float64, the box
     around every tube. Segment indices are those of `assembly.segments()`. `smooth_tangents=False` gives
@@ -32,7 +33,7 @@ class FiberBVH:
     The tree is built on the host whatever `device` is, and the finished arrays are uploaded to `device` once per
     scene (a fit prepares its scenes once, so that is once per fit). The build's levels are planned in NumPy
     (bvh.py), which on a GPU would read every level back; and Warp's own builder (`wp.Bvh`, which does build on
-    the GPU) gives a binary tree in its own node layout, not the 4-wide nodes over leaf-ordered tubes that
+    the GPU) gives a binary tree in its own node layout, not the 8-wide nodes over leaf-ordered tubes that
     intersect.py's traversal reads. The host build costs about 3 CPU µs per segment (docs/scaling.md): nothing
     beside a fit's hundreds of renders, but one GPU render of a million-segment scene may well take less.
     """
@@ -48,8 +49,8 @@ class FiberBVH:
             self.bounds = (np.zeros(3), np.zeros(3))
         reference, lowers, uppers = segment_pieces(seg, lowers, uppers)
 
-        tree = build_bvh(lowers, uppers, max_leaf=MAX_LEAF, width=4, traversal_cost=TRAVERSAL_COST)
-        if 3 * tree.depth > STACK_SIZE:
+        tree = build_bvh(lowers, uppers, max_leaf=MAX_LEAF, width=BVH_WIDTH, traversal_cost=TRAVERSAL_COST)
+        if (BVH_WIDTH - 1) * tree.depth + 1 > STACK_SIZE:
             raise ValueError(f"BVH depth {tree.depth} is too deep for the traversal stack ({STACK_SIZE})")
         order = reference[tree.order]
         nodes = np.zeros(len(tree.child), dtype=BvhNode.numpy_dtype())
