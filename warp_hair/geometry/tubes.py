@@ -10,10 +10,10 @@ import warp as wp
 from .bvh import TRAVERSAL_COST, build_bvh
 from .intersect import BVH_WIDTH, STACK_SIZE, BvhNode, FiberGeometry, Tube
 
-# Tubes per BVH leaf, at most (the cost of a node visit relative to a tube test is bvh.TRAVERSAL_COST): with
-# the SAH's node cost at 0.5 no other size takes fewer instructions a ray on both benchmark swatches
-# (docs/benchmarks.md, "The traversal, step by step", has 1, 3 and 4), and leaves of 4 or 7 render a swatch a
-# few percent slower.
+# Tubes per BVH leaf, at most (the cost of a node visit relative to a tube test is bvh.TRAVERSAL_COST): in the
+# 8-wide tree no other size measured takes fewer instructions a ray on both benchmark swatches
+# (docs/benchmarks.md, "The traversal, step by step": leaves of 1 at node cost 0.5 and 1, of 3 and 4 at 1), and
+# leaves of 4 or 7 render a swatch a few percent slower.
 MAX_LEAF = 2
 # Mitre joints overlap by this many radii past the mitre plane (see the module docstring).
 JOINT_OVERLAP = 1.0e-3
