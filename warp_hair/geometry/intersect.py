@@ -109,10 +109,16 @@ TINY = wp.constant(1.0e-30)
 # Children of a BVH node: the fiber BVH is 8-wide (`build_bvh(width=BVH_WIDTH)`, three binary levels a node).
 # The native snippets below (`_CHILD_ENTRIES_SNIPPET`, `_entered`) are written for eight lanes.
 BVH_WIDTH = 8
-# Slots of the traversal stack. A node leaves at most BVH_WIDTH − 1 children pending, and a visit holds one more
-# for a moment (all it enters, before the nearest is popped), so a tree of depth D needs (BVH_WIDTH − 1)·D + 1
-# slots; `build_bvh` keeps D <= ceil(bvh.MAX_DEPTH / 3) = 14.
-STACK_SIZE = (BVH_WIDTH - 1) * -(-MAX_DEPTH // 3) + 1
+
+
+def stack_slots(depth: int) -> int:
+    """Traversal stack slots a tree of `depth` BVH_WIDTH-wide levels needs: a node leaves at most BVH_WIDTH − 1
+    children pending, and a visit holds one more for a moment (all it enters, before the nearest is popped)."""
+    return (BVH_WIDTH - 1) * depth + 1
+
+
+# Slots of the traversal stack: `build_bvh` keeps the depth <= ceil(bvh.MAX_DEPTH / log2(BVH_WIDTH)) = 14.
+STACK_SIZE = stack_slots(-(-MAX_DEPTH // (BVH_WIDTH.bit_length() - 1)))
 NodeStack = wp.types.vector(length=STACK_SIZE, dtype=wp.int32)
 EntryStack = wp.types.vector(length=STACK_SIZE, dtype=float)
 # A node's children's entry distances, and their references.

@@ -8,7 +8,7 @@ import numpy as np
 import warp as wp
 
 from .bvh import TRAVERSAL_COST, build_bvh
-from .intersect import BVH_WIDTH, STACK_SIZE, BvhNode, FiberGeometry, Tube
+from .intersect import BVH_WIDTH, STACK_SIZE, BvhNode, FiberGeometry, Tube, stack_slots
 
 # Tubes per BVH leaf, at most (the cost of a node visit relative to a tube test is bvh.TRAVERSAL_COST): in the
 # 8-wide tree no other size measured takes fewer instructions a ray on both benchmark swatches
@@ -50,7 +50,7 @@ class FiberBVH:
         reference, lowers, uppers = segment_pieces(seg, lowers, uppers)
 
         tree = build_bvh(lowers, uppers, max_leaf=MAX_LEAF, width=BVH_WIDTH, traversal_cost=TRAVERSAL_COST)
-        if (BVH_WIDTH - 1) * tree.depth + 1 > STACK_SIZE:
+        if stack_slots(tree.depth) > STACK_SIZE:
             raise ValueError(f"BVH depth {tree.depth} is too deep for the traversal stack ({STACK_SIZE})")
         order = reference[tree.order]
         nodes = np.zeros(len(tree.child), dtype=BvhNode.numpy_dtype())
