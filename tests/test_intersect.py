@@ -15,7 +15,7 @@ from warp_hair.geometry.assembly import FiberAssembly
 from warp_hair.geometry.formats import load_fibers
 from warp_hair.geometry.generators import wavy
 from warp_hair.geometry.intersect import BVH_WIDTH, STACK_SIZE, stack_slots
-from warp_hair.geometry.rays import intersect, occluded
+from warp_hair.geometry.rays import distance, intersect, occluded
 from warp_hair.geometry.tubes import FiberBVH, segment_boxes, segment_frames, segment_pieces
 
 BENCH_FIBERS = Path(__file__).parents[1] / "benchmarks" / "standard_swatch_fibers.txt"
@@ -481,6 +481,22 @@ def test_t_max_and_occlusion_agree_with_the_closest_hit():
     np.testing.assert_array_equal(intersect(bvh, origins[hit], directions[hit], t_max=t * (1 + 1e-5))["t"], t)
 
 
+@pytest.mark.parametrize("rule", ["enter", "exit"])
+def test_the_preliminary_query_is_the_closest_hits_distance_and_segment(rule):
+    """`distance` (the traversal alone, as Embree's closest-hit query) finds what `intersect` does, to the bit,
+    with and without t_max, in a tangle whose rays start inside other strands' tubes."""
+    bvh = FiberBVH(tangle())
+    rng = np.random.default_rng(5)
+    lo, hi = bvh.bounds
+    origins, directions = rays_toward(rng, rng.uniform(lo, hi, (2000, 3)))
+    for t_max in (np.inf, rng.uniform(0.5, 3.0, len(origins))):
+        full = intersect(bvh, origins, directions, t_max=t_max, rule=rule, skip_strand=2)
+        t, segment = distance(bvh, origins, directions, t_max=t_max, rule=rule, skip_strand=2)
+        assert 0.1 < np.isfinite(t).mean() < 0.95
+        np.testing.assert_array_equal(t, full["t"])
+        np.testing.assert_array_equal(segment, full["segment"])
+
+
 def test_misses():
     fibers, _ = straight_fiber()
     hit = intersect(FiberBVH(fibers), [[5.0, 5.0, 5.0], [0.0, 0.0, 0.0]], [[1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
@@ -488,6 +504,8 @@ def test_misses():
     assert hit["segment"].tolist() == [-1, -1] and hit["strand"].tolist() == [-1, -1]
     empty = FiberBVH(FiberAssembly.from_strands([]))
     assert np.isinf(intersect(empty, [[0.0, 0.0, 1.0]], [[0.0, 0.0, -1.0]])["t"][0])
+    t, segment = distance(empty, [[0.0, 0.0, 1.0]], [[0.0, 0.0, -1.0]])
+    assert np.isinf(t[0]) and segment[0] == -1
     assert not occluded(empty, [[0.0, 0.0, 1.0]], [[0.0, 0.0, -1.0]])[0]
 
 

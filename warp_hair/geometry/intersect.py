@@ -466,9 +466,31 @@ def intersect_fibers_exits(g: FiberGeometry, origin: wp.vec3, direction: wp.vec3
 
 
 @wp.func
+def closest_tube(g: FiberGeometry, origin: wp.vec3, direction: wp.vec3, t_max: float):
+    """The preliminary closest hit (Mitsuba's `ray_intersect_preliminary`, Embree's hit): (tube, t, exit) with
+    tube the index into `g.tubes` (−1 and t = NO_HIT on a miss), without the hit point or frame of
+    `intersect_fibers`, which are `_make_hit(g, tube, t, origin, direction, exit)`."""
+    return _closest_tube(g, origin, direction, t_max, 0, -1)
+
+
+@wp.func
+def closest_tube_exits(g: FiberGeometry, origin: wp.vec3, direction: wp.vec3, t_max: float, skip_strand: int):
+    """`closest_tube` under the "exits" rule (see `intersect_fibers_exits`)."""
+    return _closest_tube(g, origin, direction, t_max, 1, skip_strand)
+
+
+@wp.func
 def _closest_hit(g: FiberGeometry, origin: wp.vec3, direction: wp.vec3, t_max: float, exits: int, skip_strand: int):
-    if g.num_segments == 0:
+    best, t_best, best_exit = _closest_tube(g, origin, direction, t_max, exits, skip_strand)
+    if best < 0:
         return _no_hit()
+    return _make_hit(g, best, t_best, origin, direction, best_exit)
+
+
+@wp.func
+def _closest_tube(g: FiberGeometry, origin: wp.vec3, direction: wp.vec3, t_max: float, exits: int, skip_strand: int):
+    if g.num_segments == 0:
+        return int(-1), float(NO_HIT), int(0)
     inv = _inverse_direction(direction)
     rows = _slab_rows(inv)
     t_best = wp.min(t_max, NO_HIT)
@@ -541,8 +563,8 @@ def _closest_hit(g: FiberGeometry, origin: wp.vec3, direction: wp.vec3, t_max: f
                 ref = int(stack[sp])
                 break
     if best < 0:
-        return _no_hit()
-    return _make_hit(g, best, t_best, origin, direction, best_exit)
+        return int(-1), float(NO_HIT), int(0)
+    return best, t_best, best_exit
 
 
 @wp.func

@@ -1,7 +1,8 @@
-"""NumPy front of the device ray queries: `intersect` (the closest hit and its shading frame) and `occluded` over
-batches of rays against a `FiberBVH`, for tests, the calibration's visibility and users' own probes. `rule` is
-the scene's `[render] interpenetration`: "enter" (only entering hits) or "exit" (exits too, except on the strand
-`skip_strand` the rays leave; intersect.py's `intersect_fibers_exits`)."""
+"""NumPy front of the device ray queries: `intersect` (the closest hit and its shading frame), `distance` (the
+closest hit's distance and segment alone) and `occluded` over batches of rays against a `FiberBVH`, for tests,
+the calibration's visibility and users' own probes. `rule` is the scene's `[render] interpenetration`: "enter"
+(only entering hits) or "exit" (exits too, except on the strand `skip_strand` the rays leave; intersect.py's
+`intersect_fibers_exits`)."""
 
 from __future__ import annotations
 
@@ -10,6 +11,8 @@ import warp as wp
 
 from .intersect import (
     FiberGeometry,
+    closest_tube,
+    closest_tube_exits,
     fibers_occluded,
     fibers_occluded_exits,
     intersect_fibers,
@@ -58,6 +61,26 @@ def _intersect_kernel(
         shading_tangent[k] = x
         shading_normal[k] = z
         shading_h[k] = hs
+
+
+@wp.kernel
+def _distance_kernel(
+    g: FiberGeometry,
+    origins: wp.array(dtype=wp.vec3),
+    directions: wp.array(dtype=wp.vec3),
+    t_max: wp.array(dtype=float),
+    exits: int,
+    skip_strand: int,
+    t: wp.array(dtype=float),
+    segment: wp.array(dtype=wp.int32),
+):
+    k = wp.tid()
+    if exits != 0:
+        tube, t_hit, _exit = closest_tube_exits(g, origins[k], directions[k], t_max[k], skip_strand)
+    else:
+        tube, t_hit, _exit = closest_tube(g, origins[k], directions[k], t_max[k])
+    t[k] = t_hit
+    segment[k] = wp.where(tube >= 0, g.segment[wp.max(tube, 0)], wp.int32(-1))
 
 
 @wp.kernel
@@ -132,6 +155,22 @@ def intersect(bvh: FiberBVH, origins, directions, t_max=np.inf, rule="enter", sk
     result["t"] = np.where(result["segment"] >= 0, result["t"].astype(np.float64), np.inf)
     result["exit"] = result["exit"].astype(bool)
     return result
+
+
+def distance(bvh: FiberBVH, origins, directions, t_max=np.inf, rule="enter", skip_strand=-1) -> tuple:
+    """(t, segment), each (N,): the distance to the closest hit (np.inf on a miss) and its segment (−1), as
+    `intersect` finds them, without its hit point and frame: what Embree's closest-hit query returns, for a
+    like-for-like timing of the traversal (benchmarks/profile_render.py) and for depth maps."""
+    exits, skip = _rule(rule, skip_strand)
+    o, d, limit = _rays(bvh, origins, directions, t_max)
+    t = wp.empty(len(o), dtype=float, device=bvh.device)
+    segment = wp.empty(len(o), dtype=wp.int32, device=bvh.device)
+    if len(o):
+        wp.launch(
+            _distance_kernel, dim=len(o), inputs=[bvh.geometry, o, d, limit, exits, skip, t, segment], device=bvh.device
+        )
+    segment = segment.numpy()
+    return np.where(segment >= 0, t.numpy().astype(np.float64), np.inf), segment
 
 
 def occluded(bvh: FiberBVH, origins, directions, t_max=np.inf, rule="enter", skip_strand=-1) -> np.ndarray:
