@@ -50,7 +50,7 @@ def walk(
     o, d = generate_ray(cam, px, py, wp.vec2(wp.randf(rng), wp.randf(rng)))
     last = int(-1)
     for depth in range(position.shape[1]):
-        hit = intersect_fibers(g, o, d, NO_HIT)
+        hit = intersect_fibers(g, o, d, NO_HIT, -1)
         if exits != 0:
             hit = intersect_fibers_exits(g, o, d, NO_HIT, last)
         if hit.t >= NO_HIT:

@@ -186,6 +186,7 @@ class FiberHit:
     normal: wp.vec3  # unit outward normal at the hit, ⊥ tangent: the BSDF's z
     h: float  # −(wo·y) / sqrt((wo·y)² + (wo·z)²) in [−1, 1], wo = −direction, y = normal × tangent
     exit: int  # 1 where the ray leaves the tube (the "exits" rule only): normal and tangent are then reversed
+    tube: int  # index into FiberGeometry.tubes (leaf order), which a ray leaving the hit passes as `from_tube`; −1
 
 
 @wp.func
@@ -419,6 +420,7 @@ def _make_hit(g: FiberGeometry, i: int, t: float, origin: wp.vec3, direction: wp
     hit.normal = z
     hit.h = wp.clamp(-wo_y / wp.sqrt(wo_y * wo_y + wo_z * wo_z), -1.0, 1.0)
     hit.exit = exit
+    hit.tube = i
     return hit
 
 
@@ -449,46 +451,54 @@ def _no_hit():
     hit.segment = -1
     hit.strand = -1
     hit.exit = 0
+    hit.tube = -1
     return hit
 
 
 @wp.func
-def intersect_fibers(g: FiberGeometry, origin: wp.vec3, direction: wp.vec3, t_max: float):
-    """The closest entering hit with t_min < t < t_max along the unit `direction`; t = NO_HIT on a miss."""
-    return _closest_hit(g, origin, direction, t_max, 0, -1)
+def intersect_fibers(g: FiberGeometry, origin: wp.vec3, direction: wp.vec3, t_max: float, from_tube: int):
+    """The closest entering hit with t_min < t < t_max along the unit `direction`; t = NO_HIT on a miss.
+    `from_tube` is the tube the ray leaves (`FiberHit.tube` of the hit it starts at; −1 for none): it is not
+    tested, since the ray starts on it and a tube holding the origin has no entering hit (the module docstring);
+    that saves a ray from a fiber the test of the one tube every such ray reaches, and changes no hit."""
+    return _closest_hit(g, origin, direction, t_max, 0, -1, from_tube)
 
 
 @wp.func
 def intersect_fibers_exits(g: FiberGeometry, origin: wp.vec3, direction: wp.vec3, t_max: float, skip_strand: int):
     """The closest hit under the "exits" rule (Cycles 4.x on the CPU): entering or leaving any tube, except the
     tubes of strand `skip_strand` (the strand the ray leaves; −1 for none)."""
-    return _closest_hit(g, origin, direction, t_max, 1, skip_strand)
+    return _closest_hit(g, origin, direction, t_max, 1, skip_strand, -1)
 
 
 @wp.func
-def closest_tube(g: FiberGeometry, origin: wp.vec3, direction: wp.vec3, t_max: float):
+def closest_tube(g: FiberGeometry, origin: wp.vec3, direction: wp.vec3, t_max: float, from_tube: int):
     """The preliminary closest hit (Mitsuba's `ray_intersect_preliminary`, Embree's hit): (tube, t, exit) with
     tube the index into `g.tubes` (−1 and t = NO_HIT on a miss), without the hit point or frame of
     `intersect_fibers`, which are `_make_hit(g, tube, t, origin, direction, exit)`."""
-    return _closest_tube(g, origin, direction, t_max, 0, -1)
+    return _closest_tube(g, origin, direction, t_max, 0, -1, from_tube)
 
 
 @wp.func
 def closest_tube_exits(g: FiberGeometry, origin: wp.vec3, direction: wp.vec3, t_max: float, skip_strand: int):
     """`closest_tube` under the "exits" rule (see `intersect_fibers_exits`)."""
-    return _closest_tube(g, origin, direction, t_max, 1, skip_strand)
+    return _closest_tube(g, origin, direction, t_max, 1, skip_strand, -1)
 
 
 @wp.func
-def _closest_hit(g: FiberGeometry, origin: wp.vec3, direction: wp.vec3, t_max: float, exits: int, skip_strand: int):
-    best, t_best, best_exit = _closest_tube(g, origin, direction, t_max, exits, skip_strand)
+def _closest_hit(
+    g: FiberGeometry, origin: wp.vec3, direction: wp.vec3, t_max: float, exits: int, skip_strand: int, from_tube: int
+):
+    best, t_best, best_exit = _closest_tube(g, origin, direction, t_max, exits, skip_strand, from_tube)
     if best < 0:
         return _no_hit()
     return _make_hit(g, best, t_best, origin, direction, best_exit)
 
 
 @wp.func
-def _closest_tube(g: FiberGeometry, origin: wp.vec3, direction: wp.vec3, t_max: float, exits: int, skip_strand: int):
+def _closest_tube(
+    g: FiberGeometry, origin: wp.vec3, direction: wp.vec3, t_max: float, exits: int, skip_strand: int, from_tube: int
+):
     if g.num_segments == 0:
         return int(-1), float(NO_HIT), int(0)
     inv = _inverse_direction(direction)
@@ -545,10 +555,11 @@ def _closest_tube(g: FiberGeometry, origin: wp.vec3, direction: wp.vec3, t_max: 
             first = code >> LEAF_SHIFT
             for i in range(first, first + (code & LEAF_MASK)):
                 if exits == 0:
-                    t = _entry_distance(g.tubes[i], origin, direction, t_best)
-                    if t < t_best:
-                        t_best = t
-                        best = i
+                    if i != from_tube:
+                        t = _entry_distance(g.tubes[i], origin, direction, t_best)
+                        if t < t_best:
+                            t_best = t
+                            best = i
                 elif g.strand[i] != skip_strand:
                     t, leaving = _crossing_distance(g.tubes[i], origin, direction, t_best)
                     if t < t_best:
@@ -568,19 +579,22 @@ def _closest_tube(g: FiberGeometry, origin: wp.vec3, direction: wp.vec3, t_max: 
 
 
 @wp.func
-def fibers_occluded(g: FiberGeometry, origin: wp.vec3, direction: wp.vec3, t_max: float):
-    """Whether any entering hit lies in (t_min, t_max) along the unit `direction`: for shadow rays."""
-    return _any_hit(g, origin, direction, t_max, 0, -1)
+def fibers_occluded(g: FiberGeometry, origin: wp.vec3, direction: wp.vec3, t_max: float, from_tube: int):
+    """Whether any entering hit lies in (t_min, t_max) along the unit `direction`: for shadow rays. `from_tube`
+    as in `intersect_fibers`."""
+    return _any_hit(g, origin, direction, t_max, 0, -1, from_tube)
 
 
 @wp.func
 def fibers_occluded_exits(g: FiberGeometry, origin: wp.vec3, direction: wp.vec3, t_max: float, skip_strand: int):
     """Whether any hit of the "exits" rule (see `intersect_fibers_exits`) lies in (t_min, t_max)."""
-    return _any_hit(g, origin, direction, t_max, 1, skip_strand)
+    return _any_hit(g, origin, direction, t_max, 1, skip_strand, -1)
 
 
 @wp.func
-def _any_hit(g: FiberGeometry, origin: wp.vec3, direction: wp.vec3, t_max: float, exits: int, skip_strand: int):
+def _any_hit(
+    g: FiberGeometry, origin: wp.vec3, direction: wp.vec3, t_max: float, exits: int, skip_strand: int, from_tube: int
+):
     if g.num_segments == 0:
         return False
     inv = _inverse_direction(direction)
@@ -608,7 +622,7 @@ def _any_hit(g: FiberGeometry, origin: wp.vec3, direction: wp.vec3, t_max: float
             first = code >> LEAF_SHIFT
             for i in range(first, first + (code & LEAF_MASK)):
                 if exits == 0:
-                    if _entry_distance(g.tubes[i], origin, direction, t_hi) < t_hi:
+                    if i != from_tube and _entry_distance(g.tubes[i], origin, direction, t_hi) < t_hi:
                         return True
                 elif g.strand[i] != skip_strand:
                     t, _leaving = _crossing_distance(g.tubes[i], origin, direction, t_hi)

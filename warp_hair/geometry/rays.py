@@ -45,7 +45,7 @@ def _intersect_kernel(
     exit: wp.array(dtype=wp.int32),
 ):
     k = wp.tid()
-    hit = intersect_fibers(g, origins[k], directions[k], t_max[k])
+    hit = intersect_fibers(g, origins[k], directions[k], t_max[k], -1)
     if exits != 0:
         hit = intersect_fibers_exits(g, origins[k], directions[k], t_max[k], skip_strand)
     t[k] = hit.t
@@ -78,7 +78,7 @@ def _distance_kernel(
     if exits != 0:
         tube, t_hit, _exit = closest_tube_exits(g, origins[k], directions[k], t_max[k], skip_strand)
     else:
-        tube, t_hit, _exit = closest_tube(g, origins[k], directions[k], t_max[k])
+        tube, t_hit, _exit = closest_tube(g, origins[k], directions[k], t_max[k], -1)
     t[k] = t_hit
     segment[k] = wp.where(tube >= 0, g.segment[wp.max(tube, 0)], wp.int32(-1))
 
@@ -97,7 +97,7 @@ def _occluded_kernel(
     if exits != 0:
         blocked[k] = wp.where(fibers_occluded_exits(g, origins[k], directions[k], t_max[k], skip_strand), 1, 0)
     else:
-        blocked[k] = wp.where(fibers_occluded(g, origins[k], directions[k], t_max[k]), 1, 0)
+        blocked[k] = wp.where(fibers_occluded(g, origins[k], directions[k], t_max[k], -1), 1, 0)
 
 
 def _rays(bvh, origins, directions, t_max):

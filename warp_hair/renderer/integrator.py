@@ -68,22 +68,23 @@ class SceneData:
 
 
 @wp.func
-def intersect(scene: SceneData, origin: wp.vec3, direction: wp.vec3, strand: int):
-    """The ray's closest fiber hit under the scene's interpenetration rule; `strand` is the one the ray leaves."""
+def intersect(scene: SceneData, origin: wp.vec3, direction: wp.vec3, strand: int, tube: int):
+    """The ray's closest fiber hit under the scene's interpenetration rule; `strand` and `tube` are those the ray
+    leaves (−1 for none)."""
     if scene.exits != 0:
         return intersect_fibers_exits(scene.fibers, origin, direction, NO_HIT, strand)
-    return intersect_fibers(scene.fibers, origin, direction, NO_HIT)
+    return intersect_fibers(scene.fibers, origin, direction, NO_HIT, tube)
 
 
 @wp.func
-def occluded(scene: SceneData, origin: wp.vec3, direction: wp.vec3, strand: int):
-    """Whether a shadow ray toward a light at infinity is blocked (by a fiber or by the card); `strand` is the one
-    the ray leaves."""
+def occluded(scene: SceneData, origin: wp.vec3, direction: wp.vec3, strand: int, tube: int):
+    """Whether a shadow ray toward a light at infinity is blocked (by a fiber or by the card); `strand` and `tube`
+    are those the ray leaves."""
     if card_distance(scene.card, origin, direction) < NO_HIT:
         return True
     if scene.exits != 0:
         return fibers_occluded_exits(scene.fibers, origin, direction, NO_HIT, strand)
-    return fibers_occluded(scene.fibers, origin, direction, NO_HIT)
+    return fibers_occluded(scene.fibers, origin, direction, NO_HIT, tube)
 
 
 @wp.func
@@ -92,7 +93,7 @@ def light_visible(scene: SceneData, v: Vertex, to_light: wp.vec3, w_light: wp.ve
     toward it is 0 anyway (below the card), no shadow ray is traced."""
     if not bsdf_can_reach(v, w_light):
         return False
-    return not occluded(scene, v.position, to_light, v.strand)
+    return not occluded(scene, v.position, to_light, v.strand, v.tube)
 
 
 @wp.func
@@ -270,8 +271,9 @@ def make_trace_path(differentiable: bool):
         prev_pdf = float(0.0)  # solid-angle pdf of the BSDF sample that produced d; 0 for the camera ray
         depth = int(0)  # scattering vertices so far
         strand = int(-1)  # the strand the ray leaves (the "exit" rule skips it); −1 for none
+        tube = int(-1)  # the tube the ray leaves, which it need not test (`intersect_fibers`); −1 for none
         while True:
-            hit = intersect(scene, o, d, strand)
+            hit = intersect(scene, o, d, strand, tube)
             t_card = card_distance(scene.card, o, d)
             if hit.t >= NO_HIT and t_card >= NO_HIT:
                 if scene.has_env != 0:
@@ -309,6 +311,7 @@ def make_trace_path(differentiable: bool):
             o = v.position
             d = wp.normalize(to_world(wi.w, v.x, v.y, v.z))
             strand = v.strand
+            tube = v.tube
             depth += 1
 
             if depth >= scene.rr_depth:

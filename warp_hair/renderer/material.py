@@ -54,6 +54,7 @@ class Vertex:
     kind: int  # HAIR or CARD
     position: wp.vec3  # where the rays leaving the vertex start (lifted off the card)
     strand: int  # the fiber's strand, which the rays leaving a vertex skip under the "exit" rule; −1 on the card
+    tube: int  # the fiber's tube (`FiberHit.tube`), which the rays leaving a vertex need not test; −1 on the card
     x: wp.vec3  # along the fiber; any tangent of the card
     y: wp.vec3
     z: wp.vec3  # the fiber's normal; the card's normal on the side of the incoming ray
@@ -106,6 +107,7 @@ def scattering_vertex(
     y = wp.cross(z, x)
     v.position = position
     v.strand = wp.where(v.kind == HAIR, hit.strand, -1)
+    v.tube = wp.where(v.kind == HAIR, hit.tube, -1)
     v.x = x
     v.y = y
     v.z = z
