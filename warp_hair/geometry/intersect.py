@@ -22,6 +22,8 @@ scatters into the fiber (TT, TRT) continues straight through it, so a ray that s
 must not see that tube again. Entering roots at t <= 1e-3·r are skipped, and so is every tube whose cylinder
 holds the ray origin within r·(1 + 1e-3) of its axis (rounding can put a surface point slightly outside,
 and a grazing ray from there would otherwise re-enter the same tube at a t larger than any fixed t_min).
+A ray that leaves a hit passes the hit's tube as `from_tube`, which is then not tested at all: it holds the
+origin, so the rule above would skip it anyway.
 At mitre joints each tube reaches 1e-3·r past the plane, so that float32 rounding can never open a gap in
 the seam; a ray entering in that sliver hits both tubes at the same point and the closer wins.
 
@@ -186,7 +188,7 @@ class FiberHit:
     normal: wp.vec3  # unit outward normal at the hit, ⊥ tangent: the BSDF's z
     h: float  # −(wo·y) / sqrt((wo·y)² + (wo·z)²) in [−1, 1], wo = −direction, y = normal × tangent
     exit: int  # 1 where the ray leaves the tube (the "exits" rule only): normal and tangent are then reversed
-    tube: int  # index into FiberGeometry.tubes (leaf order), which a ray leaving the hit passes as `from_tube`; −1
+    tube: int  # index into FiberGeometry.tubes (leaf order; −1 on a miss): rays leaving the hit skip it (`from_tube`)
 
 
 @wp.func
