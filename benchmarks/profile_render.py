@@ -181,14 +181,14 @@ def ray_rates(prepared, rays, spp_record, spp) -> list:
     `rays.occluded`."""
     rows = []
     for kind, (o, d) in rays.items():
-        traces = (occluded, occluded) if kind == "shadow" else (intersect, distance)
         per_ray = []
-        for trace in traces:
+        for trace in (occluded,) if kind == "shadow" else (intersect, distance):
             trace(prepared.bvh, o[:1000], d[:1000])  # compile / load the kernel outside the timing
             with Clock() as c:
                 trace(prepared.bvh, o, d)
             per_ray.append(c.cpu / max(len(o), 1))
-        rows.append((kind, len(o) * spp / spp_record, *per_ray))
+        # The full hit, then the preliminary query; a shadow ray's one query is both.
+        rows.append((kind, len(o) * spp / spp_record, per_ray[0], per_ray[-1]))
     return rows
 
 

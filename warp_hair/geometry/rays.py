@@ -80,7 +80,9 @@ def _distance_kernel(
     else:
         tube, t_hit, _exit = closest_tube(g, origins[k], directions[k], t_max[k], -1)
     t[k] = t_hit
-    segment[k] = wp.where(tube >= 0, g.segment[wp.max(tube, 0)], wp.int32(-1))
+    segment[k] = wp.int32(-1)
+    if tube >= 0:  # g.segment is empty in an empty scene: read it only on a hit
+        segment[k] = g.segment[tube]
 
 
 @wp.kernel
