@@ -13,10 +13,10 @@ import argparse
 import copy
 import dataclasses
 import importlib
+import tomllib
 from pathlib import Path
 
 import numpy as np
-import tomllib
 
 from warp_hair.cli import exit_on_interrupt
 from warp_hair.geometry.assembly import FiberAssembly

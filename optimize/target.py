@@ -68,11 +68,11 @@ uncertainty (optimize/realisations.py; `warp-hair fit --realisations` overrides)
 from __future__ import annotations
 
 import json
+import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-import tomllib
 
 import targets as shipped
 from warp_hair.geometry.interpenetration import checked_interpenetration

@@ -9,11 +9,11 @@ renders below misses them by up to 3.8 standard errors (χ²/dof 5.8).
 
 import dataclasses
 import math
+import tomllib
 import warnings
 
 import numpy as np
 import pytest
-import tomllib
 
 from warp_hair.calibrate import (
     block_scene,

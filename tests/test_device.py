@@ -3,6 +3,7 @@ CUDA architecture wherever Warp has NVRTC, and on a machine with a CUDA device t
 torch front and a fit there agreeing with the CPU's."""
 
 import dataclasses
+import tomllib
 from pathlib import Path
 
 import numpy as np
@@ -13,18 +14,23 @@ from helpers.scenes import swatch_scene
 
 from optimize.cli import main as fit_main
 from optimize.fit import FitRun, FitSettings, fit
+from optimize.identify import BOUNDS
 from optimize.target import load_target
 from warp_hair.cli import main
 from warp_hair.devices import check_device
 from warp_hair.renderer.gradients import contract, named_gradients, render_jacobian
 from warp_hair.renderer.prepare import prepare
 from warp_hair.renderer.render import pixel_jacobian_kernel, pixel_kernel, render
+from warp_hair.scene import scene_from_dict
 from warp_hair.torch import default_grad_seed, render_device, render_torch, render_torch_pair
 
 HAS_CUDA = wp.get_cuda_device_count() > 0
 needs_cuda = pytest.mark.skipif(not HAS_CUDA, reason="no CUDA device on this machine (Warp finds none)")
 without_cuda = pytest.mark.skipif(HAS_CUDA, reason="tests the error on a machine without a CUDA device")
-TARGET = Path(__file__).parents[1] / "targets" / "blonde_straight"
+TARGETS = Path(__file__).parents[1] / "targets"
+TARGET = TARGETS / "blonde_straight"
+APART_TARGET = TARGETS / "cycles_blonde_straight"  # a draped swatch whose strands do not touch
+DARK_TARGET = TARGETS / "black_straight"  # the Quick start's
 LIGHTS = [
     {"type": "directional", "direction": [0.3, -0.4, -1.0], "irradiance": [3.0, 3.0, 3.0]},
     {"type": "environment", "radiance": [0.3, 0.3, 0.3]},
@@ -32,19 +38,30 @@ LIGHTS = [
 HAIR = {"albedo": [0.7, 0.5, 0.3], "beta_m": 0.3, "beta_n": 0.35}
 
 # How far a GPU render may be from the CPU's. The kernel and the random streams are the same, so each path is
-# the CPU's path up to rounding: NVRTC may contract a·b + c into one FMA where the CPU compiler does not, and
-# CUDA's sqrt, exp, log and trigonometric functions (no fast math: within 2 ulp) are not libm's. A path of at
-# most 8 bounces here takes of the order of 10³ float32 operations; errors of up to 2 ulp (1.2e-7) each that
-# add up in the worst case reach about 1e-4 relative, RTOL. A rounding difference that decides a branch (a
-# roulette or lobe choice, a ray grazing a tube's edge) sends a path elsewhere; that needs a random number
-# within about 1e-6 of its threshold, of the order of 1e-6 × 50 decisions per path, so of the 2048 paths of a
-# 16×16 render at 8 spp fewer than one is expected to: at most 1% of the values may differ by more.
+# the CPU's path up to rounding: NVRTC contracts a·b + c into FMAs where clang (-march=native) contracts other
+# sums, and CUDA's sqrt, exp, log and trigonometric functions (no fast math: within 2 ulp) are not libm's. A path
+# that takes the same branches on both stays within float32's rounding: on an H200, over 2048 one-path pixels,
+# the median difference was 4e-9 and the largest 4e-6 of the image's largest value, so RTOL leaves 25 times that.
+# A rounding difference that decides a branch (a ray grazing a tube, whether a ray that leaves one strand starts
+# inside its interpenetrating neighbour) sends a path elsewhere, as an independent sample of the same pixel.
+# Measured there: 0 of 2048 paths on one sparse layer, 15 of 2048 (0.73%) on the dense interpenetrating swatch,
+# and about 0.55% on a draped 4-layer swatch (11 of 256 pixels at 8 spp). DIVERGED_PATHS allows 2%, while a
+# fault that changes the path itself (another random stream, a traversal that misses) moves nearly all of them.
 RTOL = 1e-4
-DIVERGED = 0.01
+DIVERGED_PATHS = 0.02
 
 
 def small_scene():
+    """The dense swatch: 160 strands in 4 layers that interpenetrate."""
     return swatch_scene(HAIR, LIGHTS, resolution=(16, 16), render_table={"spp": 8, "max_depth": 8, "seed": 1})
+
+
+def apart_scene():
+    """APART_TARGET's back-lit scene at 16×16 and 8 spp: 4 layers of strands that do not touch."""
+    data = tomllib.loads((APART_TARGET / "scene_back.toml").read_text())
+    data["camera"]["resolution"] = [16, 16]
+    data["render"] = {"spp": 8, "max_depth": 8, "seed": 1}
+    return scene_from_dict(data)
 
 
 # -- Every machine: the option, its checks and errors. ---------------------------------------------------------
@@ -135,22 +152,27 @@ def test_render_kernels_compile_for_cuda(kernel, tmp_path):
 # -- On a machine with a CUDA device: the same renders and gradients, and nothing read back per iteration. ----
 
 
-def assert_same_render(gpu, cpu, what):
-    """Within RTOL of the largest value (sums of signed Jacobian terms cancel), but for at most DIVERGED of
-    the values (paths that a rounding difference sent elsewhere)."""
+def assert_same_render(gpu, cpu, what, spp):
+    """Pixels within RTOL of the largest value (sums of signed Jacobian terms cancel), but for those of which one
+    of the spp paths went elsewhere (1 - (1 - DIVERGED_PATHS)^spp of them at most); and those pixels' differences
+    unbiased: their sum within 4 standard deviations of zero, as independent samples of the same pixel give.
+    """
     assert np.isfinite(gpu).all(), what
-    close = np.isclose(gpu, cpu, rtol=RTOL, atol=RTOL * np.abs(cpu).max())
-    assert close.mean() >= 1 - DIVERGED, f"{what}: {np.count_nonzero(~close)} of {close.size} values differ"
+    close = np.isclose(gpu, cpu, rtol=RTOL, atol=RTOL * np.abs(cpu).max()).all(axis=-1)
+    allowed = 1 - (1 - DIVERGED_PATHS) ** spp
+    assert close.mean() >= 1 - allowed, f"{what}: {np.count_nonzero(~close)} of {close.size} pixels differ"
+    elsewhere = (gpu.astype(np.float64) - cpu)[~close]
+    assert abs(elsewhere.sum()) <= 4 * np.sqrt((elsewhere**2).sum()), f"{what}: paths elsewhere biased"
 
 
 @needs_cuda
 def test_render_on_cuda_is_the_cpu_render():
-    scene = small_scene()
+    scene = apart_scene()
     cpu, cpu_err = render(scene, device="cpu", return_stderr=True)
     gpu, gpu_err = render(prepare(scene, "cuda"), return_stderr=True)
     assert gpu.dtype == np.float32 and gpu.shape == cpu.shape
-    assert_same_render(gpu, cpu, "image")
-    assert_same_render(gpu_err, cpu_err, "standard error")
+    assert_same_render(gpu, cpu, "image", spp=8)
+    assert_same_render(gpu_err, cpu_err, "standard error", spp=8)
     assert np.abs(cpu).max() > 0
     # A subset of pixels renders as they come out in the whole image there too.
     pixels = np.array([0, 17, 100, 255])
@@ -159,13 +181,24 @@ def test_render_on_cuda_is_the_cpu_render():
 
 
 @needs_cuda
+@pytest.mark.parametrize("make_scene", [apart_scene, small_scene], ids=["apart", "interpenetrating"])
+def test_all_but_a_few_paths_are_the_cpu_s(make_scene):
+    """One path a pixel (spp 1, eight seeds: 2048 paths): all but DIVERGED_PATHS of them the CPU's to RTOL."""
+    scene = make_scene()
+    gpu = np.array([render(scene, spp=1, seed=s, device="cuda") for s in range(1, 9)])
+    cpu = np.array([render(scene, spp=1, seed=s, device="cpu") for s in range(1, 9)])
+    assert np.abs(cpu).max() > 0
+    assert_same_render(gpu, cpu, "one-path images", spp=1)
+
+
+@needs_cuda
 def test_jacobian_on_cuda_is_the_cpu_jacobian():
-    scene = small_scene()
+    scene = apart_scene()
     cpu, cpu_image, _ = render_jacobian(scene, spp=4, seed=2, device="cpu")
     gpu, gpu_image, _ = render_jacobian(scene, spp=4, seed=2, device="cuda")
-    assert_same_render(gpu_image, cpu_image, "image")
+    assert_same_render(gpu_image, cpu_image, "image", spp=4)
     for k in range(cpu.shape[-1]):
-        assert_same_render(gpu[..., k], cpu[..., k], f"Jacobian column {k}")
+        assert_same_render(gpu[..., k], cpu[..., k], f"Jacobian column {k}", spp=4)
 
 
 @needs_cuda
@@ -201,10 +234,9 @@ def test_torch_front_keeps_cuda_tensors_on_the_gpu():
 
 
 @needs_cuda
-def test_fit_on_cuda_reads_nothing_back_per_iteration_and_agrees_with_the_cpu(monkeypatch):
-    target = load_target(TARGET)
-    settings = FitSettings(iters=4, spp=4, refine=0, uncertainty=False, device="cuda")
-    run = FitRun(target, settings, progress=False)
+def test_fit_on_cuda_reads_nothing_back_per_iteration_and_recovers_the_truth(monkeypatch):
+    target = load_target(DARK_TARGET)
+    run = FitRun(target, FitSettings(iters=4, spp=4, refine=0, uncertainty=False, device="cuda"), progress=False)
     reads = []
     original = wp.array.numpy
 
@@ -218,9 +250,10 @@ def test_fit_on_cuda_reads_nothing_back_per_iteration_and_agrees_with_the_cpu(mo
     assert not [d for d in reads if d.is_cuda], "an iteration copied a GPU array to the host"
     assert all(t.device.type == "cuda" for t in run.latents.tensors.values())
 
-    # Gradients within RTOL of the CPU's move Adam's normalised steps (lr 0.1 in latent space) by as little:
-    # after 4 steps the controls agree to far better than 1e-3.
-    gpu = fit(target, settings, progress=False)
-    cpu = fit(target, FitSettings(**{**settings.__dict__, "device": "cpu"}), progress=False)
-    for name, value in cpu.values.items():
-        np.testing.assert_allclose(gpu.values[name], value, rtol=1e-3, err_msg=name)
+    # The whole fit there, with its defaults. Not the CPU's trajectory: Adam's first steps are the signs of the
+    # gradients, which the few paths that go elsewhere can flip where a control is weakly constrained.
+    result = fit(target, device="cuda", progress=False)
+    truth = target.truth.to_dict()
+    for name, bound in BOUNDS.items():
+        error = np.abs(np.asarray(result.values[name]) - truth[name])
+        assert (error <= bound).all(), f"{name}: {result.values[name]} against the truth {truth[name]}"

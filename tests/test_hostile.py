@@ -6,10 +6,10 @@ import json
 import struct
 import subprocess
 import sys
+import tomllib
 
 import numpy as np
 import pytest
-import tomllib
 from helpers import reference_model as reference
 from helpers.scenes import TINY_SCENE
 

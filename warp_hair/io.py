@@ -8,11 +8,11 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import tomllib
 from pathlib import Path
 
 import numpy as np
 import OpenEXR
-import tomllib
 from PIL import Image
 
 from . import validate

@@ -33,10 +33,9 @@ from __future__ import annotations
 import hashlib
 import json
 import re
+import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
-
-import tomllib
 
 import warp_hair
 from warp_hair.io import read_toml

@@ -49,7 +49,7 @@ def write_report(manifest) -> Path:
     parts = [
         f"<h1>warp-hair batch: {_e(manifest.path.name)}</h1>",
         f"<p>{counts['done']} done, {counts['failed']} failed, {counts['pending']} pending; written "
-        f"{datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M} UTC. The table is also in "
+        f"{datetime.datetime.now(datetime.UTC):%Y-%m-%d %H:%M} UTC. The table is also in "
         "summary.csv and summary.json beside this page.</p>",
         _overview(table),
     ]

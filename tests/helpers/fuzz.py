@@ -20,12 +20,12 @@ import shutil
 import signal
 import struct
 import time
+import tomllib
 from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-import tomllib
 
 ROOT = Path(__file__).resolve().parents[2]
 SCENES = [

@@ -15,9 +15,8 @@ differently; each module converts (its docstring says from which source code), a
 from __future__ import annotations
 
 import json
-from pathlib import Path
-
 import tomllib
+from pathlib import Path
 
 from ..controls import CONTROL_NAMES
 from ..io import read_text
