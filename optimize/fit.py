@@ -601,14 +601,19 @@ class FitRun:
         """The uncertainties from the loss linearised at the result, with the refinement's Monte Carlo error;
         over random realisations, with the realisation term (realisations.py) and the noise term from a
         linearisation on one realisation."""
-        lin, term = evaluation.linearization, None
-        if self.random:
-            term = self.realisation_term(lin)
+        lin, mc = evaluation.linearization, None if refinement is None else refinement.mc_covariance
+        model_error = target_model_error(self.target, self.settings.model_error)
+        if not self.random:
+            return estimate_uncertainty(lin, mc, model_error)
+        # The noise term from one realisation's linearisation; the curvature, and the shift per unit brightness
+        # (which that linearisation's own two Jacobians alone make noisy), from the pooled one.
+        term = self.realisation_term(lin)
         return estimate_uncertainty(
-            lin if term is None else dataclasses.replace(term.linearization, curvature=lin.curvature),
-            None if refinement is None else refinement.mc_covariance,
-            target_model_error(self.target, self.settings.model_error),
-            None if term is None else term.covariance,
+            dataclasses.replace(term.linearization, curvature=term.pooled.curvature),
+            mc,
+            model_error,
+            term.covariance,
+            sensitivity=brightness_sensitivity(term.pooled) if term.pooled.targets is not None else None,
         )
 
     def realisation_term(self, lin: Linearization) -> RealisationTerm:

@@ -34,8 +34,9 @@ own draw adds a spread of about 1/√POOL of the realisation term's, both in the
 
 The realisation term of σ (`realisation_term`). At the fitted controls x̂, K further realisations
 (POOL + 1 … POOL + K) are each linearised with both passes on the same strands. Were the target realisation k,
-the estimate would move by u_k = H⁻¹ Aᵀ W r_k, r_k that realisation's weighted residuals (A the fit's own
-Jacobian, independent of these renders); their covariance over k is the realisation term. Each u_k is formed
+the estimate would move by u_k = H⁻¹ Aᵀ W r_k, r_k that realisation's weighted residuals (A and H the fit's,
+with these K linearisations' Jacobians pooled in: `pooled_jacobians` says why); their covariance over k is the
+realisation term. Each u_k is formed
 from both passes, and the covariance is taken across passes (Σ (u_k¹ − ū¹)(u_k² − ū²)ᵀ / (K − 1)), so that
 our render noise, independent between the passes, drops out of it in expectation. The same cross-pass
 covariance per residual, v, is how much a realisation's image varies: the target differs from any realisation
@@ -99,19 +100,39 @@ class RealisationTerm:
     scatter: float  # s² of a same-realisation linearisation with the realisations' own variance taken out
     linearization: object  # that linearisation (both passes on one realisation): for the noise term
     samples: int
+    pooled: object  # the fit's linearisation with the K linearisations' Jacobians pooled in (`pooled_jacobians`)
+
+
+def pooled_jacobians(lin, linearizations):
+    """`lin` (the fit's linearisation at its estimate) with the Jacobians of `linearizations` (made at the same
+    controls, each on a realisation of its own) pooled into its Jacobian and curvature.
+
+    Why: a light hair's albedo changes its image little, and its column of the curvature comes from Jacobians
+    whose noise is of the size of their mean. From the refinement's last eight linearisations alone it varied
+    40-fold between fits of one target at nearly the same estimate (red albedo of cycles_blonde_straight, 4.7e-4
+    to 2.0e-2), and every term of σ scales with its inverse. The realisation term's K linearisations at the
+    estimate bring 2K more Jacobians for nothing. Their residuals also make the realisation term, which is
+    then no longer independent of its gain; that bias is of order 2/(number of Jacobians), a few percent."""
+    earlier = [] if lin.earlier_jacobians is None else [lin.earlier_jacobians]
+    jacobians = np.concatenate(earlier + [other.jacobians for other in linearizations])
+    return dataclasses.replace(lin, earlier_jacobians=jacobians, curvature=None)
 
 
 def realisation_term(lin, linearizations) -> RealisationTerm:
     """The realisation covariance from K ≥ 2 linearisations at the fitted controls, each with both passes on one
-    further realisation (see the module docstring); `lin` gives the Jacobian and curvature."""
-    w, a = lin.loss_weights, lin.mean_jacobian
-    gain = np.linalg.pinv(lin.curvature) @ (a * w[:, None]).T  # (p, N): H⁻¹ Aᵀ W
+    further realisation (see the module docstring); `lin` gives the Jacobian and curvature, with the K
+    linearisations' Jacobians pooled in."""
+    pooled = pooled_jacobians(lin, linearizations)
+    w, a = pooled.loss_weights, pooled.mean_jacobian
+    gain = np.linalg.pinv(pooled.curvature) @ (a * w[:, None]).T  # (p, N): H⁻¹ Aᵀ W
     covariance, variance = realisation_spread(gain, linearizations)
     first = linearizations[0]
     hair = first.hair_rows  # as scatter_estimate counts them (a grey card's rows left out)
     n, p = len(w[hair]), first.jacobians.shape[2]
     scatter = first.scatter_estimate - 2.0 * float(w[hair] @ variance[hair]) / max(n - p, 1)
-    return RealisationTerm(covariance, scatter, dataclasses.replace(first, scatter=scatter), len(linearizations))
+    return RealisationTerm(
+        covariance, scatter, dataclasses.replace(first, scatter=scatter), len(linearizations), pooled
+    )
 
 
 def realisation_spread(gain: np.ndarray, linearizations) -> tuple:

@@ -9,7 +9,8 @@ squares, plus the Monte Carlo error of the estimate itself:
 
 s² measures what the target scatters by around the model (its own noise and any misfit): Var_MC, the Monte
 Carlo variance of our own render of each residual, is removed from it (s² is averaged over the refinement's
-later linearisations, H taken from the Jacobians of its last eight). s² H⁻¹ treats the residuals as
+later linearisations, H taken from the Jacobians of its last eight, and over random realisations also from the
+realisation term's, realisations.py). s² H⁻¹ treats the residuals as
 independent, but a pixel's three channels share their paths; the statistical term is therefore taken to
 correlate within a pixel as our render's noise does, measured from the difference of its two passes
 (`Linearization.statistical_covariance`). The estimate is the mean of m Gauss–Newton end points, each moved by
@@ -134,12 +135,14 @@ def estimate_uncertainty(
     mc_covariance: np.ndarray | None = None,
     model_error: float = 0.0,
     realisation_covariance: np.ndarray | None = None,
+    sensitivity: np.ndarray | None = None,
 ) -> Uncertainty:
     """The uncertainties at the linearisation's values (see the module docstring). mc_covariance: the
     estimate's own Monte Carlo covariance (`refine`); None leaves it out. model_error: ε, the relative
     brightness disagreement between the target's renderer and ours; 0 adds nothing, and the uncertainties are
     the noise's alone. realisation_covariance: the estimate's spread over the target's fiber realisations
-    (realisations.py); None for a target whose strands are known."""
+    (realisations.py); None for a target whose strands are known. sensitivity: s, the estimate's change per unit
+    ε; None takes `brightness_sensitivity(lin)` (a fit over realisations passes its pooled linearisation's)."""
     names = list(lin.values)
     A = lin.mean_jacobian
     p = A.shape[1]
@@ -153,7 +156,8 @@ def estimate_uncertainty(
     if mc_covariance is not None:
         cov = cov + mc_covariance
     sigma = np.sqrt(np.maximum(np.diag(cov), 0.0))
-    sensitivity = brightness_sensitivity(lin) if lin.targets is not None else None
+    if sensitivity is None and lin.targets is not None:
+        sensitivity = brightness_sensitivity(lin)
     if model_error and sensitivity is None:
         raise ValueError("model_error > 0 needs the linearisation's target values (Linearization.targets)")
     model = np.abs(model_error * sensitivity) if model_error else np.zeros(p)
