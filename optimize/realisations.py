@@ -111,8 +111,9 @@ def pooled_jacobians(lin, linearizations):
     whose noise is of the size of their mean. From the refinement's last eight linearisations alone it varied
     40-fold between fits of one target at nearly the same estimate (red albedo of cycles_blonde_straight, 4.7e-4
     to 2.0e-2), and every term of σ scales with its inverse. The realisation term's K linearisations at the
-    estimate bring 2K more Jacobians for nothing. Their residuals also make the realisation term, which is
-    then no longer independent of its gain; that bias is of order 2/(number of Jacobians), a few percent."""
+    estimate bring 2K more Jacobians for nothing (`targets check`, identify.py, pools them as well). Their
+    residuals also make the realisation term, which is then no longer independent of its gain; that bias is of
+    order 2/(number of Jacobians), a few percent."""
     earlier = [] if lin.earlier_jacobians is None else [lin.earlier_jacobians]
     jacobians = np.concatenate(earlier + [other.jacobians for other in linearizations])
     return dataclasses.replace(lin, earlier_jacobians=jacobians, curvature=None)
