@@ -124,12 +124,13 @@ def own_draw(source: Path, spp: int, samples: int, threads=None, pool: int | Non
     """How far the target's own strands lie from the realisation average, for β_n and the rest: with warp-hair
     alone at the true controls, where a fit over random realisations would land were the target warp-hair's
     render of realisation k, u_k = H⁻¹ Aᵀ W (I_k − Ī) (k = 0 the scene's own strands, 1…samples others; A and H
-    from a random-realisation linearisation, Ī the mean over 1…samples). Each u_k is taken per pass; the
+    from a random-realisation linearisation with the others' Jacobians pooled in, as the fit's realisation term
+    takes them; Ī the mean over 1…samples). Each u_k is taken per pass; the
     spread is the fit's own realisation term over 1…samples (`realisation_term`), free of our render noise.
     Every fit of one target shares its u_0: a mean over fits of one target does not average it out."""
     from optimize.fit import FitSettings
     from optimize.linearize import linearize
-    from optimize.realisations import Realisations, realisation_term
+    from optimize.realisations import Realisations, pooled_jacobians, realisation_term
     from warp_hair.renderer.prepare import prepare
 
     target = load_target(source)
@@ -138,7 +139,6 @@ def own_draw(source: Path, spp: int, samples: int, threads=None, pool: int | Non
     realisations = Realisations(target)
     settings = FitSettings() if pool is None else FitSettings(pool=pool)
     lin = linearize(target, truth, settings, spp, 1, threads=threads, scenes=realisations.pair(1))
-    gain = np.linalg.pinv(lin.curvature) @ (lin.mean_jacobian * lin.loss_weights[:, None]).T
     own = [prepare(image.scene) for image in target.images]
     lins = [
         linearize(
@@ -146,6 +146,9 @@ def own_draw(source: Path, spp: int, samples: int, threads=None, pool: int | Non
         )
         for k in range(samples + 1)
     ]
+    # The gain the fit's realisation term uses: its Jacobians pooled with the realisations' (realisations.py).
+    pooled = pooled_jacobians(lin, lins[1:])
+    gain = np.linalg.pinv(pooled.curvature) @ (pooled.mean_jacobian * pooled.loss_weights[:, None]).T
     residuals = np.stack([one.residuals for one in lins])  # (samples + 1, 2, N)
     mean = residuals[1:].mean(axis=0)
     u = np.einsum("pn,khn->khp", gain, residuals - mean)
