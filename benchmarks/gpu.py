@@ -13,6 +13,10 @@ Mitsuba renders the same scene with its stock hair BSDF (`mitsuba_peer.mitsuba_s
 image is also compared with the CPU's: the same kernel and random streams give the same image up to float
 rounding (tests/test_device.py derives the tolerance), so the share of values within it is printed as a check.
 
+The BVH build (`bvh.build_bvh`, the passes over the primitives on the device, the levels' bookkeeping on the
+host) is timed apart on the segment boxes of `scaling.py`'s swatches of 10⁴ to 10⁶ segments (`--build`), with
+whether both devices build the same tree.
+
 On a machine without a CUDA device it says why and exits 0.
 """
 
@@ -87,6 +91,43 @@ def time_device(device: str, args) -> dict:
     return {"timings": timings, "image": image}
 
 
+def time_builds(sizes, threads: int | None, repeat: int) -> None:
+    """The BVH build on each device over the tube boxes of 10 segments a strand (the 10⁶ case is issue 24's
+    10⁵-strand groom), and whether the GPU's tree is the CPU's."""
+    from scaling import draped_swatch
+
+    from warp_hair.geometry.bvh import TRAVERSAL_COST, build_bvh
+    from warp_hair.geometry.intersect import BVH_WIDTH
+    from warp_hair.geometry.tubes import MAX_LEAF, segment_boxes, segment_frames
+
+    print("\n| BVH build | CPU s | GPU s | GPU speed-up | same tree |\n|---|---:|---:|---:|---|")
+    for m in sizes:
+        p0, p1, r0, r1, strand, _ = draped_swatch(m, 10).fibers.segments()
+        lowers, uppers = segment_boxes(segment_frames(p0, p1, r0, r1, strand))
+        trees, seconds = {}, {}
+        for device in ("cpu", "cuda"):
+
+            def build(device=device, lowers=lowers, uppers=uppers):
+                return build_bvh(
+                    lowers,
+                    uppers,
+                    max_leaf=MAX_LEAF,
+                    width=BVH_WIDTH,
+                    traversal_cost=TRAVERSAL_COST,
+                    threads=threads,
+                    device=device,
+                )
+
+            seconds[device], trees[device] = best_of(repeat, build)
+        a, b = trees["cpu"], trees["cuda"]
+        same = all(np.array_equal(getattr(a, f), getattr(b, f)) for f in ("order", "lo", "hi", "child"))
+        print(
+            f"| {len(lowers)} segments | {seconds['cpu']:.3f} | {seconds['cuda']:.3f} | "
+            f"{seconds['cpu'] / seconds['cuda']:.1f}x | {'yes' if same else 'no'} |",
+            flush=True,
+        )
+
+
 def time_mitsuba(spp: int, repeat: int) -> tuple:
     """(seconds, image) of Mitsuba's cuda_ad_rgb forward render, or (None, the reason).
 
@@ -126,6 +167,9 @@ def main(argv=None) -> None:
     parser.add_argument("--target", default="blonde_straight", help="the shipped target of the short fit")
     parser.add_argument("--iters", type=int, default=10, help="Adam iterations of the short fit")
     parser.add_argument("--threads", type=int, default=None, help="CPU threads (default: all cores)")
+    parser.add_argument(
+        "--build", type=int, nargs="*", default=[10_000, 100_000, 1_000_000], help="segments of the BVH builds timed"
+    )
     parser.add_argument("--mitsuba-child", type=Path, help=argparse.SUPPRESS)  # time_mitsuba's own process
     args = parser.parse_args(argv)
     if args.mitsuba_child:
@@ -149,6 +193,7 @@ def main(argv=None) -> None:
         f"{a.mean():.6f} and {b.mean():.6f}; largest difference {np.abs(a - b).max():.3g}",
         flush=True,
     )
+    time_builds(args.build, args.threads, args.repeat)
     mitsuba_seconds, mitsuba = time_mitsuba(args.spp, args.repeat)
     if mitsuba_seconds is None:
         print(mitsuba)

@@ -18,6 +18,9 @@ from optimize.identify import BOUNDS
 from optimize.target import load_target
 from warp_hair.cli import main
 from warp_hair.devices import check_device
+from warp_hair.geometry.bvh import MAX_DEPTH, build_bvh, leaf_range
+from warp_hair.geometry.intersect import BVH_WIDTH
+from warp_hair.geometry.tubes import MAX_LEAF, segment_boxes, segment_frames
 from warp_hair.renderer.gradients import contract, named_gradients, render_jacobian
 from warp_hair.renderer.prepare import prepare
 from warp_hair.renderer.render import pixel_jacobian_kernel, pixel_kernel, render
@@ -164,6 +167,36 @@ def assert_same_render(gpu, cpu, what, spp):
     assert close.mean() >= 1 - allowed, f"{what}: {np.count_nonzero(~close)} of {close.size} pixels differ"
     elsewhere = (gpu.astype(np.float64) - cpu)[~close]
     assert abs(elsewhere.sum()) <= 4 * np.sqrt((elsewhere**2).sum()), f"{what}: paths elsewhere biased"
+
+
+@needs_cuda
+def test_bvh_built_on_cuda_is_a_valid_tree():
+    """The build's kernels on the GPU (`build_bvh(device="cuda")`, which gpu.py times; scenes build on the host):
+    every primitive in exactly one leaf, inside each box on its way from the root, the depth within MAX_DEPTH; for
+    a swatch's tubes and for boxes whose centres coincide (split at the median, the NumPy step, on copies of the
+    GPU's arrays). Its tree need not be the CPU's: fused multiply-adds may break an SAH near-tie otherwise."""
+    p0, p1, r0, r1, strand, _ = small_scene().fibers.segments()
+    lowers, uppers = segment_boxes(segment_frames(p0, p1, r0, r1, strand))
+    same = np.repeat(np.random.default_rng(3).uniform(-1.0, 1.0, (1, 3)), 64, axis=0)
+    for lo, hi in ((lowers, uppers), (np.concatenate([lowers, same]), np.concatenate([uppers, same + 0.01]))):
+        tree = build_bvh(lo, hi, max_leaf=MAX_LEAF, width=BVH_WIDTH, device="cuda")
+        np.testing.assert_array_equal(np.sort(tree.order), np.arange(len(lo)))
+        assert tree.depth <= -(-MAX_DEPTH // 3)
+        seen = np.zeros(len(lo), dtype=int)
+        stack = [(0, np.full(3, -np.inf), np.full(3, np.inf))]  # a node and the boxes above it, intersected
+        while stack:
+            node, box_lo, box_hi = stack.pop()
+            for c in range(tree.width):
+                child_lo = np.maximum(box_lo, tree.lo[node, c])
+                child_hi = np.minimum(box_hi, tree.hi[node, c])
+                if tree.child[node, c] >= 0:
+                    stack.append((tree.child[node, c], child_lo, child_hi))
+                    continue
+                first, count = leaf_range(tree.child[node, c])
+                prims = tree.order[first : first + count]
+                seen[prims] += 1
+                assert (lo[prims] >= child_lo).all() and (hi[prims] <= child_hi).all()
+        np.testing.assert_array_equal(seen, 1)
 
 
 @needs_cuda

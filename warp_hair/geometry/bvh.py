@@ -93,13 +93,16 @@ def build_bvh(
     width: int = 2,
     traversal_cost: float = TRAVERSAL_COST,
     threads: int | None = None,
+    device: str = "cpu",
 ) -> Tree:
     """The tree of the given `width` (2, 4 or 8) over the boxes (lowers, uppers) (M, 3); see the module docstring.
-    The ranges of a level are split by `threads` threads (default: one per core); the tree does not depend on
-    their number."""
+    The passes over the primitives run on `device`; on the CPU a level's ranges are split by `threads` threads
+    (default: one per core). The tree does not depend on their number, but a GPU's may differ from the CPU's in
+    near-ties of the SAH cost (fused multiply-adds), and there the top levels run one thread a range: `FiberBVH`
+    builds on the host (tubes.py says why)."""
     if width not in (2, 4, 8):
         raise ValueError(f"width must be 2, 4 or 8, got {width}")
-    tree = build_binary(lowers, uppers, max_leaf, traversal_cost, threads)
+    tree = build_binary(lowers, uppers, max_leaf, traversal_cost, threads, device)
     return tree if width == 2 else _widen(tree, width)
 
 
@@ -109,8 +112,9 @@ def half_area(box):
     return d[0] * d[1] + d[1] * d[2] + d[2] * d[0]
 
 
-def build_binary(lowers, uppers, max_leaf, traversal_cost, threads=None) -> Tree:
-    """The binary tree, built level by level (module docstring); node ids are assigned in level order."""
+def build_binary(lowers, uppers, max_leaf, traversal_cost, threads=None, device="cpu") -> Tree:
+    """The binary tree, built level by level (module docstring); node ids are assigned in level order. The
+    kernels' passes over the primitives run on `device`; what a level reads back is a few values a range."""
     if not 1 <= max_leaf <= MAX_LEAF_SIZE:
         raise ValueError(f"max_leaf must be in [1, {MAX_LEAF_SIZE}], got {max_leaf}")
     lowers = np.asarray(lowers, dtype=np.float64).reshape(-1, 3)
@@ -128,7 +132,6 @@ def build_binary(lowers, uppers, max_leaf, traversal_cost, threads=None) -> Tree
     if m >= 2**31:
         raise ValueError(f"at most 2**31 - 1 boxes, got {m}")
 
-    device = "cpu"  # the build's levels are planned in NumPy: on the host, whatever the render device (tubes.py)
     # The primitives' indices and boxes, kept in the order of `order` as the ranges are partitioned, so that
     # every pass over a range reads contiguous memory.
     prims = _primitives(np.arange(m, dtype=np.int32), lowers, uppers, device)
@@ -151,7 +154,9 @@ def build_binary(lowers, uppers, max_leaf, traversal_cost, threads=None) -> Tree
         wp_start = wp.array(start.astype(np.int32), dtype=wp.int32, device=device)
         wp_count = wp.array(count.astype(np.int32), dtype=wp.int32, device=device)
         out = {name: wp.empty(k, dtype=dtype, device=device) for name, dtype in _SPLIT_OUTPUTS}
-        _launch(_best_splits_kernel, k, [prims.lowers, prims.uppers, wp_start, wp_count, nb, *out.values()], threads)
+        _launch(
+            _best_splits_kernel, k, [prims.lowers, prims.uppers, wp_start, wp_count, nb, *out.values()], threads, device
+        )
         box_lo, box_hi = out["box_lo"].numpy(), out["box_hi"].numpy()
         extent = out["c_extent"].numpy()
         best_cost = out["cost"].numpy()
@@ -187,6 +192,7 @@ def build_binary(lowers, uppers, max_leaf, traversal_cost, threads=None) -> Tree
                 n_left,
             ],
             threads,
+            device,
         )
         n_left = n_left.numpy().astype(np.int64)
         medians = np.flatnonzero(median)
@@ -228,25 +234,29 @@ def level_nodes(count, best_cost, area, is_root, max_leaf, traversal_cost, depth
     return leaf, median, split, node_id, num_nodes
 
 
-def _launch(kernel, k, inputs, threads):
-    """One thread per range; the levels with few ranges (the top ones, and every level of a small tree) in
-    one launch, where a thread pool would cost more than it saves."""
-    if k < PARALLEL_RANGES:
-        wp.launch(kernel, dim=k, inputs=[*inputs, 0], device="cpu")
+def _launch(kernel, k, inputs, threads, device):
+    """One thread per range; on the CPU the levels with few ranges (the top ones, and every level of a small
+    tree) in one launch, where a thread pool would cost more than it saves."""
+    if k < PARALLEL_RANGES or not wp.get_device(device).is_cpu:
+        wp.launch(kernel, dim=k, inputs=[*inputs, 0], device=device)
     else:
-        launch_ranges(kernel, k, inputs, threads=threads, device="cpu")
+        launch_ranges(kernel, k, inputs, threads=threads, device=device)
 
 
 def _median_partition(prims, start, count, axis):
-    """Each range sorted by its primitives' centres along its axis (stable), in place (NumPy views of the CPU
-    arrays): the first count // 2 are the left side."""
+    """Each range sorted by its primitives' centres along its axis (stable), in place: the first count // 2 are
+    the left side. In NumPy (rare: module docstring), on views of CPU arrays or on copies of a GPU's."""
     rid = np.repeat(np.arange(len(start)), count)
     first = np.concatenate([[0], np.cumsum(count)[:-1]])
     pos = start[rid] + np.arange(len(rid)) - first[rid]
-    index, lowers, uppers = prims.index.numpy(), prims.lowers.numpy(), prims.uppers.numpy()
+    arrays = (prims.index, prims.lowers, prims.uppers)
+    index, lowers, uppers = (a.numpy() for a in arrays)
     centre = (lowers[pos, axis[rid]] + uppers[pos, axis[rid]]) / 2
     sort = pos[np.lexsort((centre, rid))]
     index[pos], lowers[pos], uppers[pos] = index[sort], lowers[sort], uppers[sort]
+    if not prims.index.device.is_cpu:
+        for a, values in zip(arrays, (index, lowers, uppers)):
+            a.assign(values)
 
 
 def _widen(tree: Tree, width: int) -> Tree:

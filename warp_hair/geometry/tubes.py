@@ -31,11 +31,13 @@ class FiberBVH:
     `shading_frame` each segment's own axis: the polyline's frame, with its jumps at the joints.
 
     The tree is built on the host whatever `device` is, and the finished arrays are uploaded to `device` once per
-    scene (a fit prepares its scenes once, so that is once per fit). The build's levels are planned in NumPy
-    (bvh.py), which on a GPU would read every level back; and Warp's own builder (`wp.Bvh`, which does build on
-    the GPU) gives a binary tree in its own node layout, not the 8-wide nodes over leaf-ordered tubes that
-    intersect.py's traversal reads. The host build costs about 3 CPU µs per segment (docs/scaling.md): nothing
-    beside a fit's hundreds of renders, but one GPU render of a million-segment scene may well take less.
+    scene (a fit prepares its scenes once, so that is once per fit). The build's kernels do run on a GPU
+    (`build_bvh(device=...)`), but there they are slower: one thread a range serialises the top levels, and on an
+    H200 a 10⁶-segment build took 6.5 s against 2.0 s on the host's 16 cores (`benchmarks/gpu.py`, 2026-12-04);
+    its trees also differ from the host's where the GPU's fused multiply-adds round an SAH cost otherwise, which
+    would make a GPU render's ties differ from the CPU's. Warp's own builder (`wp.Bvh`) gives a binary tree in its
+    own layout, not the 8-wide nodes over leaf-ordered tubes that intersect.py reads. The host build costs about
+    3 CPU µs per segment (docs/scaling.md): nothing beside a fit's hundreds of renders.
     """
 
     def __init__(self, assembly, device="cpu", smooth_tangents=True):
