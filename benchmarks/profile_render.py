@@ -19,6 +19,8 @@ traversal of each kind of ray, shading).
    pixel order, are somewhat more coherent than in the render, where each thread alternates kinds: the
    traversal share is a lower bound. With --mitsuba, Mitsuba 3 (Embree) traces the same rays on one thread,
    for its rays per second per core beside ours: how much of the gap to Mitsuba the traversal explains.
+   It also renders the swatch in Mitsuba at --spp on the same threads: its whole render's CPU time against its
+   rays alone, and against our traversal alone (the bound docs/benchmarks.md draws on the forward goal).
 
 With --rays-only, only part 3.
 
@@ -226,6 +228,23 @@ def mitsuba_ray_rates(scene, rays) -> dict:
     return out
 
 
+def mitsuba_render(scene, spp, threads) -> tuple:
+    """(wall, CPU) seconds of Mitsuba 3's render of `scene` at `spp` on `threads` Dr.Jit threads, after a 1-spp
+    render that compiles its kernels (as render_swatch.py times it). Dr.Jit's threads are this process's, so
+    process_time counts them."""
+    from mitsuba_peer import import_mitsuba, mitsuba_scene
+
+    mi = import_mitsuba()
+    import drjit as dr
+
+    dr.set_thread_count(threads)
+    mi_scene = mitsuba_scene(mi, scene, spp)
+    np.array(mi.render(mi_scene, spp=1, seed=0))
+    with Clock() as c:
+        np.array(mi.render(mi_scene, spp=spp, seed=0))
+    return c.wall, c.cpu
+
+
 def fit_iteration(target_dir, spp, threads) -> dict:
     """Seconds of a fit iteration's renders (a gradient pass pair per image at spp/2 each), with its scenes
     prepared once and with one preparation per pass, and of the preparation alone."""
@@ -338,6 +357,17 @@ def swatch_rays(args, swatch, threads) -> None:
             print(
                 f"\nOur render at Mitsuba's ray rates: {at_theirs + rest:.2f} s CPU instead of {c.cpu:.2f} s "
                 f"(traversal {traversal:.2f} → {at_theirs:.2f} s, the rest {rest:.2f} s unchanged)."
+            )
+            # The bound on the forward goal: what Mitsuba's whole render costs beside its rays, and our
+            # traversal alone (preliminary queries: no hit point, no BSDF) beside that whole render.
+            wall, cpu = mitsuba_render(swatch, args.spp, threads)
+            ours_preliminary = sum(count * preliminary for _kind, count, _per_ray, preliminary in rows)
+            print(
+                f"\nMitsuba's whole render of the same swatch at {args.spp} spp on {threads} thread(s): "
+                f"{cpu:.2f} s CPU ({wall:.2f} s wall); its rays alone at the rates above {at_theirs:.2f} s, so its "
+                f"shading, sampling and loop about {cpu - at_theirs:.2f} s. Our traversal alone, as preliminary "
+                f"queries (no hit point, shading or BSDF): {ours_preliminary:.2f} s, {ours_preliminary / cpu:.2f}× "
+                "Mitsuba's whole render."
             )
 
 
