@@ -130,7 +130,7 @@ def own_draw(source: Path, spp: int, samples: int, threads=None, pool: int | Non
     Every fit of one target shares its u_0: a mean over fits of one target does not average it out."""
     from optimize.fit import FitSettings
     from optimize.linearize import linearize
-    from optimize.realisations import Realisations, pooled_jacobians, realisation_term
+    from optimize.realisations import Realisations, estimate_gain, pooled_jacobians, realisation_term
     from warp_hair.renderer.prepare import prepare
 
     target = load_target(source)
@@ -147,8 +147,7 @@ def own_draw(source: Path, spp: int, samples: int, threads=None, pool: int | Non
         for k in range(samples + 1)
     ]
     # The gain the fit's realisation term uses: its Jacobians pooled with the realisations' (realisations.py).
-    pooled = pooled_jacobians(lin, lins[1:])
-    gain = np.linalg.pinv(pooled.curvature) @ (pooled.mean_jacobian * pooled.loss_weights[:, None]).T
+    gain = estimate_gain(pooled_jacobians(lin, lins[1:]))
     residuals = np.stack([one.residuals for one in lins])  # (samples + 1, 2, N)
     mean = residuals[1:].mean(axis=0)
     u = np.einsum("pn,khn->khp", gain, residuals - mean)

@@ -22,7 +22,7 @@ from vs_peers import TANGLED_HAIR, TARGET_LIGHTINGS, interpenetrating_swatch, sc
 
 from warp_hair.geometry.curves import catmull_rom
 from warp_hair.geometry.interpenetration import points_inside_other_strands
-from warp_hair.geometry.intersect import FiberGeometry, intersect_fibers, intersect_fibers_exits, shading_frame
+from warp_hair.geometry.intersect import FiberGeometry, intersect_fibers_under_rule, shading_frame
 from warp_hair.geometry.tubes import FiberBVH
 from warp_hair.model.hair_bsdf import HairCoefficients, hair_coefficients, hair_sample, lobe_setup
 from warp_hair.model.params import HairParams
@@ -50,9 +50,7 @@ def walk(
     o, d = generate_ray(cam, px, py, wp.vec2(wp.randf(rng), wp.randf(rng)))
     last = int(-1)
     for depth in range(position.shape[1]):
-        hit = intersect_fibers(g, o, d, NO_HIT, -1)
-        if exits != 0:
-            hit = intersect_fibers_exits(g, o, d, NO_HIT, last)
+        hit = intersect_fibers_under_rule(g, o, d, NO_HIT, exits, last, -1)
         if hit.t >= NO_HIT:
             return
         x, z, h = shading_frame(g, hit, d)

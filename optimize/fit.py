@@ -613,7 +613,7 @@ class FitRun:
             mc,
             model_error,
             term.covariance,
-            sensitivity=brightness_sensitivity(term.pooled) if term.pooled.targets is not None else None,
+            brightness_from=term.pooled,
         )
 
     def realisation_term(self, lin: Linearization) -> RealisationTerm:

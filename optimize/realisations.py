@@ -119,14 +119,18 @@ def pooled_jacobians(lin, linearizations):
     return dataclasses.replace(lin, earlier_jacobians=jacobians, curvature=None)
 
 
+def estimate_gain(lin) -> np.ndarray:
+    """H⁻¹ Aᵀ W (p, N): how far the estimate moves per unit of each weighted residual, linearised at `lin`."""
+    return np.linalg.pinv(lin.curvature) @ (lin.mean_jacobian * lin.loss_weights[:, None]).T
+
+
 def realisation_term(lin, linearizations) -> RealisationTerm:
     """The realisation covariance from K ≥ 2 linearisations at the fitted controls, each with both passes on one
     further realisation (see the module docstring); `lin` gives the Jacobian and curvature, with the K
     linearisations' Jacobians pooled in."""
     pooled = pooled_jacobians(lin, linearizations)
-    w, a = pooled.loss_weights, pooled.mean_jacobian
-    gain = np.linalg.pinv(pooled.curvature) @ (a * w[:, None]).T  # (p, N): H⁻¹ Aᵀ W
-    covariance, variance = realisation_spread(gain, linearizations)
+    w = pooled.loss_weights
+    covariance, variance = realisation_spread(estimate_gain(pooled), linearizations)
     first = linearizations[0]
     hair = first.hair_rows  # as scatter_estimate counts them (a grey card's rows left out)
     n, p = len(w[hair]), first.jacobians.shape[2]

@@ -135,14 +135,15 @@ def estimate_uncertainty(
     mc_covariance: np.ndarray | None = None,
     model_error: float = 0.0,
     realisation_covariance: np.ndarray | None = None,
-    sensitivity: np.ndarray | None = None,
+    brightness_from: Linearization | None = None,
 ) -> Uncertainty:
     """The uncertainties at the linearisation's values (see the module docstring). mc_covariance: the
     estimate's own Monte Carlo covariance (`refine`); None leaves it out. model_error: ε, the relative
     brightness disagreement between the target's renderer and ours; 0 adds nothing, and the uncertainties are
     the noise's alone. realisation_covariance: the estimate's spread over the target's fiber realisations
-    (realisations.py); None for a target whose strands are known. sensitivity: s, the estimate's change per unit
-    ε; None takes `brightness_sensitivity(lin)` (a fit over realisations passes its pooled linearisation's)."""
+    (realisations.py); None for a target whose strands are known. brightness_from: the linearisation whose
+    estimate's change per unit ε makes the model term (`brightness_sensitivity`); None takes `lin` (a fit over
+    realisations passes its pooled one)."""
     names = list(lin.values)
     A = lin.mean_jacobian
     p = A.shape[1]
@@ -156,8 +157,8 @@ def estimate_uncertainty(
     if mc_covariance is not None:
         cov = cov + mc_covariance
     sigma = np.sqrt(np.maximum(np.diag(cov), 0.0))
-    if sensitivity is None and lin.targets is not None:
-        sensitivity = brightness_sensitivity(lin)
+    source = lin if brightness_from is None else brightness_from
+    sensitivity = brightness_sensitivity(source) if source.targets is not None else None
     if model_error and sensitivity is None:
         raise ValueError("model_error > 0 needs the linearisation's target values (Linearization.targets)")
     model = np.abs(model_error * sensitivity) if model_error else np.zeros(p)

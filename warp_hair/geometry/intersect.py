@@ -474,6 +474,17 @@ def intersect_fibers_exits(g: FiberGeometry, origin: wp.vec3, direction: wp.vec3
 
 
 @wp.func
+def intersect_fibers_under_rule(
+    g: FiberGeometry, origin: wp.vec3, direction: wp.vec3, t_max: float, exits: int, skip_strand: int, from_tube: int
+):
+    """The closest hit under the interpenetration rule `exits` (0: `intersect_fibers`, skipping `from_tube`; 1:
+    `intersect_fibers_exits`, skipping strand `skip_strand`), in one traversal."""
+    if exits != 0:
+        return intersect_fibers_exits(g, origin, direction, t_max, skip_strand)
+    return intersect_fibers(g, origin, direction, t_max, from_tube)
+
+
+@wp.func
 def closest_tube(g: FiberGeometry, origin: wp.vec3, direction: wp.vec3, t_max: float, from_tube: int):
     """The preliminary closest hit (Mitsuba's `ray_intersect_preliminary`, Embree's hit): (tube, t, exit) with
     tube the index into `g.tubes` (−1 and t = NO_HIT on a miss), without the hit point or frame of

@@ -15,21 +15,12 @@ from .intersect import (
     closest_tube_exits,
     fibers_occluded,
     fibers_occluded_exits,
-    intersect_fibers,
-    intersect_fibers_exits,
+    intersect_fibers_under_rule,
     shading_frame,
 )
 from .tubes import FiberBVH
 
 wp.set_module_options({"enable_backward": False})
-
-
-@wp.func
-def _closest_under_rule(g: FiberGeometry, origin: wp.vec3, direction: wp.vec3, t_max: float, exits: int, skip: int):
-    """The closest hit under the rule `exits` gives: one traversal, not one per rule."""
-    if exits != 0:
-        return intersect_fibers_exits(g, origin, direction, t_max, skip)
-    return intersect_fibers(g, origin, direction, t_max, -1)
 
 
 @wp.kernel
@@ -53,7 +44,7 @@ def _intersect_kernel(
     exit: wp.array(dtype=wp.int32),
 ):
     k = wp.tid()
-    hit = _closest_under_rule(g, origins[k], directions[k], t_max[k], exits, skip_strand)
+    hit = intersect_fibers_under_rule(g, origins[k], directions[k], t_max[k], exits, skip_strand, -1)
     t[k] = hit.t
     segment[k] = wp.int32(hit.segment)
     strand[k] = wp.int32(hit.strand)

@@ -20,8 +20,7 @@ from ..geometry.intersect import (
     FiberGeometry,
     fibers_occluded,
     fibers_occluded_exits,
-    intersect_fibers,
-    intersect_fibers_exits,
+    intersect_fibers_under_rule,
 )
 from ..model.hair_bsdf import HairCoefficients
 from ..model.jacobian import CoefficientDerivatives, LobeEvaluation, value_jacobian_mat
@@ -71,9 +70,7 @@ class SceneData:
 def intersect(scene: SceneData, origin: wp.vec3, direction: wp.vec3, strand: int, tube: int):
     """The ray's closest fiber hit under the scene's interpenetration rule; `strand` and `tube` are those the ray
     leaves (−1 for none)."""
-    if scene.exits != 0:
-        return intersect_fibers_exits(scene.fibers, origin, direction, NO_HIT, strand)
-    return intersect_fibers(scene.fibers, origin, direction, NO_HIT, tube)
+    return intersect_fibers_under_rule(scene.fibers, origin, direction, NO_HIT, scene.exits, strand, tube)
 
 
 @wp.func
