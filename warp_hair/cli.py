@@ -30,6 +30,7 @@ from . import validate
 from .controls import COLOUR_CONTROL_NAMES, COLOUR_CONTROLS, CONTROLS
 from .devices import DEFAULT_DEVICE, check_device
 from .model.params import HairParams
+from .parallel import interrupts_delivered
 
 PROG = "warp-hair"
 DEFAULT_ALBEDO = (0.6, 0.4, 0.2)
@@ -394,7 +395,7 @@ def build_parser(extra=()) -> argparse.ArgumentParser:
 def exit_on_interrupt(run) -> None:
     """Run `run()` (a script's main) and exit: on Ctrl-C with one line and status 130, as the command does."""
     try:
-        with wp.ScopedLogLevel(wp.LOG_WARNING):  # Warp logs every module load at INFO
+        with wp.ScopedLogLevel(wp.LOG_WARNING), interrupts_delivered():  # Warp logs every module load at INFO
             run()
     except KeyboardInterrupt:
         print(f"{sys.argv[0]}: interrupted", file=sys.stderr)
@@ -411,7 +412,7 @@ def main(argv: list[str] | None = None, extra=()) -> int:
     args = build_parser(extra).parse_args(argv)
     # Warp logs every module load at INFO: the command shows its warnings and errors only, and leaves the level
     # as it was when it returns (main may run inside a host program).
-    with warnings.catch_warnings(), wp.ScopedLogLevel(wp.LOG_WARNING):
+    with warnings.catch_warnings(), wp.ScopedLogLevel(wp.LOG_WARNING), interrupts_delivered():
         # Users of the command see the library's warnings as messages, not as source locations.
         warnings.showwarning = _show_warning
         try:

@@ -16,6 +16,46 @@ from concurrent.futures import ThreadPoolExecutor, as_completed
 
 import warp as wp
 
+# A Ctrl-C that landed in a finalizer while a command ran (`interrupts_delivered`): the next `launch_ranges` raises it.
+_PENDING = threading.Event()
+
+
+def _interrupt(signum, frame):
+    """Python's Ctrl-C (a KeyboardInterrupt where the main thread is), except inside a finalizer such as a Warp
+    array's `__del__`: Python only prints an exception raised there, and the command would run on to its end.
+    There it is kept pending instead, and the next `launch_ranges` raises it."""
+    while frame is not None:
+        if frame.f_code.co_name == "__del__":
+            _PENDING.set()
+            return
+        frame = frame.f_back
+    raise KeyboardInterrupt
+
+
+def _python_handler() -> bool:
+    """Whether SIGINT is Python's own handler (or ours in its place) and this is the main thread: a program that
+    set its own, or a background process that ignores SIGINT, is left alone."""
+    return threading.current_thread() is threading.main_thread() and signal.getsignal(signal.SIGINT) in (
+        signal.default_int_handler,
+        _interrupt,
+    )
+
+
+@contextlib.contextmanager
+def interrupts_delivered():
+    """While a command runs (cli.main, `exit_on_interrupt`): Ctrl-C raises KeyboardInterrupt as Python's handler
+    does, but one that lands in a finalizer is not lost (`_interrupt`)."""
+    if not _python_handler():
+        yield
+        return
+    _PENDING.clear()
+    previous = signal.signal(signal.SIGINT, _interrupt)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+        _PENDING.clear()
+
 
 def default_threads() -> int:
     return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
@@ -37,6 +77,9 @@ def launch_ranges(
     `progress(done, total)` is called after each range. On Ctrl-C (or an error in a range) no further range
     starts: the running ones finish, and the KeyboardInterrupt (or the error) propagates within one range's time.
     """
+    if _PENDING.is_set():
+        _PENDING.clear()
+        raise KeyboardInterrupt
     if n == 0:
         return
     if threads is not None and threads < 1:
@@ -81,9 +124,7 @@ def _stop_on_sigint(stop: threading.Event):
     KeyboardInterrupt raised inside the pool's locks can leave them broken ("release unlocked lock"). The caller
     raises it once the running ranges are done. Only in the main thread, and only over Python's own handler."""
     received = []
-    if threading.current_thread() is not threading.main_thread() or (
-        signal.getsignal(signal.SIGINT) is not signal.default_int_handler
-    ):
+    if not _python_handler():
         yield received
         return
 
