@@ -29,6 +29,7 @@ from .fit import FitSettings
 from .identify import CHECK_REALISATION_SAMPLES
 from .latents import DEFAULT_FIT, SPECS, as_values
 from .realisations import REALISATION_MODES
+from .verdict import FAILED_STATUS
 
 
 def resolve_target(name_or_path: str) -> Path:
@@ -190,7 +191,7 @@ def _batch(text: str) -> int | None:
     return value
 
 
-def run_fit(args: argparse.Namespace) -> None:
+def run_fit(args: argparse.Namespace) -> int:
     from .camera import fitted as fitted_camera
     from .card_region import summary as card_summary
     from .fit import fit
@@ -252,9 +253,22 @@ def run_fit(args: argparse.Namespace) -> None:
     print(
         f"{result.iterations} iterations ({result.stop_reason}), {result.seconds:.0f} s, final loss {result.loss:.4g}"
     )
+    if result.goodness is not None:
+        print("\n".join(result.goodness.lines()))
     for warning in result.warnings:
         print(f"{render_cli.PROG}: warning: {warning}", file=sys.stderr)
     print("wrote " + ", ".join(str(p) for p in paths))
+    if result.failed:
+        # A failed fit's numbers are no result: said as a failure, with a status a script can tell (verdict.py).
+        for reason in result.failures:
+            print(f"{render_cli.PROG}: fit failed: {reason}", file=sys.stderr)
+        print(
+            f"{render_cli.PROG}: the fit of {target.name} FAILED: the values above are not a result "
+            f"(params.json says failed)",
+            file=sys.stderr,
+        )
+        return FAILED_STATUS
+    return 0
 
 
 def _set_camera_unknowns(target, args) -> None:

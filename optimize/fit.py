@@ -50,6 +50,7 @@ from warp_hair.renderer.render import render
 from warp_hair.torch import render_torch_pair, scene_with_controls
 
 from . import camera
+from .goodness import Goodness, goodness_of_fit, quantisation_variances
 from .identify import BOUNDS
 from .latents import DEFAULT_FIT, SPECS, as_values, hair_and_gain, parse_control_names
 from .linearize import Linearization, linearize
@@ -65,6 +66,7 @@ from .uncertainty import (
     estimate_uncertainty,
     target_model_error,
 )
+from .verdict import failures
 
 SPP_STAGES = ((0.25, 4), (0.5, 2), (1.0, 1))  # (fraction of the iterations, divisor of spp) in order
 FINAL_LR_FRACTION = 0.05
@@ -138,6 +140,12 @@ class FitResult:
     correlations: dict = field(default_factory=dict)  # "a/b" → correlation of the two estimates
     uncertainty_parts: dict | None = None  # the noise, model-error and realisation parts of `uncertainties`
     camera: dict | None = None  # a photo target's fitted gains and white balance with their σ (camera.report)
+    goodness: Goodness | None = None  # the measure of fit at the result (goodness.py); None when not estimated
+    failures: list = field(default_factory=list)  # why the fit failed (verdict.py); empty when it did not
+
+    @property
+    def failed(self) -> bool:
+        return bool(self.failures)
 
 
 @dataclass(frozen=True)
@@ -342,8 +350,8 @@ class FitRun:
         descent = run.descend()                 # step() until the iterations, a plateau or Ctrl-C
         refinement = run.refine(descent)        # Gauss–Newton steps (refine.py); None when there are none
         evaluation = run.evaluate(descent, refinement)   # the final images and loss, the loss linearised there
-        uncertainty = run.uncertainty(evaluation, refinement)   # uncertainty.py (skipped when interrupted)
-        result = run.result(descent, refinement, evaluation, uncertainty)   # or all of it: run.run()
+        uncertainty, goodness = run.uncertainty(evaluation, refinement)   # uncertainty.py, goodness.py
+        result = run.result(descent, refinement, evaluation, uncertainty, goodness)   # or all of it: run.run()
     """
 
     def __init__(self, target: Target, settings: FitSettings, progress: bool = True):
@@ -597,23 +605,34 @@ class FitRun:
         ]
         return Evaluation(images, float(np.mean([float(v) for v in losses])), lin, interrupted)
 
-    def uncertainty(self, evaluation: Evaluation, refinement: Refinement | None) -> Uncertainty:
+    def uncertainty(self, evaluation: Evaluation, refinement: Refinement | None) -> tuple[Uncertainty, Goodness]:
         """The uncertainties from the loss linearised at the result, with the refinement's Monte Carlo error;
         over random realisations, with the realisation term (realisations.py) and the noise term from a
-        linearisation on one realisation."""
+        linearisation on one realisation. And the measure of fit there (goodness.py), whose Birge factor
+        scales them where the images differ from the fitted look by more than noise."""
         lin, mc = evaluation.linearization, None if refinement is None else refinement.mc_covariance
         model_error = target_model_error(self.target, self.settings.model_error)
         if not self.random:
-            return estimate_uncertainty(lin, mc, model_error)
+            goodness = self.goodness(lin)
+            return estimate_uncertainty(lin, mc, model_error, birge=goodness.birge), goodness
         # The noise term from one realisation's linearisation; the curvature, and the shift per unit brightness
         # (which that linearisation's own two Jacobians alone make noisy), from the pooled one.
         term = self.realisation_term(lin)
-        return estimate_uncertainty(
+        goodness = self.goodness(lin, term.variance)
+        uncertainty = estimate_uncertainty(
             dataclasses.replace(term.linearization, curvature=term.pooled.curvature),
             mc,
             model_error,
             term.covariance,
             brightness_from=term.pooled,
+            birge=goodness.birge,
+        )
+        return uncertainty, goodness
+
+    def goodness(self, lin: Linearization, draw=None) -> Goodness:
+        """χ² of the final linearisation's residuals against the noise the fit expects there (goodness.py)."""
+        return goodness_of_fit(
+            lin, self.target, self.settings, self.final_spp, quantisation_variances(self.target, self.settings), draw
         )
 
     def realisation_term(self, lin: Linearization) -> RealisationTerm:
@@ -645,13 +664,18 @@ class FitRun:
         descent = self.descend()
         refinement = self.refine(descent)
         evaluation = self.evaluate(descent, refinement)
-        uncertainty = None
+        uncertainty = goodness = None
         if self.settings.uncertainty and not evaluation.interrupted:
-            uncertainty = self.uncertainty(evaluation, refinement)
-        return self.result(descent, refinement, evaluation, uncertainty)
+            uncertainty, goodness = self.uncertainty(evaluation, refinement)
+        return self.result(descent, refinement, evaluation, uncertainty, goodness)
 
     def result(
-        self, descent: Descent, refinement: Refinement | None, evaluation: Evaluation, uncertainty: Uncertainty | None
+        self,
+        descent: Descent,
+        refinement: Refinement | None,
+        evaluation: Evaluation,
+        uncertainty: Uncertainty | None,
+        goodness: Goodness | None = None,
     ) -> FitResult:
         warnings = [] if refinement is None else list(refinement.warnings)
         note = interpenetration_note(self.target)
@@ -662,9 +686,12 @@ class FitRun:
             note = self.sparse_linearisation_note(uncertainty)
             if note is not None:
                 warnings.append(note)
+        values = descent.estimate if refinement is None else refinement.values
+        camera_report = self.camera_report(evaluation, refinement)
+        interrupted = evaluation.interrupted
         return FitResult(
             target=self.target.name,
-            values=descent.estimate if refinement is None else refinement.values,
+            values=values,
             uncertainties=None if uncertainty is None else uncertainty.uncertainties,
             loss=evaluation.loss,
             start={name: _as_control(name, v) for name, v in self.start.items()},
@@ -678,7 +705,9 @@ class FitRun:
             warnings=warnings,
             correlations={} if uncertainty is None else uncertainty.correlations,
             uncertainty_parts=None if uncertainty is None else uncertainty.parts,
-            camera=self.camera_report(evaluation, refinement),
+            camera=camera_report,
+            goodness=goodness,
+            failures=[] if interrupted else failures(values, descent.history.loss, refinement, camera_report, goodness),
         )
 
     def camera_report(self, evaluation: Evaluation, refinement: Refinement | None) -> dict | None:

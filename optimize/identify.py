@@ -46,7 +46,8 @@ import numpy as np
 
 from warp_hair.renderer.prepare import prepare
 
-from . import camera, card_region
+from . import camera
+from .goodness import quantisation_variances
 from .latents import DEFAULT_FIT, SPECS, as_values, parse_control_names
 from .linearize import CHANNELS, crossed_curvature, linearize
 from .realisations import Realisations, check_mode, realisation_spread
@@ -266,7 +267,7 @@ def check_target(
 
     target_spp = [image.scene.render.spp if spp is None else spp for image in target.images]
     factors = [render_spp / n for n in target_spp]
-    quantisation = _quantisation_variances(target, settings)
+    quantisation = quantisation_variances(target, settings)
     gradient_cov = _target_gradient_covariance(lins, total / len(jacobians), factors, quantisation)
     cov = h_inv @ gradient_cov @ h_inv
     noise = np.sqrt(np.maximum(np.diag(cov), 0.0))
@@ -341,50 +342,6 @@ def _realisation_linearisations(target, at, settings, render_spp, seed, threads,
         linearize(target, at, settings, render_spp, seed + SEED_STRIDE * k, threads=threads, scenes=pool.term_scenes(k))
         for k in range(count)
     ]
-
-
-def _quantisation_variances(target, settings) -> np.ndarray | None:
-    """(N,): the variance a photo's code values add to each weighted, pooled residual: a code is the value
-    rounded to 1/(2^bits − 1) of the range, an error uniform over one step (variance step²/12), times the
-    transfer curve's slope there. JPEG's compression error comes on top of that and is not counted here (the
-    fit's own σ, from its residuals' scatter, counts it). None when no image is a photo."""
-    from warp_hair.photo import srgb_decode
-
-    from .linearize import loss_weights, pool_like_loss
-
-    if all(image.photo is None for image in target.images):
-        return None
-    parts = []
-    for image in target.images:
-        reference, _ = pool_like_loss(image, image.image, None, settings.pool)
-        weight = loss_weights(reference, settings.loss)
-        photo = image.photo
-        if photo is None or photo.bits == 32:
-            parts.append(np.zeros(reference.size))
-            if image.card is not None and camera.fitted(target):
-                parts.append(np.zeros(card_region.card_values(image, settings.pool).size))
-            continue
-        step = 1.0 / (2**photo.bits - 1)
-        linear = image.image.astype(np.float64)
-        if photo.transfer == "linear":
-            slope = np.ones_like(linear)
-        else:  # the decoded value's change per code, by a finite step of the curve (sRGB or a power law)
-            encoded = np.clip(np.where(linear <= 0.0031308, 12.92 * linear, 1.055 * linear ** (1 / 2.4) - 0.055), 0, 1)
-            slope = (srgb_decode(np.minimum(encoded + step, 1.0)) - linear) / step
-        variance = (slope * step) ** 2 / 12.0
-        _, pooled = pool_like_loss(image, np.zeros_like(linear), variance, settings.pool)
-        parts.append(pooled * weight**2)
-        if image.card is not None and camera.fitted(target):  # its rows follow the image's (linearize.py)
-            parts.append(_card_quantisation(image, reference, variance, settings))
-    return np.concatenate(parts)
-
-
-def _card_quantisation(image, reference, variance, settings) -> np.ndarray:
-    """A grey card's rows of `_quantisation_variances`: its pixels' quantisation variance pooled over its blocks,
-    times its rows' ω² (card_region.rows)."""
-    pooled = card_region.card_variances(image, variance, settings.pool)
-    values = card_region.card_values(image, settings.pool)
-    return (pooled * card_region.omega(values, reference, settings.loss) ** 2).reshape(-1)
 
 
 def _target_gradient_covariance(lins, a, variance_factors, extra=None) -> np.ndarray:

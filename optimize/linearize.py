@@ -82,6 +82,19 @@ class Linearization:
         return float(self.loss_weights @ (self.residuals[0] * self.residuals[1]))
 
     @property
+    def misfit_variance(self) -> float:
+        """The variance of `misfit` from our render noise (and, over random realisations, the two passes'
+        different strands): with r_i = μ + n_i, Σ w r₁ r₂ varies by Var(Σ w μ (n₁ + n₂)) + Var(Σ w n₁ n₂).
+        Both are read off the passes' difference d = n₁ − n₂, per pixel so that its channels' shared paths
+        count: (Σ_c w μ̂ d)² for the first, Σ_c w² (d²/2)² for the second, μ̂ the passes' mean. It is what
+        `refine.py` compares a step's change of the misfit against."""
+        w, r = self.loss_weights, self.residuals
+        d, mu = r[0] - r[1], r.mean(axis=0)
+        first = (w * mu * d).reshape(-1, CHANNELS).sum(axis=1)
+        second = (w * 0.5 * d * d) ** 2
+        return float(first @ first + second.sum())
+
+    @property
     def all_jacobians(self) -> np.ndarray:
         """(n, N, p): the earlier Jacobians, then the two passes'."""
         if self.earlier_jacobians is None:

@@ -101,6 +101,7 @@ class RealisationTerm:
     linearization: object  # that linearisation (both passes on one realisation): for the noise term
     samples: int
     pooled: object  # the fit's linearisation with the K linearisations' Jacobians pooled in (`pooled_jacobians`)
+    variance: np.ndarray | None = None  # (N,) one realisation's variance per residual (goodness.py's σ²_draw)
 
 
 def pooled_jacobians(lin, linearizations):
@@ -136,7 +137,7 @@ def realisation_term(lin, linearizations) -> RealisationTerm:
     n, p = len(w[hair]), first.jacobians.shape[2]
     scatter = first.scatter_estimate - 2.0 * float(w[hair] @ variance[hair]) / max(n - p, 1)
     return RealisationTerm(
-        covariance, scatter, dataclasses.replace(first, scatter=scatter), len(linearizations), pooled
+        covariance, scatter, dataclasses.replace(first, scatter=scatter), len(linearizations), pooled, variance
     )
 
 

@@ -9,13 +9,25 @@ steps cross slowly. The loss is a sum of squared residuals (`linearize.py`), so 
 A and H from the Jacobians of the last JACOBIAN_WINDOW linearisations (`Linearization.earlier_jacobians`:
 each residual pass meets the mean of the Jacobians but its own, and H is unbiased), A and r weighted as the loss
 weighs them; in the controls themselves (not Adam's latents: in log σ_a a high albedo's image is so curved that
-a step overshoots), and shortened where it would go more than half way to a bound. A step is kept when it
-lowers the loss as estimated by the trapezoid rule on the slopes along it, ½ (∇ℓ(x) + ∇ℓ(x + δx))·δx (exact
-for a quadratic). Gradients are unbiased and their noise is modest; loss values are not: each carries our
-render's Monte Carlo variance, which grows with the radiance, so comparing losses (even with common random
-numbers) would undo steps that land on the truth. A step no longer than render noise alone makes one is kept
-too (`within_noise`): there the slope test is a coin flip. λ then shrinks, else it grows and the step is
-retried from the same linearisation.
+a step overshoots), and shortened where it would go more than half way to a bound.
+
+A step is kept only when it does not make the fit worse beyond what our render noise can hide: the misfit at
+its end (`Linearization.misfit`, Σ w r₁ r₂ of two independent passes, unbiased for the loss without our
+noise) may exceed the misfit where it started by no more than MISFIT_Z standard errors of their difference
+(`Linearization.misfit_variance` of both). A slope test (trapezoid rule on the gradients at both ends) kept
+steps whose loss rose 0.041 → 0.089 → 0.208 on a groom (issue 42): the loss is no quadratic there, and a
+linear model with a noisy curvature can be confident of anything. A step that fails is undone, λ grows and the
+step is retried, shorter, from the same linearisation (Levenberg–Marquardt); a kept step shrinks λ. At the
+optimum the misfit's change is noise and about 98% of such steps are kept (the one-sided 2σ quantile).
+
+Why not common random numbers: the kept points are averaged (below), and they must carry independent noise
+for their mean to shed it; rendering the start again with the candidate's seeds would cost a second render per
+step. Independent seeds with the noise counted cost nothing more.
+
+The refinement also remembers the best linearisation it saw (the lowest misfit, the start included: Adam's end
+point) and, should the averaged estimate fit worse than that one beyond noise (BEST_Z standard errors, for
+the best of many noisy values is low by chance), returns that point instead and says so: the refinement never
+leaves the fit worse than Adam left it.
 
 Every linearisation renders with fresh seeds, so each step's end point carries that render's own noise (with
 common seeds every step would converge to the same noisy point). The result is the mean of the later half of
@@ -46,7 +58,12 @@ SEED_STRIDE = 7919  # each linearisation renders with its own seeds
 JACOBIAN_WINDOW = 8  # linearisations whose Jacobians are pooled
 EMPIRICAL_POINTS = 4  # end points needed before their own scatter is trusted to tell their noise
 REFINABLE_LOSSES = ("l2", "rel_l2")
-NOISE_QUANTILE = 0.99  # a step shorter than this quantile of pure-noise steps is kept (`within_noise`)
+NOISE_QUANTILE = 0.99  # a step shorter than this quantile of pure-noise steps is noise (`within_noise`)
+MISFIT_Z = 2.0  # a step whose misfit rises by more than this many standard errors made the fit worse
+# The result gives way to the best point seen only this many standard errors apart: the lowest of n noisy
+# misfits lies about 1.8 (n = 16) to 2.2 (n = 48) of theirs below their mean, so at 2 an estimate at the optimum
+# would give way in one fit in six; at 3.5 in under one in two hundred.
+BEST_Z = 3.5
 DRIFT_T = 3.0  # a trend in the averaged points this many standard errors strong means they still move
 DRIFT_POINTS = 5  # fewer averaged points do not tell a trend (a t statistic with 3 degrees of freedom or more)
 MAX_EXTENSION = 3  # a refinement whose points still move runs on, up to this many times its planned steps
@@ -74,13 +91,15 @@ def inside(x: np.ndarray, step: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> n
 @dataclass(frozen=True)
 class GaussNewtonStep:
     """One Levenberg–Marquardt step as it was tried: the linearisation at its end point (values, loss, misfit),
-    the change of the loss along it by the slope test, and whether it was kept."""
+    the change of the misfit from where it started with that change's standard error, and whether it was kept
+    (`change` ≤ MISFIT_Z · `noise`)."""
 
     values: dict
     loss: float
     misfit: float
     change: float
     accepted: bool
+    noise: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -96,6 +115,9 @@ class Refinement:
     steps: tuple[GaussNewtonStep, ...]
     warnings: tuple[str, ...] = ()
     interrupted: bool = False
+    # The misfit (and its standard error) where the refinement started, at Adam's estimate, and at its result.
+    start_misfit: tuple[float, float] | None = None
+    end_misfit: tuple[float, float] | None = None
 
 
 class GaussNewton:
@@ -131,6 +153,7 @@ class GaussNewton:
         self.steps: list[GaussNewtonStep] = []
         self.damping = LAMBDA_START
         self.lin = self._with_earlier(self._linearized(self.x, 0))
+        self.start = self.best = self.lin  # Adam's end point; the lowest misfit seen
 
     def _linearized(self, x_at, k) -> Linearization:
         return linearize(
@@ -179,10 +202,8 @@ class GaussNewton:
         damped = h + self.damping * np.diag(np.diag(h)) + 1e-12 * np.eye(len(x))
         step = inside(x, -np.linalg.solve(damped, lin.gradient), self.lo, self.hi)
         lin_new = self._with_earlier(self._linearized(x + step, self.k))
-        # The change of ½·loss along the step by the trapezoid rule on its slopes at both ends: exact for a
-        # quadratic, and built from unbiased gradients instead of noisy loss values.
-        change = 0.5 * float(lin.gradient @ step + lin_new.gradient @ step)
-        accepted = bool(np.isfinite(change) and (change < 0 or within_noise(step, lin)))
+        change, noise = misfit_change(lin, lin_new)
+        accepted = bool(np.isfinite(change) and change <= MISFIT_Z * noise)
         if accepted:
             self.x, self.lin = x + step, lin_new
             self.kept.append(self.x)
@@ -191,8 +212,15 @@ class GaussNewton:
             self.damping = max(self.damping * LAMBDA_DOWN, 1e-9)
         else:
             self.damping *= LAMBDA_UP
+        if np.isfinite(lin_new.misfit) and lin_new.misfit < self.best.misfit:
+            self.best = lin_new
         record = GaussNewtonStep(
-            values=lin_new.values, loss=lin_new.loss, misfit=lin_new.misfit, change=2.0 * change, accepted=accepted
+            values=lin_new.values,
+            loss=lin_new.loss,
+            misfit=lin_new.misfit,
+            change=change,
+            accepted=accepted,
+            noise=noise,
         )
         self.steps.append(record)
         if (
@@ -205,18 +233,52 @@ class GaussNewton:
         return record
 
     def result(self) -> Refinement:
-        """The mean of the later kept points, linearised there (see the module docstring)."""
+        """The mean of the later kept points, linearised there (see the module docstring); the best point seen
+        instead, should that mean fit worse than it beyond noise."""
         # Each linearisation's own render noise moves its step's end point; the later kept points scatter around
         # the optimum, and their mean scatters less.
         averaged = _later(self.kept)
         notes = () if not drifting(averaged) else (_unsettled(averaged, self.k, self.names),)
         if len(self.kept) < 2:
-            return Refinement(self.lin.values, self.lin, None, tuple(self.steps), notes)
-        final = self._with_earlier(self._linearized(np.mean(averaged, axis=0), self.k + 1))
-        # One linearisation's scatter estimate is noisy where our render is much noisier than the target.
-        final = dataclasses.replace(final, scatter=float(np.mean([*_later(self.scatters), final.scatter_estimate])))
+            final, mc = self._best_of(self.lin), None
+        else:
+            final = self._with_earlier(self._linearized(np.mean(averaged, axis=0), self.k + 1))
+            # One linearisation's scatter estimate is noisy where our render is much noisier than the target.
+            final = dataclasses.replace(final, scatter=float(np.mean([*_later(self.scatters), final.scatter_estimate])))
+            mc = mean_covariance(averaged, final)
+            best = self._best_of(final)
+            if best is not final:
+                change, noise = misfit_change(best, final)
+                notes += (
+                    f"the mean of the Gauss-Newton steps' end points fitted worse than the best point they "
+                    f"visited (misfit {final.misfit:.4g} against {best.misfit:.4g}, {change / noise:.1f} standard "
+                    "errors apart): the result is that point, with its own render noise",
+                )
+                final, mc = best, best.step_covariance
         self.kept_values = final.values
-        return Refinement(final.values, final, mean_covariance(averaged, final), tuple(self.steps), notes)
+        return Refinement(
+            final.values,
+            final,
+            mc,
+            tuple(self.steps),
+            notes,
+            start_misfit=(self.start.misfit, float(np.sqrt(max(self.start.misfit_variance, 0.0)))),
+            end_misfit=(final.misfit, float(np.sqrt(max(final.misfit_variance, 0.0)))),
+        )
+
+    def _best_of(self, lin: Linearization) -> Linearization:
+        """lin, unless the best linearisation seen fits better than it beyond noise (BEST_Z standard errors)."""
+        if self.best is lin:
+            return lin
+        change, noise = misfit_change(self.best, lin)
+        return self.best if not np.isfinite(lin.misfit) or change > BEST_Z * noise else lin
+
+
+def misfit_change(before: Linearization, after: Linearization) -> tuple[float, float]:
+    """The misfit's change from `before` to `after` and its standard error from both renders' noise (their
+    seeds are independent, so the variances add)."""
+    noise = float(np.sqrt(max(before.misfit_variance + after.misfit_variance, 0.0)))
+    return after.misfit - before.misfit, max(noise, 1e-300)
 
 
 def _unsettled(points: list, steps: int, names) -> str:

@@ -59,6 +59,10 @@ def write_params(path: Path, result: FitResult, truth: dict, look: HairParams, e
         "seconds": round(result.seconds, 1),
         "warnings": result.warnings,
         "correlations": result.correlations,
+        # The measure of fit (goodness.py) and, for a fit that failed, why (verdict.py): its numbers are no result.
+        "goodness_of_fit": None if result.goodness is None else result.goodness.to_dict(),
+        "failed": result.failed,
+        "failures": result.failures,
     }
     if truth:
         data["true"] = truth

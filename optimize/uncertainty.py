@@ -136,6 +136,7 @@ def estimate_uncertainty(
     model_error: float = 0.0,
     realisation_covariance: np.ndarray | None = None,
     brightness_from: Linearization | None = None,
+    birge: float = 1.0,
 ) -> Uncertainty:
     """The uncertainties at the linearisation's values (see the module docstring). mc_covariance: the
     estimate's own Monte Carlo covariance (`refine`); None leaves it out. model_error: ε, the relative
@@ -143,7 +144,10 @@ def estimate_uncertainty(
     the noise's alone. realisation_covariance: the estimate's spread over the target's fiber realisations
     (realisations.py); None for a target whose strands are known. brightness_from: the linearisation whose
     estimate's change per unit ε makes the model term (`brightness_sensitivity`); None takes `lin` (a fit over
-    realisations passes its pooled one)."""
+    realisations passes its pooled one). birge: S = √(χ²/dof) where the images differ from the fitted look by
+    more than noise (goodness.py); it scales the parts that the residuals' own scatter s² does not already
+    scale (the refinement's Monte Carlo error, the model error, the realisation term), so that every part of
+    σ grows by S, the noise part through s²."""
     names = list(lin.values)
     A = lin.mean_jacobian
     p = A.shape[1]
@@ -155,16 +159,16 @@ def estimate_uncertainty(
     ]
     cov = lin.statistical_covariance
     if mc_covariance is not None:
-        cov = cov + mc_covariance
+        cov = cov + birge**2 * mc_covariance
     sigma = np.sqrt(np.maximum(np.diag(cov), 0.0))
     source = lin if brightness_from is None else brightness_from
     sensitivity = brightness_sensitivity(source) if source.targets is not None else None
     if model_error and sensitivity is None:
         raise ValueError("model_error > 0 needs the linearisation's target values (Linearization.targets)")
-    model = np.abs(model_error * sensitivity) if model_error else np.zeros(p)
+    model = birge * np.abs(model_error * sensitivity) if model_error else np.zeros(p)
     realised = np.zeros(p)
     if realisation_covariance is not None:
-        realised = np.sqrt(np.maximum(np.diag(realisation_covariance), 0.0))
+        realised = birge * np.sqrt(np.maximum(np.diag(realisation_covariance), 0.0))
     parts = {
         "model_error": float(model_error),
         "noise": by_control(names, sigma),

@@ -1,0 +1,120 @@
+"""Whether a fit found the look, or failed: failures said as failures, never a result with a small σ.
+
+A fit fails, and `warp-hair fit` exits with FAILED_STATUS, when
+
+- its descent's loss ended above where it started, or its refinement ended worse than it started beyond
+  noise (refine.py keeps that from happening; the check stays as the promise);
+- a fitted control ran to the end of its range (within BOUND_FRACTION of it): the latents (latents.py) never
+  reach a bound, so a control there is one the images pushed as far as the range lets it go, where a
+  convergent fit would have stopped: albedo 0 behind a gain of 343 on a bright photo, say;
+- a photo's gain or white balance ran to a value its images cannot support: a σ above half its value, or a
+  white balance beyond WHITE_BALANCE_RANGE (no camera's channel multipliers do that);
+- the measure of fit (goodness.py) says that the model does not describe the images: χ²/dof above
+  FAILED_CHI2 and significantly above 1.
+
+Each reason says what happened and what to try. The numbers stay in params.json, marked failed, for whoever
+wants to look at them; they are not a result.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .latents import SPECS
+from .uncertainty import component_labels
+
+FAILED_STATUS = 3  # the exit status of a fit that failed (0 fitted, 1 a bug, 2 bad input, 130 interrupted)
+BOUND_FRACTION = 0.005  # a control within this share of its range's width from an end is at the bound
+GAIN_RELATIVE_SIGMA = 0.5  # a gain or white balance uncertain by more than half its value is not supported
+WHITE_BALANCE_RANGE = (0.2, 5.0)  # camera white balance multipliers, relative to green
+# χ²/dof above which the fitted look does not describe the images: their differences are at least twice
+# their noise (S = 2), more than any scaling of σ should paper over.
+FAILED_CHI2 = 4.0
+
+
+def failures(values: dict, loss_history, refinement, camera_report, goodness) -> list[str]:
+    """Why the fit failed (module docstring), each reason with what to try; empty when it did not."""
+    reasons = []
+    reasons += _loss_rose(loss_history, refinement)
+    reasons += _at_bounds(values)
+    reasons += _camera(camera_report)
+    if goodness is not None and goodness.significant and goodness.ratio > FAILED_CHI2:
+        worst = goodness.worst_view()
+        reasons.append(
+            f"the fitted look does not describe the images: chi2/dof {goodness.ratio:.1f} (1 is noise alone), worst "
+            f"in view {worst.name} ({worst.ratio:.1f}), in {worst.region} ({worst.region_ratio:.1f}). Likely "
+            "causes: strands that differ from the scenes' (their arrangement, waves, density: a recipe that does "
+            "not state them), strand-to-strand colour variation, lights or a camera other than the scenes', or "
+            "a control held fixed at a wrong value; check the scenes against the photos, fit more controls "
+            "(--fit), or mask the region (a mask image in target.toml)"
+        )
+    return reasons
+
+
+def _loss_rose(loss_history, refinement) -> list[str]:
+    reasons = []
+    history = np.asarray(loss_history, dtype=np.float64)
+    if len(history) >= 5:
+        # The first iterations render a quarter of the samples, so their loss carries more of our noise: an end
+        # above them is no noise.
+        first, last = float(history[0]), float(np.mean(history[-5:]))
+        if last > first:
+            reasons.append(
+                f"the descent's loss ended above where it started ({first:.4g} -> {last:.4g}): lower the "
+                "learning rate (--lr) or start nearer (--init)"
+            )
+    if refinement is not None and refinement.start_misfit is not None and refinement.end_misfit is not None:
+        from .refine import BEST_Z
+
+        (start, s0), (end, s1) = refinement.start_misfit, refinement.end_misfit
+        noise = float(np.hypot(s0, s1))
+        if end - start > BEST_Z * noise:
+            reasons.append(
+                f"the Gauss-Newton refinement ended worse than it started (misfit {start:.4g} -> {end:.4g}, "
+                f"{(end - start) / noise:.1f} standard errors): fit again with --refine 0, or from another start "
+                "(--init)"
+            )
+    return reasons
+
+
+def _at_bounds(values: dict) -> list[str]:
+    reasons = []
+    names = list(values)
+    labels = component_labels(names)
+    flat = np.concatenate([np.atleast_1d(np.asarray(values[name], dtype=np.float64)) for name in names])
+    owners = [name for name in names for _ in range(SPECS[name].size)]
+    for label, owner, x in zip(labels, owners, flat):
+        spec = SPECS[owner]
+        if not np.isfinite(spec.hi):
+            continue
+        width = spec.hi - spec.lo
+        if x - spec.lo < BOUND_FRACTION * width or spec.hi - x < BOUND_FRACTION * width:
+            end = spec.lo if x - spec.lo < spec.hi - x else spec.hi
+            reasons.append(
+                f"{label} ran to the end of its range ({x:.4g}, the range ends at {end:g}): the images pushed it "
+                "as far as it can go, so no value of it describes them. Check the target's scenes (lights, "
+                "camera, the fixed controls), fit another control with it, or start elsewhere (--init)"
+            )
+    return reasons
+
+
+def _camera(report: dict | None) -> list[str]:
+    if report is None:
+        return []
+    reasons = []
+    for name, (value, sigma) in report["gains"].items():
+        if not np.isfinite(value) or value <= 0 or sigma > GAIN_RELATIVE_SIGMA * value:
+            reasons.append(
+                f"the gain of view {name} ran to {value:.4g} ± {sigma:.3g}, which its images cannot support: give "
+                'the photos\' exposures (gains = "exif"), a grey card, or fix the exposure (gains = "none")'
+            )
+    wb = report["white_balance"]
+    for channel, value, sigma in zip("rgb", wb["value"], wb["sigma"]):
+        low, high = WHITE_BALANCE_RANGE
+        if not low <= value <= high or sigma > GAIN_RELATIVE_SIGMA * value:
+            reasons.append(
+                f"the white balance's {channel} ran to {value:.4g} ± {sigma:.3g}, outside what a camera does "
+                f"({low:g} to {high:g}) or unsupported: photograph a grey card, or give the white balance "
+                '(white_balance = "none" for images already balanced)'
+            )
+    return reasons
