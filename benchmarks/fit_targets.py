@@ -19,9 +19,9 @@ from pathlib import Path
 import numpy as np
 
 from optimize.fit import fit
-from optimize.identify import ALBEDO_BOUND, BETA_BOUND
-from optimize.report import true_values, write_outputs
-from optimize.target import load_target, shipped_targets
+from optimize.report import write_outputs
+from optimize.settings import ALBEDO_BOUND, BETA_BOUND
+from optimize.target import load_target, shipped_targets, true_values
 from warp_hair.cli import exit_on_interrupt
 
 HERE = Path(__file__).resolve().parent

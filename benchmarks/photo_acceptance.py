@@ -31,9 +31,10 @@ import make_photo_targets
 
 import targets
 from optimize.fit import fit
-from optimize.identify import BOUNDS, check_target
-from optimize.report import true_values, write_outputs
-from optimize.target import load_target
+from optimize.identify import check_target
+from optimize.report import write_outputs
+from optimize.settings import BOUNDS
+from optimize.target import load_target, true_values
 
 HERE = Path(__file__).resolve().parent
 KINDS = ("png", "jpeg", "exr")

@@ -43,9 +43,8 @@ import numpy as np
 import tomlkit
 
 from optimize.fit import fit
-from optimize.identify import ALBEDO_BOUND, BETA_BOUND
-from optimize.report import true_values
-from optimize.target import TARGET_FILE, load_target, read_target_spec, shipped_targets
+from optimize.settings import ALBEDO_BOUND, BETA_BOUND
+from optimize.target import TARGET_FILE, load_target, read_target_spec, shipped_targets, true_values
 from warp_hair.cli import exit_on_interrupt
 from warp_hair.parallel import default_threads
 from warp_hair.realisation import can_realise, realisation_draw

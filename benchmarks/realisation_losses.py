@@ -31,8 +31,7 @@ from optimize.fit import FitSettings
 from optimize.latents import hair_and_gain
 from optimize.linearize import linearize, loss_weights
 from optimize.realisations import Realisations
-from optimize.report import true_values
-from optimize.target import load_target
+from optimize.target import load_target, true_values
 from warp_hair.cli import exit_on_interrupt
 from warp_hair.renderer.render import render
 from warp_hair.torch import scene_with_controls

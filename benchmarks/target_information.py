@@ -25,7 +25,8 @@ from pathlib import Path
 import numpy as np
 import tomlkit
 
-from optimize.identify import ALBEDO_BOUND, check_target
+from optimize.identify import check_target
+from optimize.settings import ALBEDO_BOUND
 from optimize.target import TARGET_FILE, load_target
 from targets import path as shipped_path
 from warp_hair.cli import exit_on_interrupt

@@ -16,8 +16,8 @@ import dataclasses
 from pathlib import Path
 
 from optimize import fit, load_target
-from optimize.cli import resolve_target
 from optimize.report import fitted_look, format_table, plot_comparison, true_values
+from optimize.target import resolve_target
 from warp_hair import prepare, render
 
 ROOT = Path(__file__).resolve().parent.parent

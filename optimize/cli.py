@@ -15,35 +15,20 @@ targets/ (e.g. blonde_straight).
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import sys
 import time
 from pathlib import Path
 
 from warp_hair import cli as render_cli
 from warp_hair.devices import check_device
-from warp_hair.model.params import HairParams
 
 from .camera import GAIN_MODES, WHITE_BALANCE_MODES
 from .fit import FitSettings
 from .identify import CHECK_REALISATION_SAMPLES
 from .latents import DEFAULT_FIT, SPECS, as_values
 from .realisations import REALISATION_MODES
+from .target import fix_controls, resolve_target
 from .verdict import FAILED_STATUS
-
-
-def resolve_target(name_or_path: str) -> Path:
-    """A target directory, or else the shipped target of that name (the `targets` package)."""
-    import targets
-
-    path = Path(name_or_path)
-    if path.exists():
-        return path
-    if name_or_path in targets.names():
-        return targets.path(name_or_path)
-    raise FileNotFoundError(
-        f"{name_or_path}: no such target directory, nor a shipped target (shipped: {', '.join(targets.names())})"
-    )
 
 
 def parse_assignments(items, option: str) -> dict:
@@ -195,8 +180,8 @@ def run_fit(args: argparse.Namespace) -> int:
     from .camera import fitted as fitted_camera
     from .card_region import summary as card_summary
     from .fit import fit
-    from .report import camera_table, format_table, photo_summary, true_values, write_outputs
-    from .target import load_target
+    from .report import camera_table, format_table, photo_summary, write_outputs
+    from .target import load_target, true_values
 
     render_cli.check_sampling_args(args)
     from warp_hair.export import parse_renderers
@@ -215,7 +200,7 @@ def run_fit(args: argparse.Namespace) -> int:
     if both:
         raise ValueError(f"control(s) {both} are both fixed (--fix) and fitted (--fit); choose one")
     if fixed:
-        _fix_controls(target, fixed)
+        fix_controls(target, fixed)
     _set_camera_unknowns(target, args)
     settings = FitSettings(
         controls=tuple(names),
@@ -295,13 +280,6 @@ def _export(params_json: Path, renderers) -> list[Path]:
     for name, path in zip(renderers, paths):
         export(params_json, to=name, path=path)
     return paths
-
-
-def _fix_controls(target, fixed: dict) -> None:
-    for image in target.images:
-        values = {name: v if SPECS[name].size == 3 else v[0] for name, v in fixed.items()}
-        hair = HairParams.from_dict({**image.scene.hair.to_table(), **values}, where="--fix")
-        image.scene = dataclasses.replace(image.scene, hair=hair)
 
 
 def add_targets(subparsers) -> None:

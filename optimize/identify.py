@@ -47,11 +47,13 @@ import numpy as np
 from warp_hair.renderer.prepare import prepare
 
 from . import camera
-from .goodness import quantisation_variances
+from .goodness import goodness_of_fit, quantisation_variances
 from .latents import DEFAULT_FIT, SPECS, as_values, parse_control_names
 from .linearize import CHANNELS, crossed_curvature, linearize
 from .realisations import Realisations, check_mode, realisation_spread
 from .refine import SEED_STRIDE, averaged_points
+from .settings import BOUNDS, FitSettings, gauss_newton_spp, refine_steps
+from .target import true_values
 from .uncertainty import (
     CORRELATION_WARNING,
     check_model_error,
@@ -59,9 +61,6 @@ from .uncertainty import (
     target_model_error,
 )
 
-# The acceptance bounds of a fit: its error per component, against the truth (docs/acceptance.md).
-ALBEDO_BOUND, BETA_BOUND = 0.02, 0.03
-BOUNDS = {"albedo": ALBEDO_BOUND, "beta_m": BETA_BOUND, "beta_n": BETA_BOUND}
 CHECK_SPP = 64  # per render: the fit's final linearisations' (fit.FINAL_SPP_FACTOR × its default spp)
 CHECK_LINEARISATIONS = 4  # their Jacobians pooled: H and A as steady as the refinement's
 MANY_SAMPLES = 64  # a factor on a target's samples beyond which they are not offered as the remedy
@@ -75,7 +74,7 @@ PINNED_SIGMAS = 2.0
 CHECK_REALISATION_SAMPLES = 24
 
 
-@dataclasses.dataclass
+@dataclasses.dataclass(frozen=True)
 class Identifiability:
     target: str
     origin: str  # who rendered it (`Target.origin`)
@@ -87,13 +86,16 @@ class Identifiability:
     model_error: float  # relative; the model part of σ is model_error / 0.01 · |shift|
     correlation: list  # per component: (label of the other control's component most correlated, ρ) or None
     bounds: np.ndarray  # (p,) the acceptance bound, NaN where there is none
-    problems: list  # what keeps a control from being identified, with what to add
     camera: list = dataclasses.field(default_factory=list)  # a photo's unknowns: (label, value, relative σ)
     realisation: np.ndarray | None = None  # (p,) σ from the target's strands being one draw; None: fixed strands
     realisation_samples: int = 0  # K, the realisations that part comes from
     fit_noise: np.ndarray | None = None  # (p,) σ from the fit's own renders; None: the fit has no refinement
     fit_points: int = 0  # m, the Gauss–Newton end points the fit averages
     fit_spp: int = 0  # samples per pixel of each of their renders
+    problems: list = dataclasses.field(default_factory=list)  # what keeps a control from being identified
+    # The measure of fit at the checked controls (goodness.py): what a fit landing there should show; well above
+    # 1 where the scenes do not describe the images even at these controls.
+    goodness: object | None = None
 
     @property
     def sigma(self) -> np.ndarray:
@@ -215,9 +217,6 @@ def check_target(
     fit's (`FitSettings`: loss, pooling, Gauss–Newton steps and samples), default FitSettings(); scenes: the
     target's images' scenes, prepared; realisations: "fixed" or "random" as the fit's (default: the target's);
     realisation_samples: K, the further realisations the strands' draw part comes from."""
-    from .fit import FitSettings, gauss_newton_spp, refine_steps
-    from .report import true_values
-
     names = parse_control_names(controls, target.hair.colour_input)
     check_model_error(model_error)
     if spp is not None and (not isinstance(spp, int) or isinstance(spp, bool) or spp < 1):
@@ -291,23 +290,20 @@ def check_target(
             and (correlation[i] is None or abs(rho[i, j]) > abs(correlation[i][1]))
         ):
             correlation[i] = (labels[j], float(rho[i, j]))
-    bounds = np.array([BOUNDS.get(owner, np.nan) for owner in owners])
-    result = Identifiability(
-        target.name, target.origin, at, labels, target_spp, noise, shift, model_error, correlation, bounds, []
-    )
+    realisation, realisation_samples, draw = None, 0, None
     if random:
-        covariance, _ = realisation_spread(h_inv @ ((total / n) * w[:, None]).T, others)
-        result.realisation = np.sqrt(np.maximum(np.diag(covariance), 0.0))
-        result.realisation_samples = len(others)
+        covariance, draw = realisation_spread(h_inv @ ((total / n) * w[:, None]).T, others)
+        realisation, realisation_samples = np.sqrt(np.maximum(np.diag(covariance), 0.0)), len(others)
+    fit_noise, fit_points, fit_spp, cov_fit = None, 0, 0, None
     steps = refine_steps(settings, target, max(target_spp))
     if steps:  # the fit's own renders (the module docstring)
-        result.fit_spp, result.fit_points = gauss_newton_spp(settings, target), averaged_points(steps)
-        fit_factors = [render_spp / (2 * result.fit_spp)] * len(target.images)
+        fit_spp, fit_points = gauss_newton_spp(settings, target), averaged_points(steps)
+        fit_factors = [render_spp / (2 * fit_spp)] * len(target.images)
         gradient_fit = _target_gradient_covariance(lins, total / n, fit_factors)
-        cov_fit = h_inv @ gradient_fit @ h_inv / result.fit_points
-        result.fit_noise = np.sqrt(np.maximum(np.diag(cov_fit), 0.0))
-        result.fit_noise[flat] = np.inf
-    result.problems = _problems(result, flat)
+        cov_fit = h_inv @ gradient_fit @ h_inv / fit_points
+        fit_noise = np.sqrt(np.maximum(np.diag(cov_fit), 0.0))
+        fit_noise[flat] = np.inf
+    camera_unknowns = []
     projection = lins[0].camera
     if projection is not None:
         # The gains' covariance: the target's noise on them, and the hair's carried over (camera.Projection).
@@ -315,9 +311,9 @@ def check_target(
         gradient_gg = _target_gradient_covariance(lins, projection.columns, factors, quantisation)
         noise_gg = normal_inv @ gradient_gg @ normal_inv
         follow = -normal_inv @ (projection.columns.T @ (w[:, None] * projection.jacobian))
-        if result.fit_noise is not None:  # the fit's own renders move the gains as they move the hair
+        if fit_noise is not None:  # the fit's own renders move the gains as they move the hair
             gradient_fit_gg = _target_gradient_covariance(lins, projection.columns, fit_factors)
-            noise_gg += normal_inv @ gradient_fit_gg @ normal_inv / result.fit_points
+            noise_gg += normal_inv @ gradient_fit_gg @ normal_inv / fit_points
             cov = cov + cov_fit
         if projection.direct is None:
             cov_gg = noise_gg + follow @ (cov + np.outer(shift, shift) * (model_error / 0.01) ** 2) @ follow.T
@@ -327,11 +323,31 @@ def check_target(
             moved = projection.brightness(shift / 0.01)
             cov_gg = noise_gg + follow @ cov @ follow.T + model_error**2 * np.outer(moved, moved)
         values = camera.label_values(projection, target)
-        result.camera = [
+        camera_unknowns = [
             (label, float(v), float(np.sqrt(max(cov_gg[k, k], 0.0))))
             for k, (label, v) in enumerate(zip(projection.labels, values))
         ]
-    return result
+    result = Identifiability(
+        target=target.name,
+        origin=target.origin,
+        values=at,
+        labels=labels,
+        target_spp=target_spp,
+        noise=noise,
+        shift=shift,
+        model_error=model_error,
+        correlation=correlation,
+        bounds=np.array([BOUNDS.get(owner, np.nan) for owner in owners]),
+        camera=camera_unknowns,
+        realisation=realisation,
+        realisation_samples=realisation_samples,
+        fit_noise=fit_noise,
+        fit_points=fit_points,
+        fit_spp=fit_spp,
+        goodness=goodness_of_fit(lins[0], target, settings, render_spp, quantisation, draw),
+    )
+    # What keeps each control from being identified needs the whole account (its σ parts) first.
+    return dataclasses.replace(result, problems=_problems(result, flat))
 
 
 def _realisation_linearisations(target, at, settings, render_spp, seed, threads, count) -> list:
@@ -452,7 +468,18 @@ def describe(result: Identifiability) -> str:
         + f"; model error {100 * result.model_error:g}%"
     )
     camera = result.camera_table()
-    return f"{head}\n{result.table()}\n" + (f"{camera}\n" if camera else "") + result.summary()
+    text = f"{head}\n{result.table()}\n" + (f"{camera}\n" if camera else "") + result.summary()
+    if result.goodness is not None:
+        g = result.goodness
+        expectation = (
+            "the scenes do not describe the images even here: a fit cannot do better, and will say it failed"
+            if g.significant
+            else f"a fit that lands here should show about 1 (within {g.spread:.2g})"
+        )
+        text += f"\nmeasure of fit at these controls: chi2/dof {g.ratio:.2f}; {expectation}"
+        if g.significant:
+            text += "\n" + "\n".join(g.lines()[1:])
+    return text
 
 
 def _fmt(value) -> str:

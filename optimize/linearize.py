@@ -84,15 +84,13 @@ class Linearization:
     @property
     def misfit_variance(self) -> float:
         """The variance of `misfit` from our render noise (and, over random realisations, the two passes'
-        different strands): with r_i = μ + n_i, Σ w r₁ r₂ varies by Var(Σ w μ (n₁ + n₂)) + Var(Σ w n₁ n₂).
-        Both are read off the passes' difference d = n₁ − n₂, per pixel so that its channels' shared paths
-        count: (Σ_c w μ̂ d)² for the first, Σ_c w² (d²/2)² for the second, μ̂ the passes' mean. It is what
-        `refine.py` compares a step's change of the misfit against."""
+        different strands): with r_i = μ + n_i, Σ w r₁ r₂ varies by Σ w² (μ² (v₁ + v₂) + v₁ v₂) (and the
+        covariances of a pixel's channels, which share their paths). Σ over pixels of (Σ_c w r̄ d)², with
+        d = r₁ − r₂ and r̄ the passes' mean, estimates exactly that: E[r̄² d²] = μ² · 2v + v² for equal passes.
+        It is what `refine.py` compares a step's change of the misfit against."""
         w, r = self.loss_weights, self.residuals
-        d, mu = r[0] - r[1], r.mean(axis=0)
-        first = (w * mu * d).reshape(-1, CHANNELS).sum(axis=1)
-        second = (w * 0.5 * d * d) ** 2
-        return float(first @ first + second.sum())
+        per_pixel = (w * r.mean(axis=0) * (r[0] - r[1])).reshape(-1, CHANNELS).sum(axis=1)
+        return float(per_pixel @ per_pixel)
 
     @property
     def all_jacobians(self) -> np.ndarray:

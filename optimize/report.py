@@ -15,19 +15,10 @@ from warp_hair.io import srgb_encode
 from warp_hair.model.params import HairParams
 
 from .fit import FitResult
-from .latents import EXPOSURE, SPECS, hair_and_gain
-from .target import Target
+from .latents import SPECS, hair_and_gain
+from .target import Target, true_values
 
 CHANNEL_COLOURS = ("tab:red", "tab:green", "tab:blue")
-
-
-def true_values(target: Target, names) -> dict:
-    """The true values of the fitted controls where the target has truth.json (exposure's truth is 1)."""
-    if target.truth is None:
-        return {}
-    truth = target.truth.to_dict()
-    truth[EXPOSURE] = 1.0
-    return {name: truth[name] for name in names if name in truth}
 
 
 def errors(result: FitResult, truth: dict) -> dict:

@@ -67,6 +67,7 @@ uncertainty (optimize/realisations.py; `warp-hair fit --realisations` overrides)
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import tomllib
 from dataclasses import dataclass, field
@@ -85,6 +86,7 @@ from warp_hair.scene import Scene, load_scene
 
 from . import card_region
 from .camera import GAIN_MODES, WHITE_BALANCE_MODES
+from .latents import EXPOSURE, SPECS
 from .realisations import REALISATION_MODES
 
 TARGET_FILE = shipped.TARGET_FILE
@@ -463,3 +465,33 @@ def _check_writable_target(directory: Path) -> None:
 def shipped_targets() -> list[Path]:
     """The shipped target directories (the `targets` package), sorted by name."""
     return [shipped.path(name) for name in shipped.names()]
+
+
+def true_values(target: Target, names) -> dict:
+    """The true values of the fitted controls where the target has truth.json (exposure's truth is 1)."""
+    if target.truth is None:
+        return {}
+    truth = target.truth.to_dict()
+    truth[EXPOSURE] = 1.0
+    return {name: truth[name] for name in names if name in truth}
+
+
+def fix_controls(target, fixed: dict) -> None:
+    for image in target.images:
+        values = {name: v if SPECS[name].size == 3 else v[0] for name, v in fixed.items()}
+        hair = HairParams.from_dict({**image.scene.hair.to_table(), **values}, where="--fix")
+        image.scene = dataclasses.replace(image.scene, hair=hair)
+
+
+def resolve_target(name_or_path: str) -> Path:
+    """A target directory, or else the shipped target of that name (the `targets` package)."""
+    import targets
+
+    path = Path(name_or_path)
+    if path.exists():
+        return path
+    if name_or_path in targets.names():
+        return targets.path(name_or_path)
+    raise FileNotFoundError(
+        f"{name_or_path}: no such target directory, nor a shipped target (shipped: {', '.join(targets.names())})"
+    )

@@ -21,6 +21,7 @@ from __future__ import annotations
 import numpy as np
 
 from .latents import SPECS
+from .refine import BEST_Z
 from .uncertainty import component_labels
 
 FAILED_STATUS = 3  # the exit status of a fit that failed (0 fitted, 1 a bug, 2 bad input, 130 interrupted)
@@ -64,8 +65,6 @@ def _loss_rose(loss_history, refinement) -> list[str]:
                 "learning rate (--lr) or start nearer (--init)"
             )
     if refinement is not None and refinement.start_misfit is not None and refinement.end_misfit is not None:
-        from .refine import BEST_Z
-
         (start, s0), (end, s1) = refinement.start_misfit, refinement.end_misfit
         noise = float(np.hypot(s0, s1))
         if end - start > BEST_Z * noise:

@@ -14,7 +14,7 @@ from helpers.scenes import swatch_scene
 
 from optimize.cli import main as fit_main
 from optimize.fit import FitRun, FitSettings, fit
-from optimize.identify import BOUNDS
+from optimize.settings import BOUNDS
 from optimize.target import load_target
 from warp_hair.cli import main
 from warp_hair.devices import check_device

@@ -9,9 +9,10 @@ from helpers.scenes import front_camera, toml_text
 
 from optimize.cli import main
 from optimize.fit import FitSettings, gauss_newton_spp
-from optimize.identify import ALBEDO_BOUND, BETA_BOUND, BOUNDS, check_target, describe
+from optimize.identify import check_target, describe
 from optimize.linearize import linearize, loss_weights, pool_like_loss
 from optimize.refine import JACOBIAN_WINDOW
+from optimize.settings import ALBEDO_BOUND, BETA_BOUND, BOUNDS
 from optimize.target import SHIPPED_TARGETS, load_target, make_target
 from warp_hair.realisation import realisation
 from warp_hair.renderer.prepare import prepare

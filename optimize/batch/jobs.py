@@ -43,10 +43,9 @@ def load_inputs(job):
 def _fit_inputs(spec: dict):
     from warp_hair.export import parse_renderers
 
-    from ..cli import _fix_controls
     from ..fit import FitSettings, check_settings
     from ..latents import DEFAULT_FIT, as_values
-    from ..target import load_target
+    from ..target import fix_controls, load_target
 
     target = load_target(spec["target"])
     options = {key: spec[key] for key in FIT_OPTIONS if key in spec}
@@ -59,7 +58,7 @@ def _fit_inputs(spec: dict):
     if both:
         raise ValueError(f"control(s) {both} are both fixed (fix) and fitted (fit); choose one")
     if fixed:
-        _fix_controls(target, fixed)
+        fix_controls(target, fixed)
     settings = FitSettings(controls=controls, init=init, **options)
     check_settings(target, settings)
     if spec["export"]:

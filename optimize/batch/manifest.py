@@ -142,7 +142,7 @@ def load_manifest(path, output=None) -> Manifest:
 
 def _jobs(kind: str, entry: dict, base: Path, where: str) -> list:
     if kind == "fit":
-        from ..cli import resolve_target
+        from ..target import resolve_target
 
         if "target" not in entry:
             raise ValueError(f"{where}: missing key 'target' (a shipped target's name or a target directory)")

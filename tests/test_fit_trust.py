@@ -1,0 +1,184 @@
+"""A fit never prints a confident wrong number (issue 42): Gauss–Newton steps that cannot make it worse, a measure
+of fit against the noise model, and failures said as failures."""
+
+from __future__ import annotations
+
+import types
+
+import numpy as np
+import pytest
+
+from optimize import refine
+from optimize.goodness import goodness_of_fit
+from optimize.linearize import Linearization
+from optimize.verdict import failures
+
+N = 3 * 1200  # residuals, three to a pixel
+
+
+def _linearization(rng, residual_mean, noise, jacobian=None, names=("beta_m", "beta_n")):
+    """Two independent passes of residuals `residual_mean` + noise (per-residual σ `noise`), with `jacobian`."""
+    n = len(residual_mean)
+    residuals = residual_mean + noise * rng.standard_normal((2, n))
+    jacobian = np.zeros((n, len(names))) if jacobian is None else jacobian
+    return Linearization(
+        values=dict.fromkeys(names, 0.5),
+        residuals=residuals,
+        variances=np.broadcast_to(noise**2, (2, n)).copy(),
+        jacobians=np.stack([jacobian, jacobian]),
+        images=[],
+        loss_weights=np.full(n, 1.0 / n),
+        image_residuals=(n,),
+    )
+
+
+def test_misfit_variance_predicts_the_misfits_scatter():
+    """`misfit_variance` (what a step's change of the misfit is judged against) against the misfit's scatter
+    over independent renders, with residuals far from zero (the first term) and at zero (the second)."""
+    rng = np.random.default_rng(3)
+    mean = np.concatenate([np.full(N // 2, 0.3), np.zeros(N // 2)])
+    noise = np.full(N, 0.2)
+    lins = [_linearization(rng, mean, noise) for _ in range(600)]
+    scatter = np.var([lin.misfit for lin in lins], ddof=1)
+    predicted = np.mean([lin.misfit_variance for lin in lins])
+    assert predicted == pytest.approx(scatter, rel=0.15)
+
+
+class _Model:
+    """Residuals r = a · tanh((x₁ − 0.3)/W) + b · (x₂ − 0.4) + noise, with their exact Jacobian: a brightness
+    that saturates away from the truth, as an image does when the albedo runs dark. From x₁ − 0.3 = 1.5 W,
+    Newton's step lands at −3.5 W, on the plateau: the misfit rises, and the slope there is nearly zero, so the
+    trapezoid rule on the slopes at both ends calls the step a descent (issue 42's photos: albedo to 0, gains to
+    343, every step kept). `linear`: r = a · (x₁ − 0.3)/W + b · (x₂ − 0.4), where Gauss–Newton is exact."""
+
+    truth = np.array([0.3, 0.4])
+    W = 0.03
+
+    def __init__(self, linear=False):
+        rng = np.random.default_rng(8)
+        self.a, self.b = rng.standard_normal(N), 0.6 * rng.standard_normal(N)
+        self.linear, self.noise = linear, 0.02
+
+    def mean(self, x):
+        u = (x[0] - self.truth[0]) / self.W
+        shape = u if self.linear else np.tanh(u)
+        slope = 1.0 if self.linear else 1.0 - np.tanh(u) ** 2
+        return self.a * shape + self.b * (x[1] - self.truth[1]), np.stack([self.a * slope / self.W, self.b], axis=1)
+
+    def true_misfit(self, x) -> float:
+        r, _ = self.mean(np.asarray(x, dtype=np.float64))
+        return float(r @ r / N)
+
+    def linearize(self, target, values, settings, spp, seed, threads=None, scenes=None, gain_columns=None):
+        mean, jacobian = self.mean(np.array([values["beta_m"], values["beta_n"]]))
+        lin = _linearization(np.random.default_rng(seed), mean, np.full(N, self.noise), jacobian)
+        lin.values = dict(values)
+        return lin
+
+
+def _refined(monkeypatch, model, start):
+    monkeypatch.setattr(refine, "linearize", model.linearize)
+    run = refine.GaussNewton(None, start, types.SimpleNamespace(threads=None), spp=1, seed=0, steps=8)
+    while not run.done:
+        run.step()
+    return run.result()
+
+
+def test_gauss_newton_never_leaves_the_fit_worse(monkeypatch):
+    """Steps are kept only when the misfit does not rise beyond its noise, and the result is no worse than the
+    start: before, the overshooting step onto the plateau was kept by the slope test, and the next ran on to the
+    range's bound."""
+    model = _Model()
+    start = {"beta_m": 0.3 + 1.5 * model.W, "beta_n": 0.42}
+    result = _refined(monkeypatch, model, start)
+    x = [result.values["beta_m"], result.values["beta_n"]]
+    assert model.true_misfit(x) <= model.true_misfit(list(start.values()))
+    assert not result.steps[0].accepted  # the step onto the plateau
+    for step in result.steps:
+        if step.accepted:
+            assert step.change <= refine.MISFIT_Z * step.noise
+    (start_misfit, s0), (end_misfit, s1) = result.start_misfit, result.end_misfit
+    assert end_misfit <= start_misfit + refine.BEST_Z * np.hypot(s0, s1)
+
+
+def test_gauss_newton_still_converges_where_the_linear_model_is_right(monkeypatch):
+    """The rule costs nothing where Gauss–Newton is exact: the steps reach the optimum and are kept."""
+    model = _Model(linear=True)
+    result = _refined(monkeypatch, model, {"beta_m": 0.3 + 1.5 * model.W, "beta_n": 0.42})
+    assert sum(step.accepted for step in result.steps) >= 7
+    np.testing.assert_allclose([result.values["beta_m"], result.values["beta_n"]], model.truth, atol=1e-3)
+
+
+def _target(shape=(48, 48), spp=1024):
+    scene = types.SimpleNamespace(render=types.SimpleNamespace(spp=spp))
+    image = np.random.default_rng(0).uniform(0.1, 1.0, (*shape, 3))
+    return types.SimpleNamespace(
+        images=[types.SimpleNamespace(name="front", image=image, mask=None, photo=None, scene=scene)]
+    )
+
+
+def _pixel_linearization(rng, target, misfit):
+    """Residuals per pixel of the target's one image (pool 1), with our noise and the target's (at its spp,
+    from the same per-sample variance), plus `misfit` (H, W, 3)."""
+    h, w = target.images[0].image.shape[:2]
+    lin_spp, target_spp = 64, target.images[0].scene.render.spp
+    per_sample = rng.uniform(0.5, 2.0, h * w * 3) * 0.05
+    target_noise = np.sqrt(per_sample / target_spp) * rng.standard_normal(h * w * 3)
+    ours = np.sqrt(per_sample / lin_spp) * rng.standard_normal((2, h * w * 3))
+    residuals = misfit.reshape(-1) - target_noise + ours
+    n = h * w * 3
+    return Linearization(
+        values={"beta_n": 0.3},
+        residuals=residuals,
+        variances=np.stack([per_sample / lin_spp] * 2),
+        jacobians=np.zeros((2, n, 1)),
+        images=[],
+        loss_weights=np.full(n, 1.0 / n),
+        image_residuals=(n,),
+    )
+
+
+def test_goodness_of_fit_is_one_for_noise_and_names_the_region_that_does_not_fit():
+    rng = np.random.default_rng(4)
+    target = _target()
+    settings = types.SimpleNamespace(pool=1)
+    ratios = [
+        goodness_of_fit(_pixel_linearization(rng, target, np.zeros((48, 48, 3))), target, settings, 64).ratio
+        for _ in range(20)
+    ]
+    assert abs(np.mean(ratios) - 1.0) < 0.03
+    noise_only = goodness_of_fit(_pixel_linearization(rng, target, np.zeros((48, 48, 3))), target, settings, 64)
+    assert not noise_only.significant and noise_only.birge == 1.0
+
+    misfit = np.zeros((48, 48, 3))
+    misfit[:16, :16] = 0.1  # the frame's top left does not fit
+    bad = goodness_of_fit(_pixel_linearization(rng, target, misfit), target, settings, 64)
+    assert bad.significant and bad.ratio > 2 and bad.birge == pytest.approx(np.sqrt(bad.ratio))
+    assert bad.views[0].region == "the frame's top left" and bad.views[0].region_ratio > bad.ratio
+
+
+def _goodness(ratio, significant=True):
+    view = types.SimpleNamespace(name="back", ratio=ratio, region="its brightest third (the highlight)", region_ratio=9)
+    return types.SimpleNamespace(ratio=ratio, significant=significant, worst_view=lambda: view)
+
+
+def test_verdict_names_each_failure_and_passes_a_good_fit():
+    good = {"albedo": [0.3, 0.2, 0.1], "beta_m": 0.3, "beta_n": 0.4}
+    falling = np.linspace(1.0, 0.1, 20)
+    assert failures(good, falling, None, None, _goodness(1.1, significant=False)) == []
+
+    [reason] = failures({**good, "albedo": [0.0004, 0.002, 0.3]}, falling, None, None, None)[:1]
+    assert "albedo[r] ran to the end of its range" in reason
+    [reason] = failures(good, falling[::-1], None, None, None)
+    assert "descent's loss ended above where it started" in reason
+    camera = {
+        "gains": {"front": [2.0, 0.1], "back": [550.0, 60922.0]},
+        "white_balance": {"value": [1, 1, 1], "sigma": [0, 0, 0]},
+    }
+    [reason] = failures(good, falling, None, camera, None)
+    assert "gain of view back ran to 550" in reason
+    [reason] = failures(good, falling, None, None, _goodness(6.0))
+    assert "does not describe the images" in reason and "view back" in reason and "brightest third" in reason
+    refinement = types.SimpleNamespace(start_misfit=(0.041, 0.001), end_misfit=(0.089, 0.001))
+    [reason] = failures(good, falling, refinement, None, None)
+    assert "ended worse than it started" in reason
