@@ -117,7 +117,8 @@ def format_table(result: FitResult, truth: dict, renderer: str | None = None) ->
 
 def plot_convergence(path: Path, result: FitResult, truth: dict) -> None:
     """The loss and every fitted control against the iteration; true values dashed. Gauss–Newton steps follow
-    the Adam iterations as dots (hollow: undone)."""
+    the Adam iterations as dots, the misfit (the loss without our render noise) on the loss panel; a step
+    undone because the misfit rose beyond its noise is a cross. A failed fit says so in the title."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -127,13 +128,22 @@ def plot_convergence(path: Path, result: FitResult, truth: dict) -> None:
     fig, axes = plt.subplots(1, len(names) + 1, figsize=(3.2 * (len(names) + 1), 3.0), constrained_layout=True)
     its = np.arange(1, result.iterations + 1)
     ax = axes[0]
-    ax.semilogy(its, result.history.loss, color="0.3", lw=0.8)
+    ax.semilogy(its, result.history.loss, color="0.3", lw=0.8, label="Adam")
     refine = result.history.refine
     steps = result.iterations + 1 + np.arange(len(refine))
     kept = [r.accepted for r in refine]
     for x, r in zip(steps, refine):
-        ax.plot(x, r.loss, "o", ms=3, color="0.3", mfc="0.3" if r.accepted else "none")
-    ax.set_title(f"loss ({result.stop_reason})")
+        # A misfit at or below zero (noise about a perfect fit) has no place on a log axis: drawn at the loss.
+        y = r.misfit if r.misfit > 0 else r.loss
+        ax.plot(x, y, "o" if r.accepted else "x", ms=3 if r.accepted else 5, color="0.3" if r.accepted else "tab:red")
+    if refine:
+        ax.plot([], [], "o", ms=3, color="0.3", label="step kept")
+        ax.plot([], [], "x", ms=5, color="tab:red", label="step undone")
+        ax.legend(fontsize=6, loc="upper right")
+    ax.set_title(
+        f"loss ({result.stop_reason})" + ("  FAILED" if result.failed else ""),
+        color="tab:red" if result.failed else "k",
+    )
     ax.set_xlabel("iteration")
     for ax, name in zip(axes[1:], names):
         values = result.history.values[name].reshape(result.iterations, -1)
@@ -143,7 +153,7 @@ def plot_convergence(path: Path, result: FitResult, truth: dict) -> None:
             ax.plot(its, values[:, k], color=colours[k], lw=1.0)
             for x, r, keep in zip(steps, refine, kept):
                 ax.plot(
-                    x, np.atleast_1d(r.values[name])[k], "o", ms=3, color=colours[k], mfc=colours[k] if keep else "none"
+                    x, np.atleast_1d(r.values[name])[k], "o" if keep else "x", ms=3 if keep else 4, color=colours[k]
                 )
             if true is not None:
                 ax.axhline(true[k], color=colours[k], ls="--", lw=1.0)
