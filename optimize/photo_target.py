@@ -101,6 +101,19 @@ def downsample(image: np.ndarray, bad: np.ndarray, width: int) -> tuple:
     return blocks.astype(np.float32), flags
 
 
+def photo_line(photo, keep: np.ndarray) -> str:
+    """What became of a photo: its decoding, the pixels the camera clipped and crushed (count and share), the
+    target's pixels left out, and the decoder's notes."""
+    pixels = photo.clipped.size
+    clipped, crushed = int(photo.clipped.sum()), int((photo.crushed & ~photo.clipped).sum())
+    notes = "".join(f"; {note}" for note in photo.notes)
+    return (
+        f"{photo.path.name}: {photo.format} {photo.bits}-bit, {photo.transfer} decoded; {clipped} clipped "
+        f"({clipped / pixels:.2%}) and {crushed} crushed ({crushed / pixels:.2%}) of {pixels} pixels; "
+        f"{keep.size - int(keep.sum())} of the target's {keep.size} pixels left out{notes}"
+    )
+
+
 def background_mask(image: np.ndarray) -> np.ndarray:
     """True where the pixel differs from the border's median colour by more than BACKGROUND_TOLERANCE of the
     image's 99th percentile (the hair), grown by one pixel."""
@@ -210,8 +223,9 @@ def _table(name: str, table: dict, array: bool = False) -> str:
     return "\n".join([head] + [f"{key} = {_toml(value)}" for key, value in table.items()])
 
 
-def make_photo_target(out_dir, args) -> list[Path]:
-    """Write the target (see the module docstring) from the parsed `warp-hair targets photo` arguments."""
+def make_photo_target(out_dir, args, log=None) -> list[Path]:
+    """Write the target (see the module docstring) from the parsed `warp-hair targets photo` arguments; `log`
+    (e.g. print) is given a line per photo: its decoding, its clipped and crushed pixels, its notes."""
     out_dir = Path(out_dir)
     images = [Path(p) for p in args.image]
     if args.rig not in RIGS:
@@ -249,6 +263,8 @@ def make_photo_target(out_dir, args) -> list[Path]:
         if not keep.any():
             raise ValueError(f"{path}: no pixel is left to fit once clipped, crushed and background pixels are out")
         resolution = (image.shape[1], image.shape[0])
+        if log is not None:
+            log(photo_line(photo, keep))
         scene_name, exr_name = f"scene_{path.stem}.toml", f"{path.stem}.exr"
         parts = [
             f"# Made by `warp-hair targets photo` from {path.name} ({photo.format} {photo.bits}-bit, "
