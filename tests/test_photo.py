@@ -18,7 +18,7 @@ import targets
 from optimize import camera
 from optimize.fit import FitSettings
 from optimize.linearize import Linearization, gain_projection, linearize
-from optimize.photo_target import camera_fov, horizontal_fov, make_photo_target
+from optimize.photo_target import camera_fov, downsample, horizontal_fov, make_photo_target
 from optimize.target import load_target
 from warp_hair.io import read_exr, srgb_encode
 from warp_hair.photo import read_photo, srgb_decode, write_photo
@@ -259,6 +259,37 @@ def test_each_view_says_how_many_pixels_are_clipped(tmp_path, capsys):
     rc, out, _ = _targets_photo(capsys, tmp_path, tmp_path / "front.png")
     assert rc == 0
     assert "front.png: PNG 8-bit, srgb decoded; 48 clipped (1.56%) and 16 crushed (0.52%) of 3072 pixels" in out
+
+
+def test_a_resolution_that_does_not_divide_the_photo_keeps_its_field(tmp_path, capsys):
+    """A 64x40 photo at 48 across: blocks of 4/3 pixels spanning its whole width and height, so that its middle
+    column and row (an edge in red and one in green) land in the target's middle, and every pixel counts once."""
+    linear = np.full((40, 64, 3), 0.05, np.float32)
+    linear[:, 32:] = 0.6
+    linear[20:, :, 1] += 0.2
+    write_photo(tmp_path / "halves.png", linear)
+    photo = read_photo(tmp_path / "halves.png")
+    rc, _, _ = _targets_photo(capsys, tmp_path, tmp_path / "halves.png", resolution=48)
+    image, _ = read_exr(tmp_path / "made" / "halves.exr")
+    assert rc == 0 and image.shape == (30, 48, 3)
+    assert np.allclose(image[:, :24, 0], photo.image[0, 0, 0]) and np.allclose(image[:, 24:, 0], photo.image[0, -1, 0])
+    assert np.allclose(image[:15, 0, 1], photo.image[0, 0, 1]) and np.allclose(image[15:, 0, 1], photo.image[-1, 0, 1])
+    assert image.mean() == pytest.approx(photo.image.mean(), rel=1e-5)
+    scene = load_target(tmp_path / "made").images[0].scene
+    assert scene.camera.resolution == (48, 30) and scene.camera.width == 0.4
+    # 41 rows: 30 rows of blocks fit, centred (a photo symmetric about its middle row gives a symmetric target).
+    rows = np.abs(np.arange(41) - 20.0)[:, None, None] * np.ones((1, 64, 3))
+    blocks, _ = downsample(rows, np.zeros((41, 64), bool), 48)
+    assert blocks.shape == (30, 48, 3) and np.allclose(blocks, blocks[::-1])
+
+
+def test_a_bad_resolution_or_mask_is_an_error_naming_it(tmp_path, capsys):
+    write_photo(tmp_path / "front.png", np.full((48, 64, 3), 0.3, np.float32) + _gradient(64)[:48])
+    rc, _, err = _targets_photo(capsys, tmp_path, tmp_path / "front.png", resolution=0)
+    assert rc == 2 and "--resolution 0: must be between 1 and the photo's width, 64 pixels" in err
+    Image.fromarray(np.full((10, 10), 255, np.uint8)).save(tmp_path / "small.png")
+    rc, _, err = _targets_photo(capsys, tmp_path, tmp_path / "front.png", "--mask", str(tmp_path / "small.png"))
+    assert rc == 2 and "small.png: the mask is 10x10 but its photo is 64x48" in err
 
 
 def test_exif_orientations_match_pillows(tmp_path):
