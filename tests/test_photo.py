@@ -248,7 +248,7 @@ def test_a_greyscale_photo_is_read_with_a_warning(tmp_path, capsys):
     rc, out, err = _targets_photo(capsys, tmp_path, tmp_path / "grey.jpg")
     assert rc == 0 and "greyscale: replicated to R = G = B" in out
     assert "warp-hair: warning: " in err and "grey.jpg: a greyscale photo" in err
-    assert "it cannot constrain the hair's colour" in err
+    assert "the hair's colour cannot be fitted from it" in err
 
 
 def test_each_view_says_how_many_pixels_are_clipped(tmp_path, capsys):

@@ -372,8 +372,8 @@ def _to_rgb(path: Path, codes: np.ndarray, top: float, alpha: bool, notes: list)
     if codes.shape[-1] == 1:
         notes.append("greyscale: replicated to R = G = B; it holds no colour")
         warnings.warn(
-            f"{path}: a greyscale photo, read as R = G = B: it cannot constrain the hair's colour (a fit takes the "
-            "hair to be grey); use a colour photo to fit colour",
+            f"{path}: a greyscale photo, read as R = G = B: it holds no colour, so the hair's colour cannot be "
+            "fitted from it; use a colour photo to fit colour",
             PhotoWarning,
             stacklevel=3,
         )
