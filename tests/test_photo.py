@@ -242,6 +242,23 @@ def test_transparency_is_an_error_and_an_opaque_alpha_channel_a_note(tmp_path, c
     assert rc == 2 and "seen_through.png: 1 of its 768 pixels are transparent or translucent" in err
 
 
+def test_tiff_alpha_bilevel_and_inverted_grey(tmp_path, capsys):
+    """A TIFF's alpha (ExtraSamples) follows the PNG's rule; 1-bit and MINISWHITE (inverted grey) are errors."""
+    rgba = np.full((24, 32, 4), 40000, np.uint16)
+    tifffile.imwrite(tmp_path / "opaque.tif", rgba | np.array([0, 0, 0, 65535], np.uint16), extrasamples=["unassalpha"])
+    rc, out, _ = _targets_photo(capsys, tmp_path, tmp_path / "opaque.tif")
+    assert rc == 0 and "opaque.tif: TIFF 16-bit" in out and "alpha channel fully opaque: dropped" in out
+    tifffile.imwrite(tmp_path / "seen_through.tif", rgba, photometric="rgb", extrasamples=["unassalpha"])
+    rc, _, err = _targets_photo(capsys, tmp_path, tmp_path / "seen_through.tif")
+    assert rc == 2 and "seen_through.tif: 768 of its 768 pixels are transparent or translucent" in err
+    tifffile.imwrite(tmp_path / "bilevel.tif", RNG.uniform(size=(24, 32)) > 0.5)
+    rc, _, err = _targets_photo(capsys, tmp_path, tmp_path / "bilevel.tif")
+    assert rc == 2 and "bilevel.tif: a 1-bit TIFF (black and white)" in err
+    tifffile.imwrite(tmp_path / "inverted.tif", np.full((24, 32), 90, np.uint8), photometric="miniswhite")
+    rc, _, err = _targets_photo(capsys, tmp_path, tmp_path / "inverted.tif")
+    assert rc == 2 and "inverted.tif: a TIFF of photometric interpretation MINISWHITE" in err
+
+
 def test_a_greyscale_photo_is_read_with_a_warning(tmp_path, capsys):
     codes = np.round(srgb_encode(_linear(24, 32)) * 255).astype(np.uint8)
     Image.fromarray(codes).convert("L").save(tmp_path / "grey.jpg", quality=95)

@@ -28,10 +28,11 @@ target, with figures: docs/fitting.md, "Which photos are read"):
   full depth through pypng (Pillow keeps the top 8 bits of 16-bit colour), an 8-bit one through Pillow.
 - Refused, each saying what it is and what is read (`ACCEPTED`): CMYK (a print separation, not a camera's
   light), palette images (colours quantised to a table: no fit of colour can trust them), bilevel and 2- or
-  4-bit greyscale, and any pixel not fully opaque (an alpha channel below its top, or a PNG tRNS colour key
-  that a pixel matches: what lies behind it is not in the photo). A fully opaque alpha channel is dropped with
-  a note. A file whose header declares more than `MAX_PIXELS` is refused before anything is decoded (a
-  decompression bomb, or a damaged header); there is no switch: downscale a real photo that large.
+  4-bit greyscale, inverted-grey (MINISWHITE) TIFF, and any pixel not fully opaque (an alpha channel below its
+  top, or a PNG tRNS colour key that a pixel matches: what lies behind it is not in the photo). A fully opaque
+  alpha channel is dropped with a note. A file whose header declares more than `MAX_PIXELS` is refused before
+  anything is decoded (a decompression bomb, or a damaged header); there is no switch: downscale a real photo
+  that large.
 - Truncated or damaged files are errors, never partial images. Every PNG chunk's CRC is checked (Pillow skips
   the image data's). A JPEG is decoded by libjpeg-turbo through simplejpeg with strict=True: each of libjpeg's
   corrupt-data warnings is an error (Pillow's libjpeg output handler drops them, and patches the image over).
@@ -417,12 +418,15 @@ def _read_tiff(path: Path):
         raise ValueError(f"{path}: damaged, truncated or unsupported TIFF file: {error}") from None
     except Exception as error:  # tifffile raises TiffFileError, struct.error, ... for damaged files
         raise ValueError(f"{path}: damaged, truncated or unsupported TIFF file: {error}") from None
+    if data.dtype == bool:
+        raise ValueError(f"{path}: a 1-bit TIFF (black and white), not a photograph's tones; {ACCEPTED}")
     if photometric == 5:  # SEPARATED
         raise ValueError(f"{path}: a CMYK image (print separations, not a camera's light): save it as RGB")
     if photometric == 3:  # PALETTE
         raise ValueError(f"{path}: a palette image (its colours quantised to a table): save the photo as RGB")
     if photometric not in (1, 2):  # MINISBLACK, RGB
-        raise ValueError(f"{path}: a TIFF of photometric interpretation {photometric}; {ACCEPTED}")
+        name = tifffile.PHOTOMETRIC(photometric).name if photometric in set(tifffile.PHOTOMETRIC) else photometric
+        raise ValueError(f"{path}: a TIFF of photometric interpretation {name}; {ACCEPTED}")
     if data.ndim == 3 and data.shape[0] in (2, 3, 4) and data.shape[-1] not in (2, 3, 4):
         data = np.moveaxis(data, 0, -1)  # planar configuration
     if data.ndim == 2:
@@ -436,8 +440,6 @@ def _read_tiff(path: Path):
     elif data.dtype.kind == "f":
         bits, data = 32, data.astype(np.float32)
         notes.append("floating-point TIFF: linear values, not clipped")
-    elif data.dtype == bool:
-        raise ValueError(f"{path}: a 1-bit TIFF (black and white), not a photograph's tones; {ACCEPTED}")
     else:
         raise ValueError(f"{path}: {data.dtype} pixels are not read; {ACCEPTED}")
     colour = 3 if photometric == 2 else 1
