@@ -1,13 +1,14 @@
-"""Fuzz the inputs: seeded mutations of the shipped scenes, fiber files, hair controls and target directories.
+"""Fuzz the inputs: seeded mutations of the shipped scenes, fiber files, hair controls, targets and photos.
 
     python benchmarks/fuzz.py [--cases 4000] [--seed 0] [--memory-mib 2048] [--seconds 60] [--jobs 2]
+    python benchmarks/fuzz.py --areas "JPEG data" --cases 1000     # how many changed JPEG bytes libjpeg sees
 
 Every case runs in a forked child with an address-space limit (RLIMIT_AS: what the process already maps plus
 --memory-mib) and a CPU-time limit, and the parent kills it after a wall-clock limit. Each outcome must be a
 project error (ValueError or OSError) whose message names the input (the file, or the table and key), or, for
 inputs that load, a finite render (BSDF values for hair controls) that is not black where the mutation cannot
-darken the image (hair controls, render settings). Prints a table of cases per area and outcome, and the failing
-cases; exits 1 if any case failed.
+darken the image (hair controls, render settings), or a photo (a damaged one only where it is a JPEG). Prints a
+table of cases per area and outcome, and the failing cases; exits 1 if any case failed.
 
 The cases and their checks are tests/helpers/fuzz.py, which tests/test_fuzz.py runs in-process on fewer cases.
 """
@@ -23,7 +24,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
-from helpers.fuzz import PASSING, cases, run_all, table, warm_up
+from helpers.fuzz import AREAS, PASSING, cases, run_all, table, warm_up
 
 
 def main() -> None:
@@ -32,12 +33,13 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--cases", type=int, default=4000)
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--areas", nargs="+", choices=AREAS, default=AREAS, metavar="AREA", help=f"of {AREAS}")
     parser.add_argument("--memory-mib", type=int, default=2048, help="address space a case may add (MiB)")
     parser.add_argument("--seconds", type=int, default=60, help="CPU seconds a case may take")
     parser.add_argument("--jobs", type=int, default=2, help="cases run at the same time")
     parser.add_argument("--workdir", type=Path, default=Path(os.environ.get("TMPDIR", "/tmp")) / "warp-hair-fuzz")
     args = parser.parse_args()
-    all_cases = cases(args.seed, args.cases)
+    all_cases = cases(args.seed, args.cases, args.areas)
     warm_up(args.workdir)
     results = []
     start = time.perf_counter()

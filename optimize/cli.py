@@ -486,7 +486,7 @@ def _card_normal(text: str) -> str | list:
 def run_photo(args: argparse.Namespace) -> int:
     from .photo_target import make_photo_target
 
-    written = make_photo_target(args.output, args)
+    written = make_photo_target(args.output, args, log=print)
     print(
         f"wrote {', '.join(p.name for p in written)} to {args.output}; fit it with "
         f"`warp-hair fit {args.output} -o {args.output}_fit`"

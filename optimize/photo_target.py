@@ -26,7 +26,9 @@ pixels at the photo's size, or 'none'), `--card-reflectance` and `--card-normal`
 write <photo>_card.png and target.toml's [card] (optimize/card_region.py); its blocks are those wholly on the
 card, and blocks it touches are left out of the hair.
 
-Decisions: the photo is box-filtered to `--resolution` pixels across (aspect kept) in linear light; a block
+Decisions: the photo is box-filtered in linear light to `--resolution` square blocks across its whole width,
+any width (a block the area-weighted mean of the pixels and fractions of pixels it covers: `downsample`), and as
+many rows of them as fit, centred, so that the target keeps the field and centre the camera describes; a block
 holding a clipped or crushed pixel is left out (the mask), as is the background when `--mask auto` (pixels
 within 5% of the border's median colour; not with a card, whose pixels carry the light's level and colour). EXIF
 that contradicts the flags (a `--fov` more than 2% from the one EXIF's focal length gives) is an error naming
@@ -37,6 +39,7 @@ from __future__ import annotations
 
 import json
 import math
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -88,17 +91,64 @@ def camera_fov(photo, fov=None, sensor_width=None) -> float:
 
 
 def downsample(image: np.ndarray, bad: np.ndarray, width: int) -> tuple:
-    """Box-filter (H, W, 3) linear pixels to `width` across (aspect kept, edges cropped to whole blocks):
-    (image, blocks holding any `bad` pixel)."""
+    """(H, W, 3) linear pixels averaged over `width` equal columns spanning the photo's whole width, and rows of
+    the same (square) size, centred, as many as fit: (image, blocks holding any `bad` pixel). Each block is the
+    area-weighted mean of the photo pixels it covers, fractions of a pixel counted as such, so the target keeps
+    the photo's horizontal field (which the camera's fov or ortho width describe) and its centre (the optical
+    axis); less than one block's height is left out, half at the top and half at the bottom."""
     height_in, width_in = image.shape[:2]
-    if width > width_in:
-        raise ValueError(f"--resolution {width} exceeds the photo's width {width_in}")
-    factor = width_in // width
-    height = height_in // factor
-    crop = image[: height * factor, : width * factor]
-    blocks = crop.reshape(height, factor, width, factor, 3).mean(axis=(1, 3))
-    flags = bad[: height * factor, : width * factor].reshape(height, factor, width, factor).any(axis=(1, 3))
+    if not 1 <= width <= width_in:
+        raise ValueError(f"--resolution {width}: must be between 1 and the photo's width, {width_in} pixels")
+    step = width_in / width
+    height = int(height_in / step + 1e-9)
+    if height < 1:
+        raise ValueError(
+            f"--resolution {width}: a block of {step:.4g} photo pixels is taller than the photo ({height_in} "
+            "pixels); take a larger --resolution"
+        )
+    rows = _area_weights(height_in, height, (height_in - height * step) / 2, step)
+    columns = _area_weights(width_in, width, 0.0, step)
+    blocks = np.einsum("yi,ixc,wx->ywc", rows, image.astype(np.float32, copy=False), columns, optimize=True)
+    covered = (rows > 0).astype(np.float32), (columns > 0).astype(np.float32)
+    flags = covered[0] @ bad.astype(np.float32) @ covered[1].T > 0
     return blocks.astype(np.float32), flags
+
+
+def _area_weights(n_in: int, n_out: int, start: float, step: float) -> np.ndarray:
+    """(n_out, n_in): the share of output pixel k's span [start + k step, start + (k + 1) step) that input pixel
+    i's [i, i + 1) covers (each row sums to 1)."""
+    edges = start + step * np.arange(n_out + 1)
+    pixels = np.arange(n_in)
+    overlap = np.minimum(edges[1:, None], pixels + 1.0) - np.maximum(edges[:-1, None], pixels)
+    return (np.clip(overlap, 0.0, None) / step).astype(np.float32)
+
+
+def _read_mask(path: Path, shape, what: str) -> np.ndarray:
+    """A mask at the photo's size: white (above half) where it holds."""
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("error", Image.DecompressionBombWarning)
+            with Image.open(path) as im:
+                if im.size != (shape[1], shape[0]):
+                    raise ValueError(
+                        f"{path}: the {what} is {im.size[0]}x{im.size[1]} but its photo is {shape[1]}x{shape[0]}"
+                    )
+                return np.asarray(im.convert("L")) > 127
+    except (OSError, SyntaxError, Image.DecompressionBombError, Image.DecompressionBombWarning) as error:
+        raise ValueError(f"{path}: cannot read the {what}: {error}") from None
+
+
+def photo_line(photo, keep: np.ndarray) -> str:
+    """What became of a photo: its decoding, the pixels the camera clipped and crushed (count and share), the
+    target's pixels left out, and the decoder's notes."""
+    pixels = photo.clipped.size
+    clipped, crushed = int(photo.clipped.sum()), int((photo.crushed & ~photo.clipped).sum())
+    notes = "".join(f"; {note}" for note in photo.notes)
+    return (
+        f"{photo.path.name}: {photo.format} {photo.bits}-bit, {photo.transfer} decoded; {clipped} clipped "
+        f"({clipped / pixels:.2%}) and {crushed} crushed ({crushed / pixels:.2%}) of {pixels} pixels; "
+        f"{keep.size - int(keep.sum())} of the target's {keep.size} pixels left out{notes}"
+    )
 
 
 def background_mask(image: np.ndarray) -> np.ndarray:
@@ -136,22 +186,17 @@ def _card_masks(args, count: int) -> list:
 def _card_blocks(path: Path, shape, width: int, flags: np.ndarray) -> tuple:
     """(card, touched) at the working resolution from a card mask at the photo's size: the blocks wholly on the
     card and free of clipped or crushed pixels, and every block with a card pixel in it."""
-    try:
-        marked = np.asarray(Image.open(path).convert("L")) > 127
-    except (OSError, ValueError) as error:
-        raise ValueError(f"{path}: cannot read the card mask: {error}") from None
-    if marked.shape != tuple(shape):
-        raise ValueError(
-            f"{path}: the card mask is {marked.shape[1]}x{marked.shape[0]} but its photo is {shape[1]}x{shape[0]}"
-        )
-    covered, _ = downsample(np.repeat(marked[..., None].astype(np.float32), 3, -1), np.zeros(shape, bool), width)
-    card = (covered[..., 0] == 1.0) & ~flags
+    marked = _read_mask(path, shape, "card mask")
+    _, off_card = downsample(np.zeros((*shape, 3), np.float32), ~marked, width)
+    _, on_card = downsample(np.zeros((*shape, 3), np.float32), marked, width)
+    card = ~off_card & ~flags
     if not card.any():
+        step = shape[1] / width
         raise ValueError(
-            f"{path}: no block of {shape[1] // width}x{shape[1] // width} photo pixels lies wholly on the card and "
-            "unclipped: mark a larger part of it, or take a larger --resolution"
+            f"{path}: no block of {step:.4g}x{step:.4g} photo pixels lies wholly on the card and unclipped: mark a "
+            "larger part of it, or take a larger --resolution"
         )
-    return card, covered[..., 0] > 0
+    return card, on_card
 
 
 def _fibers_table(rig: str, args) -> dict:
@@ -210,8 +255,9 @@ def _table(name: str, table: dict, array: bool = False) -> str:
     return "\n".join([head] + [f"{key} = {_toml(value)}" for key, value in table.items()])
 
 
-def make_photo_target(out_dir, args) -> list[Path]:
-    """Write the target (see the module docstring) from the parsed `warp-hair targets photo` arguments."""
+def make_photo_target(out_dir, args, log=None) -> list[Path]:
+    """Write the target (see the module docstring) from the parsed `warp-hair targets photo` arguments; `log`
+    (e.g. print) is given a line per photo: its decoding, its clipped and crushed pixels, its notes."""
     out_dir = Path(out_dir)
     images = [Path(p) for p in args.image]
     if args.rig not in RIGS:
@@ -237,10 +283,8 @@ def make_photo_target(out_dir, args) -> list[Path]:
         if args.mask == ["auto"] and args.card is None:
             keep &= background_mask(image)
         elif args.mask and args.mask != ["auto"]:
-            given = np.asarray(Image.open(args.mask[k if len(args.mask) > 1 else 0]).convert("L")) > 127
-            given, _ = downsample(
-                np.repeat(given[..., None].astype(np.float32), 3, -1), np.zeros(given.shape, bool), args.resolution
-            )
+            given = _read_mask(Path(args.mask[k if len(args.mask) > 1 else 0]), photo.image.shape[:2], "mask")
+            given, _ = downsample(np.repeat(given[..., None], 3, -1).astype(np.float32), ~given, args.resolution)
             keep &= given[..., 0] > 0.5
         card = None
         if card_masks[k] is not None:
@@ -249,6 +293,8 @@ def make_photo_target(out_dir, args) -> list[Path]:
         if not keep.any():
             raise ValueError(f"{path}: no pixel is left to fit once clipped, crushed and background pixels are out")
         resolution = (image.shape[1], image.shape[0])
+        if log is not None:
+            log(photo_line(photo, keep))
         scene_name, exr_name = f"scene_{path.stem}.toml", f"{path.stem}.exr"
         parts = [
             f"# Made by `warp-hair targets photo` from {path.name} ({photo.format} {photo.bits}-bit, "

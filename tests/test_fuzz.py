@@ -1,6 +1,7 @@
-"""A few hundred seeded mutations of the shipped scenes, fiber files, hair controls and targets (helpers/fuzz.py;
-benchmarks/fuzz.py runs thousands, each in a child process with limits): every outcome is an error naming the
-input, or a finite render of an input that loads."""
+"""A few hundred seeded mutations of the shipped scenes, fiber files, hair controls, targets and photos
+(helpers/fuzz.py; benchmarks/fuzz.py runs thousands, each in a child process with limits): every outcome is an
+error naming the input, a finite render of an input that loads, or a photo (a damaged one only where it is a
+JPEG, which has no checksum)."""
 
 from collections import Counter
 
@@ -8,12 +9,15 @@ import pytest
 from helpers import fuzz
 
 CASES = 300
+PHOTO_CASES = 60  # decoded photos: a few milliseconds each
 
 
 @pytest.fixture(scope="module")
 def outcomes(tmp_path_factory):
     workdir = tmp_path_factory.mktemp("fuzz")
-    return [(case, fuzz.run_case(case, workdir)) for case in fuzz.cases(seed=2026, n=CASES)]
+    mutants = fuzz.cases(seed=2026, n=CASES, areas=fuzz.FILE_AREAS)
+    mutants += fuzz.cases(seed=2026, n=PHOTO_CASES, areas=fuzz.PHOTO_AREAS, first=CASES)
+    return [(case, fuzz.run_case(case, workdir)) for case in mutants]
 
 
 def test_every_outcome_is_a_named_error_or_a_finite_render(outcomes):

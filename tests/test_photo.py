@@ -3,6 +3,7 @@ targets from photos (optimize/photo_target.py), and bad input."""
 
 from __future__ import annotations
 
+import io
 import json
 import shutil
 
@@ -17,7 +18,7 @@ import targets
 from optimize import camera
 from optimize.fit import FitSettings
 from optimize.linearize import Linearization, gain_projection, linearize
-from optimize.photo_target import camera_fov, horizontal_fov, make_photo_target
+from optimize.photo_target import camera_fov, downsample, horizontal_fov, make_photo_target
 from optimize.target import load_target
 from warp_hair.io import read_exr, srgb_encode
 from warp_hair.photo import read_photo, srgb_decode, write_photo
@@ -103,7 +104,7 @@ def test_bad_photos_are_clear_errors(tmp_path):
     Image.fromarray(codes, "RGB").save(tmp_path / "whole.jpg", quality=90)
     data = (tmp_path / "whole.jpg").read_bytes()
     (tmp_path / "cut.jpg").write_bytes(data[: len(data) // 2])
-    with pytest.raises(ValueError, match=r"cut.jpg: damaged, truncated"):
+    with pytest.raises(ValueError, match=r"cut.jpg: damaged or truncated JPEG \(libjpeg: \"Premature end"):
         read_photo(tmp_path / "cut.jpg")
     Image.fromarray(codes, "RGB").convert("CMYK").save(tmp_path / "cmyk.jpg")
     with pytest.raises(ValueError, match="CMYK"):
@@ -116,6 +117,211 @@ def test_bad_photos_are_clear_errors(tmp_path):
         read_photo(tmp_path / "shot.cr2")
     with pytest.raises(ValueError, match="transfer"):
         read_photo(tmp_path / "whole.jpg", transfer="gamma")
+
+
+def _targets_photo(capsys, tmp_path, image, *options, resolution=32):
+    """`warp-hair targets photo` as a user runs it: (exit status, stdout, stderr)."""
+    from optimize.cli import main
+
+    out_dir = tmp_path / "made"
+    rc = main(
+        ["targets", "photo", str(out_dir), "--image", str(image), "--light", "0.2,-0.3,-1", "--ortho-width", "0.4"]
+        + ["--resolution", str(resolution), *options]
+    )
+    out, err = capsys.readouterr()
+    assert "internal error" not in err and "Traceback" not in err
+    return rc, out, err
+
+
+def _png_header(path, width, height, bit_depth=8, colour_type=2):
+    """A PNG that declares its size in IHDR and holds (almost) nothing: what a decompression bomb's header says."""
+    import struct
+    import zlib
+
+    def chunk(kind, data):
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+
+    ihdr = struct.pack(">IIBBBBB", width, height, bit_depth, colour_type, 0, 0, 0)
+    path.write_bytes(
+        b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", zlib.compress(b"\0" * 16)) + chunk(b"IEND", b"")
+    )
+
+
+def test_a_decompression_bomb_is_an_error_with_its_size_and_the_limit(tmp_path, capsys):
+    _png_header(tmp_path / "bomb.png", 100000, 100000)
+    rc, _, err = _targets_photo(capsys, tmp_path, tmp_path / "bomb.png")
+    assert rc == 2
+    assert (
+        "bomb.png: the file declares a 100000x100000 image (10000 megapixels), more than warp-hair decodes (179 "
+        "megapixels, MAX_PIXELS)" in err
+    )
+
+
+def test_a_jpeg_whose_compressed_data_libjpeg_finds_corrupt_is_an_error(tmp_path, capsys):
+    """A restart marker's number flipped (FF D0 to FF D1) in the entropy-coded data: libjpeg warns and resyncs,
+    Pillow drops the warning and decodes two thirds of the pixels wrong."""
+    codes = np.round(srgb_encode(_linear(48, 64)) * 255).astype(np.uint8)
+    Image.fromarray(codes).save(tmp_path / "whole.jpg", quality=90, restart_marker_blocks=4)
+    data = bytearray((tmp_path / "whole.jpg").read_bytes())
+    first = data.index(b"\xff\xd0", data.index(b"\xff\xda"))  # RST0, after the start of scan
+    data[first + 1] = 0xD1
+    (tmp_path / "flipped.jpg").write_bytes(data)
+    with Image.open(tmp_path / "flipped.jpg") as im:  # Pillow alone: no word
+        damaged = np.asarray(im.convert("RGB"))
+    assert (np.abs(damaged.astype(int) - np.asarray(Image.open(tmp_path / "whole.jpg"))).max(-1) > 8).mean() > 0.3
+    rc, _, err = _targets_photo(capsys, tmp_path, tmp_path / "flipped.jpg")
+    assert rc == 2
+    assert (
+        'flipped.jpg: damaged or truncated JPEG (libjpeg: "Corrupt JPEG data: found marker 0xd1 instead of RST0")'
+        in err
+    )
+
+
+def test_a_png_with_a_flipped_byte_is_an_error_where_pillow_decodes_it(tmp_path, capsys):
+    """The image data's CRC is checked: the first byte of the deflate stream whose change Pillow decodes without
+    a word (a changed image) is an error naming the chunk."""
+    y, x = np.mgrid[0:48, 0:64]
+    codes = np.stack([40 + 3 * x, 60 + 2 * y, 80 + x * y // 64], -1).astype(np.uint8)  # smooth: deflate's matches
+    Image.fromarray(codes).save(tmp_path / "whole.png")
+    data = (tmp_path / "whole.png").read_bytes()
+    start = data.index(b"IDAT") + 6  # past the zlib header
+    for k in range(start, start + 400):
+        flipped = bytearray(data)
+        flipped[k] ^= 0x10
+        try:
+            with Image.open(io.BytesIO(bytes(flipped))) as im:
+                if not np.array_equal(np.asarray(im.convert("RGB")), codes):
+                    break
+        except (OSError, SyntaxError, ValueError):
+            continue
+    else:
+        pytest.fail("Pillow caught every flip tried: the test has nothing to show")
+    (tmp_path / "flipped.png").write_bytes(flipped)
+    rc, _, err = _targets_photo(capsys, tmp_path, tmp_path / "flipped.png")
+    assert (
+        rc == 2 and "flipped.png: damaged, truncated or not a PNG file: ChunkError: Checksum error in IDAT chunk" in err
+    )
+
+
+@pytest.mark.parametrize("mode", ["1", "P"])
+def test_a_bilevel_or_palette_png_is_an_error_naming_what_is_read(tmp_path, capsys, mode):
+    y, x = np.mgrid[0:32, 0:32]
+    codes = np.stack([4 * x, 4 * y, 2 * (x + y)], -1).astype(np.uint8)
+    Image.fromarray(codes).convert(mode).save(tmp_path / "odd.png")
+    rc, _, err = _targets_photo(capsys, tmp_path, tmp_path / "odd.png")
+    assert rc == 2
+    said = "a 1-bit greyscale PNG (black and white)" if mode == "1" else "a palette image"
+    assert f"odd.png: {said}" in err
+    if mode == "1":
+        assert "warp-hair reads 8- or 16-bit RGB (or greyscale) PNG, JPEG and TIFF" in err
+
+
+def test_16_bit_rgb_png_is_read_at_full_depth(tmp_path, capsys):
+    """Codes a sixteenth of an 8-bit step apart come out as they are (Pillow keeps the top 8 bits)."""
+    import png
+
+    codes = (20000 + 16 * np.arange(48 * 64 * 3) % 4000).reshape(48, 64, 3).astype(np.uint16)
+    png.Writer(64, 48, bitdepth=16, greyscale=False).write(
+        (tmp_path / "deep.png").open("wb"), codes.reshape(48, -1).tolist()
+    )
+    rc, out, _ = _targets_photo(capsys, tmp_path, tmp_path / "deep.png", "--transfer", "linear", resolution=64)
+    assert rc == 0 and "deep.png: PNG 16-bit, linear decoded" in out
+    image, _ = read_exr(tmp_path / "made" / "deep.exr")
+    assert np.abs(image - codes / 65535.0).max() < 1e-6
+
+
+def test_transparency_is_an_error_and_an_opaque_alpha_channel_a_note(tmp_path, capsys):
+    codes = np.round(srgb_encode(_linear(24, 32)) * 255).astype(np.uint8)
+    rgba = np.dstack([codes, np.full((24, 32), 255, np.uint8)])
+    Image.fromarray(rgba, "RGBA").save(tmp_path / "opaque.png")
+    rc, out, _ = _targets_photo(capsys, tmp_path, tmp_path / "opaque.png")
+    assert rc == 0 and "opaque.png: PNG 8-bit" in out and "alpha channel fully opaque: dropped" in out
+    rgba[3, 5, 3] = 254
+    Image.fromarray(rgba, "RGBA").save(tmp_path / "seen_through.png")
+    rc, _, err = _targets_photo(capsys, tmp_path, tmp_path / "seen_through.png")
+    assert rc == 2 and "seen_through.png: 1 of its 768 pixels are transparent or translucent" in err
+
+
+def test_tiff_alpha_bilevel_and_inverted_grey(tmp_path, capsys):
+    """A TIFF's alpha (ExtraSamples) follows the PNG's rule; 1-bit and MINISWHITE (inverted grey) are errors."""
+    rgba = np.full((24, 32, 4), 40000, np.uint16)
+    tifffile.imwrite(tmp_path / "opaque.tif", rgba | np.array([0, 0, 0, 65535], np.uint16), extrasamples=["unassalpha"])
+    rc, out, _ = _targets_photo(capsys, tmp_path, tmp_path / "opaque.tif")
+    assert rc == 0 and "opaque.tif: TIFF 16-bit" in out and "alpha channel fully opaque: dropped" in out
+    tifffile.imwrite(tmp_path / "seen_through.tif", rgba, photometric="rgb", extrasamples=["unassalpha"])
+    rc, _, err = _targets_photo(capsys, tmp_path, tmp_path / "seen_through.tif")
+    assert rc == 2 and "seen_through.tif: 768 of its 768 pixels are transparent or translucent" in err
+    tifffile.imwrite(tmp_path / "bilevel.tif", RNG.uniform(size=(24, 32)) > 0.5)
+    rc, _, err = _targets_photo(capsys, tmp_path, tmp_path / "bilevel.tif")
+    assert rc == 2 and "bilevel.tif: a 1-bit TIFF (black and white)" in err
+    tifffile.imwrite(tmp_path / "inverted.tif", np.full((24, 32), 90, np.uint8), photometric="miniswhite")
+    rc, _, err = _targets_photo(capsys, tmp_path, tmp_path / "inverted.tif")
+    assert rc == 2 and "inverted.tif: a TIFF of photometric interpretation MINISWHITE" in err
+
+
+def test_a_greyscale_photo_is_read_with_a_warning(tmp_path, capsys):
+    codes = np.round(srgb_encode(_linear(24, 32)) * 255).astype(np.uint8)
+    Image.fromarray(codes).convert("L").save(tmp_path / "grey.jpg", quality=95)
+    rc, out, err = _targets_photo(capsys, tmp_path, tmp_path / "grey.jpg")
+    assert rc == 0 and "greyscale: replicated to R = G = B" in out
+    assert "warp-hair: warning: " in err and "grey.jpg: a greyscale photo" in err
+    assert "the hair's colour cannot be fitted from it" in err
+
+
+def test_each_view_says_how_many_pixels_are_clipped(tmp_path, capsys):
+    linear = np.full((48, 64, 3), 0.3, np.float32)
+    linear[:6, :8] = 2.0  # 48 clipped pixels
+    linear[-4:, -4:] = 0.0  # 16 crushed
+    write_photo(tmp_path / "front.png", linear)
+    rc, out, _ = _targets_photo(capsys, tmp_path, tmp_path / "front.png")
+    assert rc == 0
+    assert "front.png: PNG 8-bit, srgb decoded; 48 clipped (1.56%) and 16 crushed (0.52%) of 3072 pixels" in out
+
+
+def test_a_resolution_that_does_not_divide_the_photo_keeps_its_field(tmp_path, capsys):
+    """A 64x40 photo at 48 across: blocks of 4/3 pixels spanning its whole width and height, so that its middle
+    column and row (an edge in red and one in green) land in the target's middle, and every pixel counts once."""
+    linear = np.full((40, 64, 3), 0.05, np.float32)
+    linear[:, 32:] = 0.6
+    linear[20:, :, 1] += 0.2
+    write_photo(tmp_path / "halves.png", linear)
+    photo = read_photo(tmp_path / "halves.png")
+    rc, _, _ = _targets_photo(capsys, tmp_path, tmp_path / "halves.png", resolution=48)
+    image, _ = read_exr(tmp_path / "made" / "halves.exr")
+    assert rc == 0 and image.shape == (30, 48, 3)
+    assert np.allclose(image[:, :24, 0], photo.image[0, 0, 0]) and np.allclose(image[:, 24:, 0], photo.image[0, -1, 0])
+    assert np.allclose(image[:15, 0, 1], photo.image[0, 0, 1]) and np.allclose(image[15:, 0, 1], photo.image[-1, 0, 1])
+    assert image.mean() == pytest.approx(photo.image.mean(), rel=1e-5)
+    scene = load_target(tmp_path / "made").images[0].scene
+    assert scene.camera.resolution == (48, 30) and scene.camera.width == 0.4
+    # 41 rows: 30 rows of blocks fit, centred (a photo symmetric about its middle row gives a symmetric target).
+    rows = np.abs(np.arange(41) - 20.0)[:, None, None] * np.ones((1, 64, 3))
+    blocks, _ = downsample(rows, np.zeros((41, 64), bool), 48)
+    assert blocks.shape == (30, 48, 3) and np.allclose(blocks, blocks[::-1])
+
+
+def test_a_bad_resolution_or_mask_is_an_error_naming_it(tmp_path, capsys):
+    write_photo(tmp_path / "front.png", np.full((48, 64, 3), 0.3, np.float32) + _gradient(64)[:48])
+    rc, _, err = _targets_photo(capsys, tmp_path, tmp_path / "front.png", resolution=0)
+    assert rc == 2 and "--resolution 0: must be between 1 and the photo's width, 64 pixels" in err
+    Image.fromarray(np.full((10, 10), 255, np.uint8)).save(tmp_path / "small.png")
+    rc, _, err = _targets_photo(capsys, tmp_path, tmp_path / "front.png", "--mask", str(tmp_path / "small.png"))
+    assert rc == 2 and "small.png: the mask is 10x10 but its photo is 64x48" in err
+
+
+def test_exif_orientations_match_pillows(tmp_path):
+    from PIL import ImageOps
+
+    codes = RNG.integers(0, 256, (5, 7, 3), dtype=np.uint8)
+    for orientation in range(1, 9):
+        exif = Image.Exif()
+        exif[0x0112] = orientation
+        Image.fromarray(codes).save(tmp_path / f"o{orientation}.png", exif=exif)
+        with Image.open(tmp_path / f"o{orientation}.png") as im:
+            shown = np.asarray(ImageOps.exif_transpose(im).convert("RGB"))
+        assert np.array_equal(
+            read_photo(tmp_path / f"o{orientation}.png").image, srgb_decode(shown / 255.0).astype(np.float32)
+        )
 
 
 def _photo_target(tmp_path, name="cycles_brown_straight", kind="png", edit=None):

@@ -21,11 +21,23 @@ Transfer functions (`transfer`):
     linear   the code values are proportional to light (a linear TIFF from a raw converter; camera raw is
              always linear, and "srgb" for it is an error)
 
-Decisions on odd files (each an error naming the file, or a note in `Photo.notes`):
-- JPEG, PNG and TIFF with 8 or 16 bits per channel (float TIFF too); RGB, RGBA (alpha ignored), or greyscale
-  replicated to grey. A 16-bit greyscale TIFF or PNG is read like any greyscale image (a note says so). CMYK
-  is an error (a print separation, not a camera's light), and so is a palette PNG (its colours were quantised
-  to 256: no fit of colour can trust it). Truncated or damaged files are errors, never partial images.
+Decisions on odd files (each an error naming the file, or a note in `Photo.notes`; what they mean for a
+target, with figures: docs/fitting.md, "Which photos are read"):
+- Read: JPEG, PNG and TIFF of 8 or 16 bits per channel, and float TIFF; RGB, or greyscale replicated to
+  R = G = B with a note and a `PhotoWarning` (it holds no colour for a fit to find). A 16-bit PNG is read at
+  full depth through pypng (Pillow keeps the top 8 bits of 16-bit colour), an 8-bit one through Pillow.
+- Refused, each saying what it is and what is read (`ACCEPTED`): CMYK (a print separation, not a camera's
+  light), palette images (colours quantised to a table: no fit of colour can trust them), bilevel and 2- or
+  4-bit greyscale, inverted-grey (MINISWHITE) TIFF, and any pixel not fully opaque (an alpha channel below its
+  top, or a PNG tRNS colour key that a pixel matches: what lies behind it is not in the photo). A fully opaque
+  alpha channel is dropped with a note. A file whose header declares more than `MAX_PIXELS` is refused before
+  anything is decoded (a decompression bomb, or a damaged header); there is no switch: downscale a real photo
+  that large.
+- Truncated or damaged files are errors, never partial images. Every PNG chunk's CRC is checked (Pillow skips
+  the image data's). A JPEG is decoded by libjpeg-turbo through simplejpeg with strict=True: each of libjpeg's
+  corrupt-data warnings is an error (Pillow's libjpeg output handler drops them, and patches the image over).
+  JPEG has no checksum: a changed byte after which the entropy-coded data falls back in step is seen by no
+  decoder, and decodes to a few wrong blocks.
 - A JPEG's clipped pixels are those with a channel at or above CLIP_CODE_JPEG/255 of the range, its crushed
   ones at or below CRUSH_CODE_JPEG/255: its block compression rings around a clipped highlight or a black
   region and leaves codes just inside the range there. Lossless files clip and crush at their end codes exactly.
@@ -44,15 +56,22 @@ from __future__ import annotations
 
 import io
 import math
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from PIL import ExifTags, Image, ImageCms, ImageOps, UnidentifiedImageError
+from PIL import ExifTags, Image, ImageCms, UnidentifiedImageError
 
 from .raw import RAW_SUFFIXES, read_raw
 
 TRANSFERS = ("auto", "srgb", "linear")
+# The most pixels a file may declare: Pillow's decompression-bomb bound (twice its MAX_IMAGE_PIXELS, 179
+# megapixels), above the 100-150 of the largest medium-format sensors. Checked on the header, before decoding.
+MAX_PIXELS = 2 * Image.MAX_IMAGE_PIXELS
+ACCEPTED = "warp-hair reads 8- or 16-bit RGB (or greyscale) PNG, JPEG and TIFF, and float TIFF"
+OPAQUE = "save the photo without transparency"
+ORIENTATIONS = range(1, 9)
 PHOTO_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff")
 # A JPEG code at or above this (of 255) counts as clipped: compression ringing leaves codes below 255 around a
 # clipped highlight (measured on Pillow's JPEGs at quality 90: up to 4 codes below the top).
@@ -69,6 +88,10 @@ EXIF_TAGS = {
     "FocalLengthIn35mmFilm": "focal_length_35mm",
     "ExposureBiasValue": "exposure_bias",
 }
+
+
+class PhotoWarning(UserWarning):
+    """A photo that decodes but constrains less than a fit may assume (a greyscale one: no colour)."""
 
 
 @dataclass
@@ -123,10 +146,16 @@ def read_photo(path, transfer: str = "auto") -> Photo:
         raise FileNotFoundError(f"{path}: image not found")
     if suffix in RAW_SUFFIXES:
         return _read_raw_photo(path, transfer)
+    gamma = None
     if suffix in (".tif", ".tiff"):
         codes, bits, icc, exif, notes, fmt = _read_tiff(path)
     else:
-        codes, bits, icc, exif, notes, fmt, gamma = _read_pillow(path)
+        reader = _read_png if suffix == ".png" else _read_jpeg
+        codes, bits, icc, exif, notes, fmt, gamma, orientation = reader(path)
+        codes = _to_rgb(path, codes, float(2**bits - 1), codes.shape[-1] in (2, 4), notes)
+        if orientation != 1:
+            codes = _oriented(codes, orientation)
+            notes.insert(0, f"EXIF Orientation {orientation} applied (the image as a viewer shows it)")
     top = 1.0 if bits == 32 else float(2**bits - 1)
     values = codes.astype(np.float64) / top
     lossy = fmt == "JPEG"
@@ -213,44 +242,158 @@ def _decode(values: np.ndarray, transfer: str) -> np.ndarray:
     return srgb_decode(values)
 
 
-def _read_pillow(path: Path):
-    """(codes (H, W, 3) uint8/uint16, bits, ICC bytes or None, exif, notes, format, PNG gamma or None)."""
+def _too_large(path: Path, width: int, height: int) -> None:
+    """An error where the file declares more than MAX_PIXELS: checked on the header, before anything is decoded."""
+    if width * height > MAX_PIXELS:
+        raise ValueError(
+            f"{path}: the file declares a {width}x{height} image ({width * height / 1e6:.0f} megapixels), more "
+            f"than warp-hair decodes ({MAX_PIXELS / 1e6:.0f} megapixels, MAX_PIXELS): a damaged or hostile header "
+            "(a decompression bomb), or a photo larger than any camera's; if it is a real photo, downscale it "
+            "first (a target is box-filtered to --resolution pixels across anyway)"
+        )
+
+
+def _metadata(path: Path, im, notes: list) -> tuple:
+    """(ICC bytes or None, exif, EXIF orientation, PNG gamma or None) from an opened Pillow image."""
+    exif_block = im.getexif()
+    exif = _exif(exif_block)
+    orientation = exif_block.get(ExifTags.Base.Orientation, 1)
+    if orientation not in ORIENTATIONS:
+        notes.append(f"EXIF Orientation {orientation!r} is not one of 1-8: ignored")
+        orientation = 1
+    icc = im.info.get("icc_profile") or None
+    gamma = im.info.get("gamma") if not (icc or "srgb" in im.info) else None
+    return icc, exif, orientation, gamma
+
+
+def _read_jpeg(path: Path):
+    """(codes (H, W, C) uint8, bits, ICC, exif, notes, format, None, orientation). The pixels are libjpeg-turbo's
+    through simplejpeg with strict=True, which makes each of libjpeg's warnings (corrupt data that it would
+    otherwise patch over: a bad Huffman code, a scan ending early or late, a bad marker) an error; Pillow drops
+    them (its libjpeg output handler does nothing)."""
+    import simplejpeg
+
+    notes = []
+    data = path.read_bytes()
+    try:
+        height, width, _, _ = simplejpeg.decode_jpeg_header(data)
+    except ValueError as error:
+        raise ValueError(f"{path}: damaged, truncated or not a JPEG file: {error}") from None
+    _too_large(path, width, height)
+    try:
+        with Image.open(path, formats=("JPEG", "MPO")) as im:
+            fmt, mode = "JPEG", im.mode
+            icc, exif, orientation, _ = _metadata(path, im, notes)
+    except (UnidentifiedImageError, OSError, SyntaxError, ValueError, Image.DecompressionBombError) as error:
+        raise ValueError(f"{path}: damaged, truncated or not a JPEG file: {error}") from None
+    if mode == "CMYK":
+        raise ValueError(f"{path}: a CMYK image (print separations, not a camera's light): save it as RGB")
+    if mode not in ("RGB", "L"):
+        raise ValueError(f"{path}: a JPEG in mode {mode!r}; {ACCEPTED}")
+    try:
+        codes = simplejpeg.decode_jpeg(data, colorspace="GRAY" if mode == "L" else "RGB", strict=True)
+    except ValueError as error:
+        raise ValueError(
+            f'{path}: damaged or truncated JPEG (libjpeg: "{error}"): decoding it would make up the pixels '
+            "it cannot read; copy the photo again from the camera or the original"
+        ) from None
+    return codes, 8, icc, exif, notes, fmt, None, orientation
+
+
+def _read_png(path: Path):
+    """(codes (H, W, C) uint8 or uint16, bits, ICC, exif, notes, format, gamma, orientation). Every chunk's CRC
+    is checked (pypng; Pillow skips the image data's, and a flipped byte in it may still inflate), 16-bit
+    samples are read at full depth through pypng (Pillow keeps only the top 8 bits of 16-bit colour), 8-bit ones
+    through Pillow."""
+    import png
+
     notes = []
     try:
-        with Image.open(path) as im:
-            fmt = im.format
-            im.load()  # decode now: a truncated file fails here, not later
-            exif = _exif(im.getexif())
-            orientation = im.getexif().get(ExifTags.Base.Orientation, 1)
-            if orientation not in (1, None):
-                im = ImageOps.exif_transpose(im)
-                notes.append(f"EXIF Orientation {orientation} applied (the image as a viewer shows it)")
-            icc = im.info.get("icc_profile") or None
-            gamma = im.info.get("gamma") if not (icc or "srgb" in im.info) else None
-            mode = im.mode
-            if mode == "P" or mode == "PA":
-                raise ValueError(
-                    f"{path}: a palette image (its colours quantised to a table of at most 256): "
-                    "save the photo as RGB, not indexed colour"
-                )
-            if mode == "CMYK":
-                raise ValueError(f"{path}: a CMYK image (print separations, not a camera's light): save it as RGB")
-            if mode in ("RGB", "RGBA", "RGBX"):
-                return np.asarray(im.convert("RGB")), 8, icc, exif, notes, fmt, gamma
-            if mode in ("L", "LA", "1"):
-                notes.append("greyscale: replicated to R = G = B")
-                return np.repeat(np.asarray(im.convert("L"))[..., None], 3, -1), 8, icc, exif, notes, fmt, gamma
-            if mode in ("I;16", "I;16B", "I;16L", "I"):
-                grey = np.asarray(im).astype(np.int64)
-                if grey.max(initial=0) > 65535 or grey.min(initial=0) < 0:
-                    raise ValueError(f"{path}: 32-bit integer pixels: save it as 8- or 16-bit")
-                notes.append("16-bit greyscale: replicated to R = G = B")
-                return np.repeat(grey.astype(np.uint16)[..., None], 3, -1), 16, icc, exif, notes, fmt, gamma
-            raise ValueError(f"{path}: image mode {mode!r} is not read; save it as 8- or 16-bit RGB")
-    except (UnidentifiedImageError, OSError, SyntaxError) as error:
+        reader = png.Reader(filename=str(path))
+        reader.preamble()
+        width, height, bitdepth, colour_type = reader.width, reader.height, reader.bitdepth, reader.color_type
+        key = getattr(reader, "transparent", None)
+        for _ in reader.chunks():  # the CRCs of the rest
+            pass
+    except (png.Error, OSError, EOFError) as error:
+        raise ValueError(f"{path}: damaged, truncated or not a PNG file: {error}") from None
+    _too_large(path, width, height)
+    if colour_type == 3:
         raise ValueError(
-            f"{path}: damaged, truncated or unsupported {path.suffix.lstrip('.').upper()} file: {error}"
-        ) from None
+            f"{path}: a palette image (its colours quantised to a table of at most 256): save the photo as RGB, "
+            "not indexed colour"
+        )
+    if bitdepth < 8:
+        levels = "black and white" if bitdepth == 1 else f"{2**bitdepth} grey levels"
+        raise ValueError(f"{path}: a {bitdepth}-bit greyscale PNG ({levels}), not a photograph's tones; {ACCEPTED}")
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", Image.DecompressionBombWarning)  # MAX_PIXELS is the bound
+            with Image.open(path, formats=("PNG",)) as im:
+                icc, exif, orientation, gamma = _metadata(path, im, notes)
+                if bitdepth == 8:
+                    im.load()  # decode now: a truncated file fails here, not later
+                    codes = np.asarray(im)
+    except (UnidentifiedImageError, OSError, SyntaxError, ValueError, Image.DecompressionBombError) as error:
+        raise ValueError(f"{path}: damaged, truncated or not a PNG file: {error}") from None
+    if bitdepth == 16:
+        try:
+            _, _, rows, info = png.Reader(filename=str(path)).read()
+            codes = np.array([np.frombuffer(row, np.uint16) for row in rows], np.uint16)
+        except (png.Error, OSError, ValueError, EOFError) as error:
+            raise ValueError(f"{path}: damaged or truncated PNG file: {error}") from None
+        if codes.shape[:2] != (height, width * info["planes"]):
+            raise ValueError(f"{path}: damaged or truncated PNG file: {len(codes)} of its {height} rows decode")
+        codes = codes.reshape(height, width, info["planes"])
+    if codes.ndim == 2:
+        codes = codes[..., None]
+    if key is not None:
+        keyed = (codes == np.asarray(key, codes.dtype)).all(axis=-1)
+        if keyed.any():
+            raise ValueError(
+                f"{path}: {int(keyed.sum())} of its {keyed.size} pixels are transparent (its tRNS colour key "
+                f"{tuple(key)}): what lies behind them is not in the photo; {OPAQUE}"
+            )
+        notes.append(f"tRNS colour key {tuple(key)} matches no pixel: ignored")
+    return codes, bitdepth, icc, exif, notes, "PNG", gamma, orientation
+
+
+def _to_rgb(path: Path, codes: np.ndarray, top: float, alpha: bool, notes: list) -> np.ndarray:
+    """(H, W, 3) from (H, W, C): an alpha channel (the last, where `alpha`) that is fully opaque dropped with a
+    note, any other an error; greyscale replicated to R = G = B with a note and a PhotoWarning."""
+    if alpha:
+        opacity, codes = codes[..., -1], codes[..., :-1]
+        seen_through = opacity < top
+        if seen_through.any():
+            raise ValueError(
+                f"{path}: {int(seen_through.sum())} of its {seen_through.size} pixels are transparent or "
+                f"translucent (alpha below {top:g}): what lies behind them is not in the photo; {OPAQUE}"
+            )
+        notes.append("alpha channel fully opaque: dropped")
+    if codes.shape[-1] == 1:
+        notes.append("greyscale: replicated to R = G = B; it holds no colour")
+        warnings.warn(
+            f"{path}: a greyscale photo, read as R = G = B: it holds no colour, so the hair's colour cannot be "
+            "fitted from it; use a colour photo to fit colour",
+            PhotoWarning,
+            stacklevel=3,
+        )
+        codes = np.repeat(codes, 3, axis=-1)
+    if codes.shape[-1] != 3:
+        raise ValueError(f"{path}: {codes.shape[-1]} channels; {ACCEPTED}")
+    return codes
+
+
+def _oriented(a: np.ndarray, orientation: int) -> np.ndarray:
+    """`a` (H, W, ...) as a viewer shows it under EXIF Orientation 1-8 (Pillow's ImageOps.exif_transpose)."""
+    if orientation in (5, 6, 7, 8):
+        a = np.swapaxes(a, 0, 1)  # transposed: 5 as is; 6, 7 and 8 then flipped
+        orientation = {5: 1, 6: 2, 7: 3, 8: 4}[orientation]
+    if orientation in (2, 3):
+        a = a[:, ::-1]
+    if orientation in (3, 4):
+        a = a[::-1]
+    return np.ascontiguousarray(a)
 
 
 def _read_tiff(path: Path):
@@ -261,26 +404,35 @@ def _read_tiff(path: Path):
     try:
         with tifffile.TiffFile(path) as tif:
             page = tif.pages[0]
+            _too_large(path, int(page.imagewidth), int(page.imagelength))
             data = page.asarray()
             tags = page.tags
             icc = tags["InterColorProfile"].value if "InterColorProfile" in tags else None
             photometric = int(page.photometric)
+            extra = tuple(page.extrasamples or ())
             exif_tag = tags.get("ExifTag")
             raw_exif = exif_tag.value if exif_tag is not None else {}
-    except Exception as error:  # tifffile raises TiffFileError, ValueError, struct.error, ... for damaged files
+    except ValueError as error:
+        if str(error).startswith(str(path)):
+            raise
         raise ValueError(f"{path}: damaged, truncated or unsupported TIFF file: {error}") from None
+    except Exception as error:  # tifffile raises TiffFileError, struct.error, ... for damaged files
+        raise ValueError(f"{path}: damaged, truncated or unsupported TIFF file: {error}") from None
+    if data.dtype == bool:
+        raise ValueError(f"{path}: a 1-bit TIFF (black and white), not a photograph's tones; {ACCEPTED}")
     if photometric == 5:  # SEPARATED
         raise ValueError(f"{path}: a CMYK image (print separations, not a camera's light): save it as RGB")
     if photometric == 3:  # PALETTE
         raise ValueError(f"{path}: a palette image (its colours quantised to a table): save the photo as RGB")
-    if data.ndim == 3 and data.shape[0] in (3, 4) and data.shape[-1] not in (3, 4):
+    if photometric not in (1, 2):  # MINISBLACK, RGB
+        name = tifffile.PHOTOMETRIC(photometric).name if photometric in set(tifffile.PHOTOMETRIC) else photometric
+        raise ValueError(f"{path}: a TIFF of photometric interpretation {name}; {ACCEPTED}")
+    if data.ndim == 3 and data.shape[0] in (2, 3, 4) and data.shape[-1] not in (2, 3, 4):
         data = np.moveaxis(data, 0, -1)  # planar configuration
     if data.ndim == 2:
-        notes.append(f"{data.dtype.itemsize * 8}-bit greyscale: replicated to R = G = B")
-        data = np.repeat(data[..., None], 3, -1)
-    if data.ndim != 3 or data.shape[-1] not in (3, 4):
-        raise ValueError(f"{path}: pixels of shape {data.shape}; a photo is (height, width, RGB)")
-    data = data[..., :3]
+        data = data[..., None]
+    if data.ndim != 3 or data.shape[-1] > 4:
+        raise ValueError(f"{path}: pixels of shape {data.shape}; {ACCEPTED}")
     if data.dtype == np.uint8:
         bits = 8
     elif data.dtype == np.uint16:
@@ -289,7 +441,17 @@ def _read_tiff(path: Path):
         bits, data = 32, data.astype(np.float32)
         notes.append("floating-point TIFF: linear values, not clipped")
     else:
-        raise ValueError(f"{path}: {data.dtype} pixels are not read; save it as 8- or 16-bit or float RGB")
+        raise ValueError(f"{path}: {data.dtype} pixels are not read; {ACCEPTED}")
+    colour = 3 if photometric == 2 else 1
+    if data.shape[-1] > colour:
+        # The first extra sample: alpha where ExtraSamples says so (1 associated, 2 unassociated), else unknown.
+        alpha = bool(extra) and extra[0] in (1, 2)
+        if not alpha:
+            notes.append(f"{data.shape[-1] - colour} extra channel(s) of no stated meaning: dropped")
+        data = data[..., : colour + alpha]
+    else:
+        alpha = False
+    data = _to_rgb(path, data, 1.0 if bits == 32 else float(2**bits - 1), alpha, notes)
     return data, bits, icc, _exif_values(raw_exif), notes, "TIFF"
 
 

@@ -1,11 +1,15 @@
 """The fuzz's cases and their checks, shared by tests/test_fuzz.py (a few hundred, in-process) and
 benchmarks/fuzz.py (thousands, each in a forked child with limits): seeded mutations of the shipped scenes, fiber
-files, hair controls and target directories (`cases(seed, n)`), one case run and judged (`run_case`), and the
-isolation of a case in a child (`start_isolated`, `finish_isolated`, `run_all`).
+files, hair controls, target directories and photos (`cases(seed, n)`), one case run and judged (`run_case`), and
+the isolation of a case in a child (`start_isolated`, `finish_isolated`, `run_all`).
 
 Each outcome must be a project error (ValueError or OSError) whose message names the input (the file, or the
 table and key), or, for inputs that load, a finite render (BSDF values for hair controls) that is not black where
-the mutation cannot darken the image (hair controls, render settings).
+the mutation cannot darken the image (hair controls, render settings). A photo (the shipped photo-like targets'
+pixels saved in odd ways: greyscale, alpha, 1-bit, palette, 16-bit, CMYK, progressive, restart markers; then
+truncated, a byte changed, or a huge size in its header) must be an error naming it, or decode to the pixels its
+unchanged file gives; only a JPEG, which has no checksum, may decode damaged (DAMAGED_JPEG, counted apart: the
+"JPEG data" area changes one byte of its entropy-coded data, to measure how much of that libjpeg sees).
 """
 
 from __future__ import annotations
@@ -34,9 +38,16 @@ SCENES = [
     ROOT / "benchmarks" / "standard_swatch.toml",
 ]
 TARGETS = sorted(p.parent for p in ROOT.glob("targets/*/target.toml"))
-AREAS = ("scene", "scene text", "text fibers", ".hair fibers", "hair controls", "target")
+# The photo-like targets' photos (64x64 RGB, as a camera saves them), the sources of the photo areas' files.
+PHOTOS = sorted(ROOT.glob("targets/photo_*/*.png")) + sorted(ROOT.glob("targets/photo_*/*.jpg"))
+FILE_AREAS = ("scene", "scene text", "text fibers", ".hair fibers", "hair controls", "target")
+PHOTO_AREAS = ("photo", "JPEG data")
+AREAS = FILE_AREAS + PHOTO_AREAS
 # Outcomes that pass; every other one is a failure.
 BLACK_ABSORBING = "image (black: the hair absorbs everything)"
+# JPEG has no checksum: a changed byte after which its entropy-coded data falls back in step decodes to wrong
+# blocks in any decoder. A PNG has a CRC on every chunk: a damaged one that decodes is a failure.
+DAMAGED_JPEG = "damaged JPEG decoded (no checksum to see it)"
 PASSING = (
     "error naming the input",
     "image",
@@ -44,6 +55,9 @@ PASSING = (
     BLACK_ABSORBING,
     "finite BSDF",
     "loaded",
+    "photo",
+    "photo (the change did not reach the pixels)",
+    DAMAGED_JPEG,
 )
 # Renders of valid mutants are kept tiny: the fuzz is after failures, not pictures.
 RENDER_PIXELS, RENDER_SPP, RENDER_DEPTH = 16, 2, 6
@@ -333,6 +347,121 @@ def _plain(value):
     return not isinstance(value, dict) and text != "null"
 
 
+# The photos' variants: (name, suffix); each made from a shipped photo's pixels (`_variant`).
+VARIANTS = (
+    ("as shipped", None),
+    ("greyscale", ".png"),
+    ("grey and alpha", ".png"),
+    ("RGBA, opaque", ".png"),
+    ("RGBA, one pixel translucent", ".png"),
+    ("1-bit", ".png"),
+    ("palette", ".png"),
+    ("16-bit RGB", ".png"),
+    ("16-bit grey", ".png"),
+    ("16-bit RGBA, opaque", ".png"),
+    ("CMYK", ".jpg"),
+    ("greyscale", ".jpg"),
+    ("progressive", ".jpg"),
+    ("restart markers", ".jpg"),
+)
+JPEG_VARIANTS = [v for v in VARIANTS if v[1] in (None, ".jpg") and v[0] != "CMYK"]
+
+
+def _variant(source: Path, name: str, suffix) -> tuple[bytes, str]:
+    """(file bytes, suffix): `source`'s pixels saved as the variant says."""
+    import io
+
+    import png
+    from PIL import Image
+
+    if suffix is None:
+        return source.read_bytes(), source.suffix
+    with Image.open(source) as im:
+        rgb = np.asarray(im.convert("RGB"))
+    buffer = io.BytesIO()
+    h, w = rgb.shape[:2]
+    if name.startswith("16-bit"):
+        wide = rgb.astype(np.uint16) * 256 + np.arange(w, dtype=np.uint16)[None, :, None]  # low bytes too
+        grey = name == "16-bit grey"
+        rows = wide[..., :1] if grey else wide
+        if "RGBA" in name:
+            rows = np.dstack([wide, np.full((h, w), 65535, np.uint16)])
+        png.Writer(w, h, bitdepth=16, greyscale=grey, alpha="RGBA" in name).write(buffer, rows.reshape(h, -1))
+        return buffer.getvalue(), suffix
+    image = Image.fromarray(rgb)
+    if suffix == ".jpg":
+        options = {"progressive": name == "progressive", "restart_marker_blocks": 4 if "restart" in name else 0}
+        mode = {"CMYK": "CMYK", "greyscale": "L"}.get(name, "RGB")
+        image.convert(mode).save(buffer, "JPEG", quality=90, **options)
+        return buffer.getvalue(), suffix
+    if name.startswith("RGBA") or name == "grey and alpha":
+        alpha = np.full((h, w), 255, np.uint8)
+        alpha[h // 2, w // 2] = 128 if "translucent" in name else 255
+        base = image.convert("L") if name.startswith("grey") else image
+        image = Image.merge(base.mode + "A", [*base.split(), Image.fromarray(alpha)])
+    else:
+        image = image.convert({"greyscale": "L", "1-bit": "1", "palette": "P"}[name])
+    image.save(buffer, "PNG")
+    return buffer.getvalue(), suffix
+
+
+def _scan_data(raw: bytes) -> tuple[int, int]:
+    """Where a JPEG's entropy-coded data lies: after the first start-of-scan header, up to the end of image."""
+    start = raw.index(b"\xff\xda")
+    return start + 2 + int.from_bytes(raw[start + 2 : start + 4], "big"), raw.rindex(b"\xff\xd9")
+
+
+def _flip(raw: bytes, rng, start=0, end=None) -> tuple[bytes, str]:
+    raw = bytearray(raw)
+    k = rng.randrange(start, len(raw) if end is None else end)
+    value = rng.choice([v for v in range(256) if v != raw[k]])
+    what = f"byte {k} {raw[k]:#04x} -> {value:#04x}"
+    raw[k] = value
+    return bytes(raw), what
+
+
+def _huge(raw: bytes, suffix: str) -> bytes:
+    """The header says 100000x100000 (PNG, its CRC made right) or 65500x65500 (JPEG's first frame header)."""
+    import zlib
+
+    raw = bytearray(raw)
+    if suffix == ".png":
+        struct.pack_into(">II", raw, 16, 100000, 100000)
+        struct.pack_into(">I", raw, 29, zlib.crc32(bytes(raw[12:29])))
+    else:
+        frame = next(raw.index(m) for m in (b"\xff\xc0", b"\xff\xc2", b"\xff\xc1") if m in raw)
+        struct.pack_into(">HH", raw, frame + 5, 65500, 65500)
+    return bytes(raw)
+
+
+def _photo_case(index, rng):
+    source = rng.choice(PHOTOS)
+    name, suffix = rng.choice([v for v in VARIANTS if v[1] in (None, source.suffix)])
+    original, suffix = _variant(source, name, suffix)
+    choice = rng.random()
+    if choice < 0.25:
+        raw, what = original, "as it is"
+    elif choice < 0.5:
+        cut = rng.randrange(len(original))
+        raw, what = original[:cut], f"truncated to {cut} bytes"
+    elif choice < 0.85:
+        raw, what = _flip(original, rng)
+    else:
+        raw, what = _huge(original, suffix), "header declares a huge image"
+    data = {"bytes": raw.hex(), "original": original.hex(), "suffix": suffix}
+    return Case("photo", index, source.relative_to(ROOT).as_posix(), f"{name} {suffix}: {what}", data)
+
+
+def _jpeg_data_case(index, rng):
+    """One byte of a JPEG's entropy-coded data changed: what libjpeg reports is an error, the rest is DAMAGED_JPEG."""
+    source = rng.choice([p for p in PHOTOS if p.suffix == ".jpg"])
+    name, suffix = rng.choice(JPEG_VARIANTS)
+    original, suffix = _variant(source, name, suffix or ".jpg")
+    raw, what = _flip(original, rng, *_scan_data(original))
+    data = {"bytes": raw.hex(), "original": original.hex(), "suffix": suffix}
+    return Case("JPEG data", index, source.relative_to(ROOT).as_posix(), f"{name}: {what}", data)
+
+
 MAKERS = {
     "scene": _scene_case,
     "scene text": _scene_text_case,
@@ -340,16 +469,35 @@ MAKERS = {
     ".hair fibers": _hair_fiber_case,
     "hair controls": _hair_controls_case,
     "target": _target_case,
+    "photo": _photo_case,
+    "JPEG data": _jpeg_data_case,
 }
 # Relative frequency of each area.
-WEIGHTS = {"scene": 4, "scene text": 1, "text fibers": 2, ".hair fibers": 2, "hair controls": 3, "target": 1}
+WEIGHTS = {
+    "scene": 4,
+    "scene text": 1,
+    "text fibers": 2,
+    ".hair fibers": 2,
+    "hair controls": 3,
+    "target": 1,
+    "photo": 2,
+    "JPEG data": 1,
+}
 
 
-def cases(seed: int, n: int) -> list[Case]:
-    """n seeded cases, areas mixed in proportion to WEIGHTS."""
-    rng = random.Random(seed)
-    areas = [a for a in AREAS for _ in range(WEIGHTS[a])]
-    return [MAKERS[rng.choice(areas)](k, rng) for k in range(n)]
+def cases(seed: int, n: int, areas=AREAS, first: int = 0) -> list[Case]:
+    """n seeded cases of `areas`, mixed in proportion to WEIGHTS, numbered from `first`. The photo areas draw from
+    a stream of their own, so that adding them left the other areas' cases as they were."""
+    groups = [[a for a in group if a in areas] for group in (FILE_AREAS, PHOTO_AREAS)]
+    weights = [sum(WEIGHTS[a] for a in group) for group in groups]
+    counts = [round(n * w / sum(weights)) for w in weights[:-1]]
+    counts.append(n - sum(counts))
+    made = []
+    for stream, (group, count) in enumerate(zip(groups, counts)):
+        rng = random.Random(seed if stream == 0 else f"{seed}/photos")
+        pool = [a for a in group for _ in range(WEIGHTS[a])]
+        made += [MAKERS[rng.choice(pool)](first + len(made) + k, rng) for k in range(count)]
+    return made
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -525,6 +673,38 @@ def _run_target(case, workdir):
         shutil.rmtree(directory, ignore_errors=True)
 
 
+def _run_photo(case, workdir):
+    """read_photo on the file: an error naming it, or a photo; a changed file that decodes to other pixels than
+    its original is a failure unless it is a JPEG (DAMAGED_JPEG)."""
+    from warp_hair.photo import read_photo
+
+    path = workdir / f"mutant-{case.index}{case.data['suffix']}"
+    original = workdir / f"original-{case.index}{case.data['suffix']}"
+    path.write_bytes(bytes.fromhex(case.data["bytes"]))
+    original.write_bytes(bytes.fromhex(case.data["original"]))
+    try:
+        try:
+            photo = read_photo(path)
+        except (ValueError, OSError) as error:
+            return _named(error, str(path))
+        if not np.isfinite(photo.image).all() or photo.image.min() < 0:
+            return ("photo with values out of range", f"{photo.image.min()} to {photo.image.max()}")
+        if case.data["bytes"] == case.data["original"]:
+            return ("photo", f"{photo.format} {photo.bits}-bit {photo.notes}")
+        try:
+            reference = read_photo(original).image
+        except (ValueError, OSError):
+            reference = None
+        if reference is not None and np.array_equal(reference, photo.image):
+            return ("photo (the change did not reach the pixels)", "")
+        if case.data["suffix"] == ".jpg":
+            return (DAMAGED_JPEG, "")
+        return ("damaged photo decoded", f"{photo.format} {photo.bits}-bit")
+    finally:
+        path.unlink()
+        original.unlink()
+
+
 RUNNERS = {
     "scene": _run_scene,
     "scene text": _run_scene_text,
@@ -532,6 +712,8 @@ RUNNERS = {
     ".hair fibers": _run_fibers,
     "hair controls": _run_hair_controls,
     "target": _run_target,
+    "photo": _run_photo,
+    "JPEG data": _run_photo,
 }
 
 
