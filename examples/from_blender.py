@@ -192,7 +192,12 @@ def main(argv=None):
         environment(scene.world, out),
         '[fibers]\nfile = "groom.usdc"',
         hair_table(hair),
-        f'[render]\nmax_depth = {args.max_depth}\ninterpenetration = "exit"',
+        "\n".join(
+            ["[render]"]
+            # The target's samples: its noise, which the fit's σ, step count and measure of fit are taken from.
+            + ([f"spp = {args.render}"] if args.render else [])
+            + [f"max_depth = {args.max_depth}", 'interpenetration = "exit"']
+        ),
     ]
     (out / "scene.toml").write_text(
         f"# From {bpy.data.filepath} by examples/from_blender.py.\n" + "\n\n".join(tables) + "\n", encoding="utf-8"
