@@ -117,8 +117,8 @@ def format_table(result: FitResult, truth: dict, renderer: str | None = None) ->
 
 def plot_convergence(path: Path, result: FitResult, truth: dict) -> None:
     """The loss and every fitted control against the iteration; true values dashed. Gauss–Newton steps follow
-    the Adam iterations as dots, the misfit (the loss without our render noise) on the loss panel; a step
-    undone because the misfit rose beyond its noise is a cross. A failed fit says so in the title."""
+    the Adam iterations as dots; a step undone because its misfit rose beyond its noise (refine.py) is a cross.
+    A failed fit says so in the title."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -133,9 +133,9 @@ def plot_convergence(path: Path, result: FitResult, truth: dict) -> None:
     steps = result.iterations + 1 + np.arange(len(refine))
     kept = [r.accepted for r in refine]
     for x, r in zip(steps, refine):
-        # A misfit at or below zero (noise about a perfect fit) has no place on a log axis: drawn at the loss.
-        y = r.misfit if r.misfit > 0 else r.loss
-        ax.plot(x, y, "o" if r.accepted else "x", ms=3 if r.accepted else 5, color="0.3" if r.accepted else "tab:red")
+        ax.plot(
+            x, r.loss, "o" if r.accepted else "x", ms=3 if r.accepted else 5, color="0.3" if r.accepted else "tab:red"
+        )
     if refine:
         ax.plot([], [], "o", ms=3, color="0.3", label="step kept")
         ax.plot([], [], "x", ms=5, color="tab:red", label="step undone")

@@ -182,3 +182,46 @@ def test_verdict_names_each_failure_and_passes_a_good_fit():
     refinement = types.SimpleNamespace(start_misfit=(0.041, 0.001), end_misfit=(0.089, 0.001))
     [reason] = failures(good, falling, refinement, None, None)
     assert "ended worse than it started" in reason
+
+
+def _swapped_target(tmp_path):
+    """black_straight with its back-lit image in place of the front-lit one: no look renders both views so."""
+    import shutil
+
+    from optimize.target import SHIPPED_TARGETS
+
+    folder = tmp_path / "swapped"
+    shutil.copytree(SHIPPED_TARGETS / "black_straight", folder)
+    shutil.copy(folder / "back.exr", folder / "front.exr")
+    return folder
+
+
+def test_a_fit_the_images_contradict_exits_failed_and_says_why(tmp_path):
+    """The command a user runs: exit status 3, the reason and what to try on stderr, params.json marked failed."""
+    import json
+    import subprocess
+    import sys
+
+    out = tmp_path / "out"
+    command = [sys.executable, "-m", "optimize.cli", "fit", str(_swapped_target(tmp_path)), "-o", str(out)]
+    done = subprocess.run(
+        [*command, "--iters", "8", "--spp", "4", "--refine", "2", "--threads", "2"], capture_output=True, text=True
+    )
+    assert done.returncode == 3, done.stderr
+    assert "does not describe the images" in done.stderr and "FAILED" in done.stderr
+    assert "goodness of fit: chi2/dof" in done.stdout
+    params = json.loads((out / "params.json").read_text())
+    assert params["failed"] and params["failures"] and params["goodness_of_fit"]["chi2_per_dof"] > 4
+
+
+def test_a_failed_fit_in_a_batch_is_a_failed_job_with_its_files(tmp_path):
+    """`warp-hair batch` records a failed fit as failed, with its reason, and keeps its params.json and pictures
+    to look at (optimize/batch/jobs.py)."""
+    from optimize.batch.jobs import _fit
+    from optimize.settings import FitSettings
+    from optimize.target import load_target
+
+    target = load_target(_swapped_target(tmp_path))
+    outcome = _fit(types.SimpleNamespace(spec={"export": []}), target, FitSettings(iters=8, spp=4, refine=2), 2)
+    assert outcome["error"].startswith("the fit failed: the fitted look does not describe the images")
+    assert {"params.json", "convergence.png", "comparison.png"} <= set(outcome["files"])

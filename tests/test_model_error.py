@@ -273,6 +273,9 @@ def test_params_json_holds_the_parts(tmp_path):
         seconds=1.0,
         warnings=[],
         correlations={},
+        goodness=None,
+        failed=False,
+        failures=[],
     )
     look = types.SimpleNamespace(to_dict=dict)
     write_params(tmp_path / "params.json", fit_result, {}, look)

@@ -79,7 +79,7 @@ def execute(job, payload, threads: int, version: str) -> dict:
     torch.set_num_threads(threads)
     try:
         if job.kind == "fit":
-            return {"files": _fit(job, *payload, threads)}
+            return _fit(job, *payload, threads)
         if job.kind == "render":
             return {"files": _render_part(job, payload, threads)}
         return {"files": _calibrate(job, payload, threads)}
@@ -90,6 +90,8 @@ def execute(job, payload, threads: int, version: str) -> dict:
 
 
 def _fit(job, target, settings, threads: int) -> dict:
+    """{"files": what `warp-hair fit` writes, the exports and the thumbnails}, and for a fit that failed
+    (verdict.py) its reasons as the job's error: its files stay to be looked at, its numbers are no result."""
     from warp_hair.export import default_filename, export
 
     from ..fit import fit
@@ -107,7 +109,10 @@ def _fit(job, target, settings, threads: int) -> dict:
             export(params, to=renderer, path=folder / default_filename(renderer))
         for image, fitted in zip(target.images, result.images):
             _thumbnails(folder, image, fitted)
-        return {p.name: p.read_bytes() for p in sorted(folder.iterdir())}
+        files = {p.name: p.read_bytes() for p in sorted(folder.iterdir())}
+    if result.failed:
+        return {"files": files, "error": "the fit failed: " + "; ".join(result.failures)}
+    return {"files": files}
 
 
 def _thumbnails(folder: Path, image, fitted) -> None:

@@ -62,6 +62,8 @@ def write_report(manifest) -> Path:
         )
         if row["status"] == "failed":
             parts.append(f'<p class="failed">{_e(row["error"])}</p>')
+            if (folder / "convergence.png").exists():  # a failed fit leaves its course to look at
+                parts.append(f'<img class="plot" src="{_data(folder / "convergence.png")}" alt="convergence">')
         elif row["status"] == "done":
             parts.append(
                 {"fit": _fit, "render": _render, "calibrate": _calibrate}[row["kind"]](
@@ -94,7 +96,9 @@ def _overview(table) -> str:
 def _fit(row, folder: Path, job) -> str:
     out = [
         f"<p>target {_e(row['target'])}: {row['iterations']} iterations ({_e(row['stop_reason'])}), "
-        f"loss {row['loss']:.4g}, {row['seconds']:.1f} s</p>"
+        f"loss {row['loss']:.4g}, {row['seconds']:.1f} s"
+        + ("" if row.get("chi2_per_dof") is None else f"; measure of fit χ²/dof {row['chi2_per_dof']:.2f}")
+        + "</p>"
     ]
     for name in _image_names(folder):
         figures = "".join(

@@ -185,7 +185,7 @@ def _collect(manifest, job, ref, submitted: float, outcome) -> None:
     record = {key: result[key] for key in ("seconds", "threads", "pid", "node")}
     record["queued"] = round(result["started"] - submitted, 3)
     if "error" in result:
-        _failed(manifest, job, result["error"], outcome, **record)
+        _failed(manifest, job, result["error"], outcome, files=result.get("files"), **record)
         return
     store.write_done(manifest.output, job.name, job.key, result["files"], kind=job.kind, group=job.group, **record)
     outcome.done.append(job.name)

@@ -47,9 +47,12 @@ def write_done(out: Path, name: str, key: str, files: dict, **record) -> Path:
     return folder
 
 
-def write_failed(out: Path, name: str, key: str, error: str, **record) -> None:
+def write_failed(out: Path, name: str, key: str, error: str, files: dict | None = None, **record) -> None:
+    """A failed job's status, with what it left to look at (a failed fit's params.json and pictures)."""
     folder = job_dir(out, name)
     folder.mkdir(parents=True, exist_ok=True)
+    for filename, data in (files or {}).items():
+        _replace(folder / filename, data)
     _replace(folder / STATUS, _json({"status": "failed", "key": key, "error": error, **record}))
 
 

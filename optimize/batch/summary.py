@@ -64,6 +64,8 @@ def _details(job, folder: Path) -> dict:
             "iterations": params["iterations"],
             "stop_reason": params["stop_reason"],
             "loss": params["loss"],
+            # The measure of fit (optimize/goodness.py): 1 where the fitted look describes the images to their noise.
+            "chi2_per_dof": (params.get("goodness_of_fit") or {}).get("chi2_per_dof"),
             "warnings": params.get("warnings", []),
         }
     if job.kind == "render":
