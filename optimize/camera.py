@@ -141,7 +141,7 @@ def columns(target, m: np.ndarray, image_residuals) -> np.ndarray:
     """(N, q): ∂r/∂(log gain, log w_R, log w_B) = the weighted render m = ω G I (N,) in the residuals each scales:
     a gain its image's (or every image's), w_c its channel's. linearize.py passes the weighted target (which m
     equals at the gains' optimum up to the residual), or in a refinement's later steps the mean of earlier
-    renders (`linearize.gain_projection` says why)."""
+    renders (`nuisance.Nuisance.projection` says why)."""
     n_res = len(m)
     starts = np.cumsum((0, *tuple(image_residuals)))
     cols = []

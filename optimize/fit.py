@@ -49,11 +49,11 @@ from warp_hair.renderer.prepare import prepare
 from warp_hair.renderer.render import render
 from warp_hair.torch import render_torch_pair, scene_with_controls
 
-from . import camera
 from .goodness import Goodness, goodness_of_fit, quantisation_variances
 from .latents import SPECS, as_values, hair_and_gain, parse_control_names
 from .linearize import Linearization, linearize
 from .losses import LOSSES, image_loss, loss_scale
+from .nuisance import Nuisance
 from .realisations import Realisations, RealisationTerm, check_mode, realisation_term
 from .refine import REFINABLE_LOSSES, GaussNewton, GaussNewtonStep, Refinement
 from .settings import (
@@ -193,11 +193,7 @@ def check_settings(target: Target, settings: FitSettings) -> tuple:
     check_model_error(settings.model_error)
     if settings.realisations is not None:
         check_mode(settings.realisations)
-    if camera.fitted(target) and "exposure" in names:
-        raise ValueError(
-            f"{target.name}: its gains are fitted already (gains = {target.gains!r}, camera.py); "
-            "exposure would be a second gain on every image: leave it out of the controls"
-        )
+    Nuisance(target).check(names)
     unknown = sorted(set(settings.init) - set(names))
     if unknown:
         raise ValueError(
@@ -339,6 +335,7 @@ class FitRun:
         self.masks = [None if im.mask is None else torch.from_numpy(im.mask).to(on_device) for im in target.images]
         self.scales = [loss_scale(t, settings.loss, m, settings.pool) for t, m in zip(self.targets, self.masks)]
         self.batches = [Batches(image, settings.pool, settings.batch) for image in target.images]
+        self.nuisance = Nuisance(target)  # what the fit solves beside the look
         self.begun = time.perf_counter()
         # The fibers, BVH, camera and lights of each image, built once: only the hair changes between renders.
         self.scenes = [prepare(image.scene, self.device) for image in target.images]
@@ -375,12 +372,12 @@ class FitRun:
                     pixels=pixels,
                 )
             )
-        gains = [gain] * len(pairs)
-        if camera.fitted(self.target):  # a photo's exposures and white balance, solved for these renders
-            solved = camera.gains_for(
-                self.target, pairs, self.targets, used, self.settings.loss, self.settings.pool, self.scales
-            ).per_channel
-            gains = [torch.from_numpy(g).to(self.targets[k].device) for k, g in enumerate(solved)]
+        # The gains every render is multiplied by (nuisance.py): a photo's solved for these renders, held in the
+        # gradient (variable projection); else the exposure control's, whose gradient flows.
+        gains, _ = self.nuisance.gains(
+            gain, pairs, self.targets, used, self.settings.loss, self.settings.pool, self.scales
+        )
+        gains = [torch.as_tensor(g, device=self.targets[k].device) for k, g in enumerate(gains)]
         total = 0.0
         for k, pair in enumerate(pairs):
             for rendered in pair:
@@ -681,22 +678,14 @@ class FitRun:
         )
 
     def camera_report(self, evaluation: Evaluation, refinement: Refinement | None) -> dict | None:
-        """A photo target's gains and white balance with their σ (camera.report), None for other targets."""
+        """A photo target's gains and white balance with their σ (nuisance.py), None for other targets."""
         lin = evaluation.linearization
-        if lin.camera is None:
-            return None
         mc = None if refinement is None else refinement.mc_covariance
         hair_covariance = lin.statistical_covariance + (0 if mc is None else mc)
         # With a grey card the gains take part of a brightness disagreement and follow the hair's share of it.
-        shift = None if lin.camera.direct is None else brightness_sensitivity(lin)
-        return camera.report(
-            lin.camera,
-            self.target,
-            hair_covariance,
-            lin.scatter,
-            target_model_error(self.target, self.settings.model_error),
-            shift,
-        )
+        shift = None if lin.camera is None or lin.camera.direct is None else brightness_sensitivity(lin)
+        model_error = target_model_error(self.target, self.settings.model_error)
+        return self.nuisance.report(lin.camera, hair_covariance, lin.scatter, model_error, shift)
 
 
 def _render_fitted(scenes, values: dict, spp: int, seed: int, threads, gains=None) -> list:

@@ -32,9 +32,10 @@ from warp_hair.renderer.gradients import render_jacobian
 from warp_hair.renderer.prepare import prepare
 from warp_hair.torch import default_grad_seed, scene_with_controls
 
-from . import camera, card_region
+from . import card_region
 from .latents import EXPOSURE, hair_and_gain
 from .losses import REL_EPSILON, block_mean, loss_scale
+from .nuisance import Nuisance
 
 CHANNELS = 3  # consecutive residuals of one pixel (or pooled block): R, G, B
 
@@ -202,7 +203,7 @@ def linearize(
     passes. An image's entry may be a pair of scenes, one per pass: two realisations of its fibers' recipe
     (optimize/realisations.py). `gain_columns`: a photo's weighted model (`Linearization.model`) of an earlier,
     independent linearisation near `values`, whose render gives the gains' columns instead of the target
-    (`gain_projection` says when and why)."""
+    (`nuisance.Nuisance.projection` says when and why)."""
     hair, gain = hair_and_gain(values)
     scenes = [prepare(image.scene) for image in target.images] if scenes is None else scenes
     renders = []  # per image, its two passes' (Jacobian, image, standard error)
@@ -214,15 +215,14 @@ def linearize(
                 for scene, pass_seed in zip(pair, (seed + k, default_grad_seed(seed + k)))
             ]
         )
-    gains = np.full((len(target.images), 3), float(gain))
-    solved = None
-    if camera.fitted(target):  # a photo's exposures and white balance, for these renders (camera.py)
-        pairs = [(p[0][1], p[1][1]) for p in renders]
-        masks = [None if image.mask is None else torch.from_numpy(image.mask) for image in target.images]
-        references = [torch.from_numpy(image.image) for image in target.images]
-        scales = [loss_scale(t, settings.loss, m, settings.pool) for t, m in zip(references, masks)]
-        solved = camera.gains_for(target, pairs, references, masks, settings.loss, settings.pool, scales)
-        gains = solved.per_channel
+    # The gains every render is multiplied by (nuisance.py): a photo's solved for these renders, else exposure's.
+    pairs = [(p[0][1], p[1][1]) for p in renders]
+    masks = [None if image.mask is None else torch.from_numpy(image.mask) for image in target.images]
+    references = [torch.from_numpy(image.image) for image in target.images]
+    scales = [loss_scale(t, settings.loss, m, settings.pool) for t, m in zip(references, masks)]
+    nuisance = Nuisance(target)
+    per_image, solved = nuisance.gains(float(gain), pairs, references, masks, settings.loss, settings.pool, scales)
+    gains = np.stack([np.broadcast_to(np.asarray(g, dtype=np.float64), (3,)) for g in per_image])
     rs, vs, js = [[], []], [[], []], [[], []]
     images, weights, ts, on_card, counts = [], [], [], [], []
     for k, image in enumerate(target.images):
@@ -264,10 +264,10 @@ def linearize(
     on_card = np.concatenate(on_card)
     card_rows = on_card if on_card.any() else None
     image_residuals = tuple(counts)
-    projection, model = None, None
-    if solved is not None:
+    projection = nuisance.projection(solved, targets, weights, jacobians, image_residuals, gain_columns)
+    model = None
+    if projection is not None:
         model = residuals.mean(axis=0) + targets
-        projection = gain_projection(target, solved, targets, weights, jacobians, image_residuals, gain_columns)
         if card_rows is not None:
             # A brightness disagreement of our render scales the hair's rows, not the card's, whose radiance is
             # known (uncertainty.brightness_sensitivity takes `targets` as what it scales).
@@ -288,27 +288,6 @@ def linearize(
         camera=projection,
         card_rows=card_rows,
         model=model,
-    )
-
-
-def gain_projection(target, solved, targets, weights, jacobians, image_residuals, gain_columns) -> camera.Projection:
-    """The loss minimised over a photo's gains (camera.py): the projection that leaves of each part what no
-    change of the gains makes. The gains' columns are ∂r/∂log g = ω G I, which at the gains' optimum is the
-    weighted target t up to the residual.
-
-    Taken from t, the projected residual P⊥(m − t) = P⊥m is linear in our render, a model that steps well from
-    afar, and the projection is free of our render noise. But the target's own noise ε is then in both the
-    columns and the residual: Cᵀ W r holds −εᵀ W ε, whose mean is not zero, and the gradient at the truth leans
-    along Aᵀ W t by the target's noise energy over its energy, towards a darker hair behind brighter gains
-    (docs/acceptance.md, "Photographs": red albedo 0.09 low one step from the truth on chestnut_straight with
-    free gains). Taken from a render independent of the target and of both passes (`gain_columns`: the mean of
-    earlier linearisations' renders, near these controls) the lean is gone. Its linear model keeps P⊥t, which
-    turns with the hair, so refine.py uses it only for its later steps, near the optimum, and holds one set of
-    columns for all of them: along the albedo–gain valley the projected curvature is so small that each step's
-    own columns, noisy, would change it from step to step (measured: the steps then scattered twice as far)."""
-    m = targets if gain_columns is None else gain_columns
-    return camera.Projection(
-        solved, camera.columns(target, m, image_residuals), weights, jacobians.mean(axis=0), camera.labels(target)
     )
 
 

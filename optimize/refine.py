@@ -172,7 +172,7 @@ class GaussNewton:
     def _gain_columns(self, k: int):
         """For a photo's gains, from the later half of the planned steps on (the points averaged into the
         estimate), the mean render of the linearisations so far (the last JACOBIAN_WINDOW − 1), held from then
-        on, instead of the target (linearize.gain_projection): near the optimum it removes the lean that the
+        on, instead of the target (nuisance.Nuisance.projection): near the optimum it removes the lean that the
         target's noise gives the steps, where from afar the target's columns step more surely."""
         if k < self.planned // 2:
             return None

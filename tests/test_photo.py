@@ -17,7 +17,8 @@ from PIL import Image, ImageCms
 import targets
 from optimize import camera
 from optimize.fit import FitSettings
-from optimize.linearize import Linearization, gain_projection, linearize
+from optimize.linearize import Linearization, linearize
+from optimize.nuisance import Nuisance
 from optimize.photo_target import camera_fov, downsample, horizontal_fov, make_photo_target
 from optimize.target import load_target
 from warp_hair.io import read_exr, srgb_encode
@@ -439,7 +440,7 @@ def test_gain_columns_from_an_independent_render_leave_no_lean_at_the_truth():
     for _ in range(draws):
         residuals, jacobians, target, earlier = _noisy_passes(rng, n, p, noise=0.3)
         for source, columns in (("render", earlier), ("target", None)):
-            projection = gain_projection(T, solved, target, weights, jacobians, (n,), columns)
+            projection = Nuisance(T).projection(solved, target, weights, jacobians, (n,), columns)
             r = np.stack([projection.apply(x) for x in residuals])
             a = np.stack([projection.apply(x) for x in jacobians])
             assert np.abs(projection.columns.T @ (weights * r[0])).max() < 1e-12 * np.abs(projection.columns).max()
