@@ -18,6 +18,7 @@ from optimize import fit, load_target
 from optimize.cli import resolve_target
 from optimize.fit import FitSettings
 from optimize.report import describe_run, format_table, plot_comparison, render_pictures, true_values
+from warp_hair.cli import exit_on_interrupt
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -40,4 +41,4 @@ def main():
 
 
 if __name__ == "__main__":
-    main()
+    exit_on_interrupt(main)  # as the command: Warp's own messages left out, Ctrl-C one line

@@ -134,9 +134,8 @@ def difference_caption(record: dict | None) -> str:
 
 
 def picture_spp_cap(result: FitResult, settings: FitSettings, target: Target) -> int:
-    """The most samples per pixel a picture renders: about what the fit's Gauss–Newton stage traced per pixel
-    (its steps and the final linearisation, two passes each), which a forward render at that count costs less
-    than."""
+    """The most samples per pixel a picture renders: what the fit's Gauss–Newton stage traced per pixel (its steps
+    and the final linearisation, two passes each), so that the picture costs about what that stage did, at most."""
     return (len(result.history.refine) + 1) * 2 * gauss_newton_spp(settings, target)
 
 
