@@ -6,19 +6,19 @@
 The fit is `warp-hair fit`'s, with its default settings: albedo, β_m and β_n from albedo 0.5 grey and
 β_m = β_n = 0.5, Adam on two decorrelated renders per image and iteration, then Gauss–Newton steps. It prints
 the fitted controls against the target's truth.json with each control's reported 1σ. The picture is the
-fit's comparison.png (one row per image: the target, the fit, and fit − target on a diverging scale), with the
-fitted look rendered at the target's own samples per pixel and another seed, so that the difference shows the
-two renders' noise at the same level and any misfit above it.
+fit's comparison.png (one row per image: the target, the fit, and fit − target in units of its noise σ on a
+diverging scale), with the fitted look rendered at the target's own samples per pixel and another seed, so that
+the difference shows the two renders' noise at the same level and any misfit above it (optimize/report.py).
 """
 
 import argparse
-import dataclasses
 from pathlib import Path
 
 from optimize import fit, load_target
-from optimize.report import fitted_look, format_table, plot_comparison, true_values
-from optimize.target import resolve_target
-from warp_hair import prepare, render
+from optimize.report import describe_run, format_table, plot_comparison, render_pictures
+from optimize.settings import FitSettings
+from optimize.target import resolve_target, true_values
+from warp_hair.cli import exit_on_interrupt
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -31,27 +31,14 @@ def main():
     parser.add_argument("--threads", type=int, default=None)
     args = parser.parse_args()
     target = load_target(resolve_target(args.target))
-    result = fit(target, seed=args.seed, threads=args.threads)
+    settings = FitSettings(seed=args.seed, threads=args.threads)
+    result = fit(target, settings)
     print(format_table(result, true_values(target, result.values)))
-    print(f"{result.iterations} Adam iterations ({result.stop_reason}), {result.seconds:.0f} s")
-    look, gain = fitted_look(result, target), result.values.get("exposure", 1.0)
-    result = dataclasses.replace(
-        result,
-        images=[
-            gain
-            * render(
-                prepare(image.scene).with_hair(look),
-                spp=image.scene.render.spp,
-                seed=image.scene.render.seed + 1,
-                threads=args.threads,
-            )
-            for image in target.images
-        ],
-    )
+    print(f"{describe_run(result.iterations, result.stop_reason, result.history.refine)}, {result.seconds:.0f} s")
     args.output.parent.mkdir(parents=True, exist_ok=True)
-    plot_comparison(args.output, result, target)
+    plot_comparison(args.output, render_pictures(result, target, settings, progress=True))
     print(f"wrote {args.output}")
 
 
 if __name__ == "__main__":
-    main()
+    exit_on_interrupt(main)  # as the command: Warp's own messages left out, Ctrl-C one line

@@ -180,7 +180,7 @@ def run_fit(args: argparse.Namespace) -> int:
     from .camera import fitted as fitted_camera
     from .card_region import summary as card_summary
     from .fit import fit
-    from .report import camera_table, format_table, photo_summary, write_outputs
+    from .report import camera_table, describe_run, format_table, photo_summary, write_outputs
     from .target import load_target, true_values
 
     render_cli.check_sampling_args(args)
@@ -230,14 +230,13 @@ def run_fit(args: argparse.Namespace) -> int:
     result = fit(target, settings)
     if result.stop_reason == "interrupted":
         print("interrupted: saving the estimate so far (no uncertainties)")
-    paths = write_outputs(args.output, result, target)
+    paths = write_outputs(args.output, result, target, settings, progress=True)
     paths += _export(args.output / "params.json", renderers)
     print(format_table(result, true_values(target, result.values), target.origin))
     if result.camera is not None:
         print(camera_table(result))
-    print(
-        f"{result.iterations} iterations ({result.stop_reason}), {result.seconds:.0f} s, final loss {result.loss:.4g}"
-    )
+    run = describe_run(result.iterations, result.stop_reason, result.history.refine)
+    print(f"{run}, {result.seconds:.0f} s, final loss {result.loss:.4g}")
     if result.goodness is not None:
         print("\n".join(result.goodness.lines()))
     for warning in result.warnings:
@@ -495,7 +494,7 @@ def run_photo(args: argparse.Namespace) -> int:
 
 
 def run_targets(args: argparse.Namespace) -> int:
-    from .target import load_target, make_target, shipped_targets, target_renderer
+    from .target import load_target, made_by, make_target, shipped_targets, target_renderer
 
     render_cli.check_sampling_args(args)
     if args.action == "check":
@@ -505,9 +504,7 @@ def run_targets(args: argparse.Namespace) -> int:
         if args.action == "list":
             target = load_target(directory)
             truth = "" if target.truth is None else " ".join(f"{k}={v}" for k, v in target.truth.to_dict().items())
-            by = {"warp-hair": "", "unknown": " (of unknown origin)"}.get(
-                target.origin, f" (rendered by {target.origin})"
-            )
+            by = "" if target.origin == "warp-hair" else f" ({made_by(target.origin)})"
             print(f"{directory.name}: {', '.join(im.name for im in target.images)}{by}; {truth}")
             continue
         if not args.names and target_renderer(directory) != "warp-hair":

@@ -140,6 +140,11 @@ class Target:
         return "warp-hair"
 
 
+def made_by(origin: str) -> str:
+    """`Target.origin` in words: "rendered by cycles", or "of unknown origin" (a photograph, an EXR from elsewhere)."""
+    return "of unknown origin" if origin == "unknown" else f"rendered by {origin}"
+
+
 def interpenetration_note(target: Target) -> str | None:
     """A warning for the fit's report when the target's strands pass through each other and another renderer (or
     an unknown one) made its images: renderers disagree there (docs/scenes.md, "Interpenetrating strands")."""
@@ -151,7 +156,7 @@ def interpenetration_note(target: Target) -> str | None:
             rule = image.scene.render.interpenetration
             return (
                 f"the target's strands interpenetrate ({report.pairs} pairs of {report.num_strands} strands) and its "
-                f"images were rendered by {target.origin}: renderers disagree there (issue 23's swatch: 2-18% in "
+                f"images are {made_by(target.origin)}: renderers disagree there (issue 23's swatch: 2-18% in "
                 f'image means). This fit renders with [render] interpenetration = "{rule}"; a Cycles 4.x CPU '
                 'render needs "exit", Mitsuba 3 "enter" (docs/scenes.md, "Interpenetrating strands")'
             )

@@ -1,5 +1,6 @@
 """The `warp-hair` command line and the lobe profiles behind `warp-hair plot-bsdf`."""
 
+import os
 import struct
 import subprocess
 import sys
@@ -153,3 +154,35 @@ def test_warps_log_level_is_the_hosts(tmp_path):
         cwd=Path(__file__).resolve().parents[1],
     )
     assert out.stdout.strip().splitlines()[-1] == "True"
+
+
+def test_the_command_leaves_out_warps_own_messages(tiny_scene, tmp_path):
+    """Through the installed entry point (optimize.cli:main): on a machine without a GPU Warp's native library
+    prints "Could not find or load the NVIDIA CUDA driver" when it starts, and Warp logs a banner and each module
+    load; a command prints none of these, and --verbose brings them back."""
+
+    def run(*flags):
+        return subprocess.run(
+            [sys.executable, "-m", "optimize.cli", *flags, "render", str(tiny_scene), "-o", str(tmp_path / "x.exr")],
+            capture_output=True,
+            text=True,
+            check=True,
+            cwd=Path(__file__).resolve().parents[1],
+        )
+
+    quiet = run()
+    assert quiet.stdout.startswith("wrote ")
+    for line in ("CUDA driver", "Warp ", "Module "):
+        assert line not in quiet.stdout + quiet.stderr
+    verbose = run("--verbose")
+    assert "initialized" in verbose.stdout and "Module warp_hair" in verbose.stdout + verbose.stderr
+
+
+def test_only_the_no_driver_line_is_dropped(capfd):
+    """Warp's other native messages (a driver too old, an error) still reach the user."""
+    from warp_hair.devices import NO_DRIVER_LINE, _native_stderr_without
+
+    with _native_stderr_without(NO_DRIVER_LINE):
+        os.write(2, f"Warp CUDA warning: {NO_DRIVER_LINE}. GPU execution will not be available.\n".encode())
+        os.write(2, b"Warp CUDA error: Warp requires CUDA driver 12.0 or higher\n")
+    assert capfd.readouterr().err == "Warp CUDA error: Warp requires CUDA driver 12.0 or higher\n"

@@ -4,7 +4,8 @@ Each subcommand is an `add_*` function that declares its arguments and a functio
 itself lives in the library. Bad input (a control out of range, an unwritable path) ends with
 `warp-hair: error: <message>` on stderr and exit status 2, as argparse does for malformed arguments; Ctrl-C
 with one line and exit status 130, leaving no partial output file; anything else (a bug) with a short message,
-and its traceback under `--debug`.
+and its traceback under `--debug`. Warp's own messages (its banner, each module it loads, its "no CUDA driver"
+line on a machine without a GPU) are left out; `--verbose` shows them.
 
     warp-hair plot-bsdf -o lobes.png [hair controls] [--theta-o DEG ...] [--h H]
     warp-hair render SCENE.toml -o OUT.exr [--spp N] [--seed S] [--threads T] [--device D] [--png PREVIEW.png]
@@ -28,7 +29,7 @@ import warp as wp
 
 from . import validate
 from .controls import COLOUR_CONTROL_NAMES, COLOUR_CONTROLS, CONTROLS
-from .devices import DEFAULT_DEVICE, check_device
+from .devices import DEFAULT_DEVICE, check_device, init_warp
 from .model.params import HairParams
 from .parallel import interrupts_delivered
 
@@ -43,9 +44,9 @@ def common_flags(
 ) -> argparse.ArgumentParser:
     """The parent parser of a subcommand: the flags every command spells the same way.
 
-    --debug (also accepted before the subcommand), --threads where the command renders, --device where it can
-    render on a GPU, and --spp / --seed where given their help text (the defaults differ: the scene's [render]
-    table, or the command's own).
+    --debug and --verbose (also accepted before the subcommand), --threads where the command renders, --device
+    where it can render on a GPU, and --spp / --seed where given their help text (the defaults differ: the scene's
+    [render] table, or the command's own).
     """
     parent = argparse.ArgumentParser(add_help=False)
     if spp is not None:
@@ -63,6 +64,7 @@ def common_flags(
         )
     # SUPPRESS keeps the top-level value when the flag is not repeated after the subcommand.
     parent.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help=argparse.SUPPRESS)
+    parent.add_argument("--verbose", action="store_true", default=argparse.SUPPRESS, help=argparse.SUPPRESS)
     return parent
 
 
@@ -386,6 +388,11 @@ def build_parser(extra=()) -> argparse.ArgumentParser:
     """The parser of the renderer's subcommands, plus `extra` ones (add_* functions) from packages built on it."""
     parser = argparse.ArgumentParser(prog=PROG, description="Hair and fur appearance (the Chiang et al. BSDF) in Warp.")
     parser.add_argument("--debug", action="store_true", help="show the full traceback of an unexpected error")
+    parser.add_argument(
+        "--verbose",
+        action="store_true",
+        help="show Warp's own messages: its banner, each module it compiles or loads, its CUDA driver probe",
+    )
     subparsers = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for add in SUBCOMMANDS + tuple(extra):
         add(subparsers)
@@ -393,9 +400,11 @@ def build_parser(extra=()) -> argparse.ArgumentParser:
 
 
 def exit_on_interrupt(run) -> None:
-    """Run `run()` (a script's main) and exit: on Ctrl-C with one line and status 130, as the command does."""
+    """Run `run()` (a script's main) and exit: on Ctrl-C with one line and status 130, as the command does; Warp's
+    own messages left out as the command leaves them out."""
     try:
         with wp.ScopedLogLevel(wp.LOG_WARNING), interrupts_delivered():  # Warp logs every module load at INFO
+            init_warp()
             run()
     except KeyboardInterrupt:
         print(f"{sys.argv[0]}: interrupted", file=sys.stderr)
@@ -410,12 +419,14 @@ def main(argv: list[str] | None = None, extra=()) -> int:
     """Run a subcommand. The installed `warp-hair` is optimize.cli.main, which adds the fitting subcommands
     (fit, targets) through `extra`: the renderer does not depend on the optimiser."""
     args = build_parser(extra).parse_args(argv)
-    # Warp logs every module load at INFO: the command shows its warnings and errors only, and leaves the level
-    # as it was when it returns (main may run inside a host program).
-    with warnings.catch_warnings(), wp.ScopedLogLevel(wp.LOG_WARNING), interrupts_delivered():
+    # Warp logs every module load at INFO: the command shows its warnings and errors only (unless --verbose), and
+    # leaves the level as it was when it returns (main may run inside a host program).
+    level = wp.LOG_INFO if args.verbose else wp.LOG_WARNING
+    with warnings.catch_warnings(), wp.ScopedLogLevel(level), interrupts_delivered():
         # Users of the command see the library's warnings as messages, not as source locations.
         warnings.showwarning = _show_warning
         try:
+            init_warp(args.verbose)
             # A command's own verdict (e.g. `targets check` on a bad target) may set the exit status.
             status = args.run(args)
         except KeyboardInterrupt:

@@ -6,13 +6,58 @@ The same kernels run on every device: "cpu" (the default; its launches are tiled
 parallel.py) or "cuda" / "cuda:N" (one launch covers the image). Asking Warp itself for a CUDA device it does not
 have prints a CUDA driver error and raises a RuntimeError (or "Invalid device identifier"), so the name is checked
 here first and the error says which option was wrong and which devices exist.
+
+    init_warp()                 # what the command does first: Warp started without its "no CUDA driver" line
 """
 
 from __future__ import annotations
 
+import contextlib
+import os
+import sys
+import tempfile
+
 import warp as wp
 
 DEFAULT_DEVICE = "cpu"
+# What Warp's native library prints on stderr when it starts on a machine without a GPU (cuda_util.cpp).
+NO_DRIVER_LINE = "Could not find or load the NVIDIA CUDA driver"
+
+
+def init_warp(verbose: bool = False) -> None:
+    """Start Warp, as the command does before its work. Warp's native library prints "Could not find or load the
+    NVIDIA CUDA driver. GPU execution will not be available." on every machine without a GPU: what the CPU
+    default expects, so that one line is dropped (a --device cuda there gets `check_device`'s error instead);
+    every other line Warp prints passes. `verbose`: drop nothing. Warp's banner follows its log level."""
+    if verbose:
+        wp.init()
+        return
+    with _native_stderr_without(NO_DRIVER_LINE):
+        wp.init()
+
+
+@contextlib.contextmanager
+def _native_stderr_without(text: str):
+    """Hold what is written to file descriptor 2 (C code's stderr, which sys.stderr cannot intercept) and pass on
+    the lines that do not contain `text`."""
+    try:
+        sys.stderr.flush()
+        saved = os.dup(2)
+    except (OSError, ValueError, AttributeError):  # no descriptor 2 (a GUI host): nothing to filter
+        yield
+        return
+    with tempfile.TemporaryFile() as held:
+        os.dup2(held.fileno(), 2)
+        try:
+            yield
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+            held.seek(0)
+            kept = [line for line in held.read().decode(errors="replace").splitlines(True) if text not in line]
+            if kept:
+                sys.stderr.write("".join(kept))
+                sys.stderr.flush()
 
 
 def available_devices() -> list[str]:

@@ -23,7 +23,6 @@ import warp_hair
 # The errors that are the user's to fix, as the command line sorts them (warp_hair/cli.py main).
 PROJECT_ERRORS = (ValueError, OSError, MemoryError)
 FIT_OPTIONS = ("iters", "spp", "loss", "lr", "seed", "patience", "refine", "batch", "model_error")
-THUMBNAIL_PX = 160
 
 
 def load_inputs(job):
@@ -99,46 +98,20 @@ def _fit(job, target, settings, threads: int) -> dict:
 
     # The object store hands out read-only arrays; the fit's torch tensors want their own, writable copies.
     target = copy.deepcopy(target)
-    result = fit(target, dataclasses.replace(settings, threads=threads), progress=False)
+    settings = dataclasses.replace(settings, threads=threads)
+    result = fit(target, settings, progress=False)
     if result.stop_reason == "interrupted":  # a fit stopped from outside is no result: the job is not finished
         raise KeyboardInterrupt
     with tempfile.TemporaryDirectory() as folder:
         folder = Path(folder)
-        params = write_outputs(folder, result, target)[0]
+        # The report's thumbnails are comparison.png's panels (report.write_thumbnails).
+        params = write_outputs(folder, result, target, settings, thumbnails=True)[0]
         for renderer in job.spec["export"]:
             export(params, to=renderer, path=folder / default_filename(renderer))
-        for image, fitted in zip(target.images, result.images):
-            _thumbnails(folder, image, fitted)
         files = {p.name: p.read_bytes() for p in sorted(folder.iterdir())}
     if result.failed:
         return {"files": files, "error": "the fit failed: " + "; ".join(result.failures)}
     return {"files": files}
-
-
-def _thumbnails(folder: Path, image, fitted) -> None:
-    """target_<image>.png, fit_<image>.png (at one exposure) and diff_<image>.png (fit − target, red brighter,
-    blue darker, ±its 99th percentile): what comparison.png shows, as pictures of their own for the report."""
-    from matplotlib import colormaps
-    from PIL import Image
-
-    from warp_hair.io import srgb_encode
-
-    from ..report import display_exposure
-
-    exposure = display_exposure(image.image)
-    diff = (fitted - image.image).mean(axis=-1)
-    limit = max(float(np.percentile(np.abs(diff), 99)), 1e-6)
-    pictures = {
-        "target": srgb_encode(image.image * exposure),
-        "fit": srgb_encode(fitted * exposure),
-        "diff": colormaps["RdBu_r"](np.clip(0.5 + 0.5 * diff / limit, 0.0, 1.0))[..., :3],
-    }
-    for kind, picture in pictures.items():
-        pixels = Image.fromarray(np.round(255 * picture).astype(np.uint8))
-        scale = max(1, THUMBNAIL_PX // max(pixels.size))
-        pixels.resize((pixels.width * scale, pixels.height * scale), Image.NEAREST).save(
-            folder / f"{kind}_{image.name}.png"
-        )
 
 
 def render_sampling(job, scene) -> tuple:

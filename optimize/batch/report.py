@@ -94,17 +94,24 @@ def _overview(table) -> str:
 
 
 def _fit(row, folder: Path, job) -> str:
+    from ..report import describe_run, difference_caption
+
     out = [
-        f"<p>target {_e(row['target'])}: {row['iterations']} iterations ({_e(row['stop_reason'])}), "
+        f"<p>target {_e(row['target'])}: {_e(describe_run(row['iterations'], row['stop_reason']))}, "
         f"loss {row['loss']:.4g}, {row['seconds']:.1f} s"
         + ("" if row.get("chi2_per_dof") is None else f"; measure of fit χ²/dof {row['chi2_per_dof']:.2f}")
         + "</p>"
     ]
+    # How comparison.png's fit column was rendered and its difference reads (optimize/report.py).
+    pictures = json.loads((folder / "params.json").read_text(encoding="utf-8")).get("picture", {})
     for name in _image_names(folder):
+        picture = pictures.get(name) or {}
+        fit = "fit" if picture.get("spp") is None else f"fit, {picture['spp']} spp"
+        captions = (("target", f"target: {_e(name)}"), ("fit", fit), ("diff", _e(difference_caption(picture))))
         figures = "".join(
             f'<figure><img class="thumb" src="{_data(folder / f"{kind}_{name}.png")}" alt="{kind} {_e(name)}">'
             f"<figcaption>{caption}</figcaption></figure>"
-            for kind, caption in (("target", f"target: {_e(name)}"), ("fit", "fit"), ("diff", "fit − target"))
+            for kind, caption in captions
         )
         out.append(f"<div>{figures}</div>")
     out.append(_controls_table(row))
