@@ -181,7 +181,7 @@ def _answers(host: str, port: int, mode: str) -> bool:
     """Whether the head's GCS answers a request sent with Ray's auth `mode` ("disabled": no token; "token": this
     machine's token). Ray's C++ client logs its refusal to stderr itself; that line is left out."""
     from ray._raylet import GcsClient
-    from ray.exceptions import AuthenticationError
+    from ray.exceptions import AuthenticationError, RayError
 
     saved = os.environ.get(AUTH_MODE)
     _set_auth_mode(mode)
@@ -191,6 +191,8 @@ def _answers(host: str, port: int, mode: str) -> bool:
         return True
     except AuthenticationError:
         return False
+    except RayError as error:  # something else listens there, or a head too busy to answer
+        raise ValueError(f"{host}:{port} does not answer as a Ray head ({type(error).__name__}: {error})") from None
     finally:
         _set_auth_mode(saved)
 
