@@ -109,8 +109,8 @@ def run_batch(manifest, address: str | None = None, cpus: int | None = None, pro
 
 
 class _News:
-    """Failures and warnings on stderr as they come, above the progress bar; each distinct warning once a run
-    (a hundred fits of one groom would repeat it a hundred times; every job's status keeps its own)."""
+    """Failures, retries and warnings on stderr as they come, above the progress bar; each distinct warning once
+    a run (a hundred fits of one groom would repeat it a hundred times; every job's status keeps its own)."""
 
     def __init__(self, bar):
         self.bar = bar
@@ -227,7 +227,7 @@ def _collect_ready(manifest, pending: dict, ready, outcome, bar, news) -> None:
 
 def _collect(manifest, job, ref, submitted: float, loaded: list, outcome, news) -> None:
     import ray
-    from ray.exceptions import NodeDiedError, OutOfMemoryError, RayError, RayTaskError, WorkerCrashedError
+    from ray.exceptions import NodeDiedError, RayError, RayTaskError, WorkerCrashedError
 
     try:
         result = ray.get(ref)
@@ -237,9 +237,12 @@ def _collect(manifest, job, ref, submitted: float, loaded: list, outcome, news) 
         return
     except RayError as error:  # the worker or its node died more often than the retries allow, or the like
         message = f"{type(error).__name__}: {str(error).splitlines()[0]}"
-        died = isinstance(error, (WorkerCrashedError, NodeDiedError, OutOfMemoryError))
+        died = isinstance(error, (WorkerCrashedError, NodeDiedError))  # each death cost a retry
         if died:
-            message += f" (its worker died {manifest.retries + 1} times: [batch] retries = {manifest.retries})"
+            deaths = manifest.retries + 1
+            message += f" (its worker died {deaths} time{'s' if deaths > 1 else ''}: [batch] retries = {deaths - 1})"
+            if manifest.retries:
+                outcome.retried.append(job.name)
         _failed(manifest, job, message, outcome, news, retries=manifest.retries if died else 0, warnings=loaded)
         return
     record = {key: result[key] for key in ("seconds", "threads", "pid", "node", "retries")}
@@ -259,8 +262,6 @@ def _collect(manifest, job, ref, submitted: float, loaded: list, outcome, news) 
 def _failed(manifest, job, error: str, outcome, news, **record) -> None:
     store.write_failed(manifest.output, job.name, job.key, error, kind=job.kind, group=job.group, **record)
     outcome.failed.append(job.name)
-    if record.get("retries"):
-        outcome.retried.append(job.name)
     news.failed(job.name, error)
 
 
