@@ -28,6 +28,7 @@ from pathlib import Path
 import tomlkit
 
 from optimize.batch import load_manifest, run_batch, store
+from optimize.batch.cluster import connect
 from warp_hair.cli import exit_on_interrupt
 
 HERE = Path(__file__).resolve().parent
@@ -60,7 +61,7 @@ def run(workers: int, short: bool, only) -> dict:
     shutil.rmtree(folder, ignore_errors=True)
     manifest = load_manifest(manifest_copy(folder, short, only))
     start = time.perf_counter()
-    ray.init(num_cpus=workers, include_dashboard=False, log_to_driver=False)
+    connect(None, workers)  # the batch's own local Ray, as `warp-hair batch --cpus N` starts it
     started = time.perf_counter()
     try:
         outcome = run_batch(manifest, progress=True)

@@ -577,8 +577,15 @@ def add_batch(subparsers) -> None:
         metavar="OUT_DIR",
         help="the results' folder (default: the manifest's [batch] output, else <stem>_out beside it)",
     )
-    parser.add_argument("--address", metavar="HOST:PORT", help="join this Ray cluster (default: start one here)")
-    parser.add_argument("--cpus", type=int, metavar="N", help="CPUs of the Ray started here (default: all cores)")
+    parser.add_argument(
+        "--address",
+        metavar="HOST:PORT",
+        help="join the Ray cluster whose head is there (it must check Ray's auth tokens; docs/cluster.md) "
+        "(default: RAY_ADDRESS, else a Ray of the batch's own on this machine, reachable from it only)",
+    )
+    parser.add_argument(
+        "--cpus", type=int, metavar="N", help="CPUs of the Ray the batch starts here (default: all cores)"
+    )
     parser.add_argument(
         "--cpus-per-job",
         type=int,
@@ -599,8 +606,9 @@ def run_batch_command(args: argparse.Namespace) -> int:
     if args.cpus_per_job is not None:
         manifest.cpus_per_job = args.cpus_per_job
     outcome = run_batch(manifest, address=args.address, cpus=args.cpus)
+    retried = f" ({len(outcome.retried)} retried after a worker died)" if outcome.retried else ""
     print(
-        f"{len(outcome.done)} done, {len(outcome.skipped)} finished earlier, {len(outcome.failed)} failed; "
+        f"{len(outcome.done)} done, {len(outcome.skipped)} finished earlier, {len(outcome.failed)} failed{retried}; "
         f"wrote {manifest.output / 'summary.csv'}, {manifest.output / 'report.html'}"
     )
     for name in outcome.failed:

@@ -26,12 +26,14 @@ FIT_OPTIONS = ("iters", "spp", "loss", "lr", "seed", "patience", "refine", "batc
 
 
 def load_inputs(job):
-    """The job's payload for `execute`: (Target, FitSettings) for a fit, the Scene otherwise."""
+    """The job's payload for `execute`: (Target, FitSettings) for a fit, the Scene otherwise. Its values are
+    checked here, as a fit's are, so that a bad one fails its job alone, before anything runs."""
     if job.kind == "fit":
         return _fit_inputs(job.spec)
     from warp_hair.scene import load_scene
 
     scene = load_scene(job.spec["scene"])
+    render_sampling(job, scene)
     if job.kind == "calibrate":
         from warp_hair.calibrate import DEFAULT_BETA_N, DEFAULT_SIGMA_A, check_grid
 
@@ -115,23 +117,41 @@ def _fit(job, target, settings, threads: int) -> dict:
 
 
 def render_sampling(job, scene) -> tuple:
-    """(spp, seed) of a render job: the manifest's, else the scene's [render] table."""
+    """(spp, seed) of a render or calibration job: the manifest's, else the scene's [render] table; a ValueError
+    names the bad one."""
     from warp_hair.renderer.prepare import sampling
 
     return sampling(scene, job.spec.get("spp"), job.spec.get("seed"))
 
 
 def _render_part(job, scene, threads: int) -> dict:
+    """A split render's part: its pixels' values, for the driver to put together; an unsplit render: its files."""
     from warp_hair.renderer.render import render
 
     from .split import part_pixels
 
     spp, seed = render_sampling(job, scene)
+    if job.part[1] == 1:
+        return render_files(job, scene, *render(scene, spp=spp, seed=seed, threads=threads, return_stderr=True))
     pixels = part_pixels(scene.camera.resolution, *job.part)
     image, stderr = render(scene, spp=spp, seed=seed, threads=threads, pixels=pixels, return_stderr=True)
     buffer = io.BytesIO()
     np.savez(buffer, pixels=pixels, image=image.reshape(-1, 3)[pixels], stderr=stderr.reshape(-1, 3)[pixels])
     return {"part.npz": buffer.getvalue()}
+
+
+def render_files(job, scene, image, stderr) -> dict:
+    """A render's results, {file name: bytes}: image.exr (with the render's metadata), stderr.exr, preview.png."""
+    from warp_hair.io import write_exr, write_png
+    from warp_hair.renderer.render import render_metadata
+
+    spp, seed = render_sampling(job, scene)
+    with tempfile.TemporaryDirectory() as folder:
+        folder = Path(folder)
+        write_exr(folder / "image.exr", image, render_metadata(scene, spp, seed))
+        write_exr(folder / "stderr.exr", stderr)
+        write_png(folder / "preview.png", image, exposure=job.spec.get("exposure", 1.0))
+        return {path.name: path.read_bytes() for path in sorted(folder.iterdir())}
 
 
 def _calibrate(job, scene, threads: int) -> dict:

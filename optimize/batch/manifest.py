@@ -72,7 +72,7 @@ DEFAULT_RETRIES = 2
 class Job:
     """One Ray task's worth of work. A split render is several jobs (its parts) with one `group`."""
 
-    name: str  # unique in the batch: its results are OUT/jobs/<name>/ (a render's parts: <group>.part<k>of<n>)
+    name: str  # unique in the batch: its results are OUT/jobs/<name>/ (a split render's parts: <group>.part<k>of<n>)
     kind: str  # "fit", "render" (a part of one) or "calibrate"
     spec: dict  # the manifest's table with the defaults applied and paths resolved
     key: str  # settings + inputs + version: results with another key are stale
@@ -163,15 +163,15 @@ def _jobs(kind: str, entry: dict, base: Path, where: str) -> list:
         raise ValueError(f"{where}: missing key 'scene' (a scene file, relative to the manifest)")
     scene = (base / str(entry["scene"])).resolve()
     spec = {**entry, "scene": str(scene)}
-    inputs = [scene, *_scene_files(scene)] if scene.is_file() else []  # a missing one fails its job
+    # A missing scene, or a bad spp or seed, fails its job (jobs.load_inputs), as a fit's bad values do.
+    inputs = [scene, *_scene_files(scene)] if scene.is_file() else []
     name = _name(entry.get("name", scene.stem), where)
-    for option in ("spp", "seed"):
-        if option in spec:
-            _integer(spec[option], f"{where} {option}", 1 if option == "spp" else 0)
     if kind == "calibrate":
         return [Job(name, kind, spec, _key(kind, spec, inputs), name)]
     split = _integer(spec.pop("split", 1), f"{where} split", 1)
     key = _key(kind, {**spec, "split": split}, inputs)
+    if split == 1:
+        return [Job(name, kind, spec, key, name)]
     return [Job(f"{name}.part{k}of{split}", kind, spec, key, name, (k, split)) for k in range(split)]
 
 

@@ -3,9 +3,9 @@
 Every picture is inlined as a data: URI and the style sits in the page, so the file can be mailed, attached to a
 ticket or opened from any folder. Per fit: target | fit | difference thumbnails for each of its images (one
 exposure for target and fit; the difference red where the fit is brighter, blue where darker), the fitted
-controls against the truth with their 1σ, the convergence plot, its warnings and the export snippets; per render
-its preview; per calibration its coefficients and table; per failed job its error. Numbers are printed with
-`number` (values) and `sigma` (uncertainties), the same everywhere.
+controls against the truth with their 1σ, the convergence plot and the export snippets; per render its preview;
+per calibration its coefficients and table; per failed job its error; per job the retries it cost and its
+warnings. Numbers are printed with `number` (values) and `sigma` (uncertainties), the same everywhere.
 """
 
 from __future__ import annotations
@@ -30,7 +30,7 @@ section { border-top: 2px solid #ddd; margin-top: 1.5em; }
 figure { display: inline-block; margin: 0.3em; text-align: center; } figcaption { font-size: 0.85em; }
 img.thumb { image-rendering: pixelated; width: 160px; } img.plot { max-width: 100%; }
 pre { background: #f6f6f6; padding: 0.6em; overflow-x: auto; font-size: 0.85em; }
-.warning { color: #8a4b00; }
+.warning { color: #8a4b00; } .retried { color: #8a6d00; }
 """
 
 
@@ -60,6 +60,8 @@ def write_report(manifest) -> Path:
             f'<section id="{_e(row["name"])}"><h2>{_e(row["name"])} '
             f'<small class="{row["status"]}">({row["kind"]}, {row["status"]})</small></h2>'
         )
+        if row["retries"]:
+            parts.append(f'<p class="retried">{_retried(row["retries"])}</p>')
         if row["status"] == "failed":
             parts.append(f'<p class="failed">{_e(row["error"])}</p>')
             if (folder / "convergence.png").exists():  # a failed fit leaves its course to look at
@@ -70,6 +72,8 @@ def write_report(manifest) -> Path:
                     row, folder, groups[row["name"]][0]
                 )
             )
+        if row.get("warnings"):
+            parts.append("<ul>" + "".join(f'<li class="warning">{_e(w)}</li>' for w in row["warnings"]) + "</ul>")
         parts.append("</section>")
     page = (
         '<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8">'
@@ -83,14 +87,19 @@ def write_report(manifest) -> Path:
 
 
 def _overview(table) -> str:
-    lines = ['<table><tr><th class="name">job</th><th>kind</th><th>status</th><th>seconds</th></tr>']
+    lines = ['<table><tr><th class="name">job</th><th>kind</th><th>status</th><th>seconds</th><th>retries</th></tr>']
     for row in table:
         seconds = "" if row["seconds"] is None else f"{row['seconds']:.1f}"
+        retries = "" if row["retries"] is None else str(row["retries"])
         lines.append(
             f'<tr><td class="name"><a href="#{_e(row["name"])}">{_e(row["name"])}</a></td><td>{row["kind"]}'
-            f'</td><td class="{row["status"]}">{row["status"]}</td><td>{seconds}</td></tr>'
+            f'</td><td class="{row["status"]}">{row["status"]}</td><td>{seconds}</td><td>{retries}</td></tr>'
         )
     return "\n".join(lines) + "</table>"
+
+
+def _retried(retries: int) -> str:
+    return f"retried {retries} time{'s' if retries > 1 else ''}: its worker died (killed, out of memory, a lost node)"
 
 
 def _fit(row, folder: Path, job) -> str:
@@ -116,8 +125,6 @@ def _fit(row, folder: Path, job) -> str:
         out.append(f"<div>{figures}</div>")
     out.append(_controls_table(row))
     out.append(f'<img class="plot" src="{_data(folder / "convergence.png")}" alt="convergence of {_e(row["name"])}">')
-    if row["warnings"]:
-        out.append("<ul>" + "".join(f'<li class="warning">{_e(w)}</li>' for w in row["warnings"]) + "</ul>")
     for path in sorted(folder.glob("hair_*")):
         out.append(
             f"<details open><summary>{_e(path.name)}</summary><pre>{_e(path.read_text(encoding='utf-8'))}"

@@ -1,10 +1,10 @@
 """The batch's table: summary.json (one object per manifest entry) and summary.csv (the same, flattened).
 
 Per entry: its name, kind and status (done, failed, or pending: not run yet, or stopped), the seconds its task(s)
-ran, the error of a failed one; for a fit the fitted controls, their 1σ, the truth and the error where the target
-has truth.json, the iterations, stop reason, loss and warnings; for a render its spp, seed and parts; for a
-calibration the fitted coefficients p_0..p_5 and χ²/dof. RGB controls get a column per channel in the CSV
-(`albedo.r`, `albedo.r.sigma`, `albedo.r.true`, ...).
+ran, the error of a failed one, the retries it cost (reruns after its worker died) and its warnings; for a fit
+the fitted controls, their 1σ, the truth and the error where the target has truth.json, the iterations, stop
+reason and loss; for a render its spp, seed and parts; for a calibration the fitted coefficients p_0..p_5 and
+χ²/dof. RGB controls get a column per channel in the CSV (`albedo.r`, `albedo.r.sigma`, `albedo.r.true`, ...).
 """
 
 from __future__ import annotations
@@ -23,13 +23,15 @@ def rows(manifest) -> list:
     table = []
     for group, jobs in manifest.groups().items():
         job = jobs[0]
-        row = {"name": group, "kind": job.kind, "status": "pending", "seconds": None, "error": None}
+        row = {"name": group, "kind": job.kind, "status": "pending", "seconds": None, "error": None, "retries": None}
         status = entry_status(manifest, group, jobs)
         if status is not None:
-            row.update(status=status["status"], error=status.get("error"))
+            row.update(status=status["status"], error=status.get("error"), retries=status.get("retries", 0))
             if status["status"] == "done":
                 row["seconds"] = round(status.get("seconds", 0.0), 1)
                 row.update(_details(job, store.job_dir(manifest.output, group)))
+            # The job's Python warnings (a fit's own checks are in its params.json), each once.
+            row["warnings"] = list(dict.fromkeys([*row.get("warnings", []), *status.get("warnings", [])]))
         table.append(row)
     return table
 
@@ -42,13 +44,18 @@ def entry_status(manifest, group: str, jobs) -> dict | None:
         return status
     if jobs[0].kind == "render":
         parts = [store.read_status(manifest.output, part.name) for part in jobs]
-        errors = [
-            f"{part.name}: {s['error']}"
+        failed = [
+            (part, s)
             for part, s in zip(jobs, parts)
             if s is not None and s.get("key") == part.key and s["status"] == "failed"
         ]
-        if errors:
-            return {"status": "failed", "error": "; ".join(errors)}
+        if failed:
+            return {
+                "status": "failed",
+                "error": "; ".join(f"{part.name}: {s['error']}" for part, s in failed),
+                "retries": sum(s.get("retries", 0) for _, s in failed),
+                "warnings": [w for _, s in failed for w in s.get("warnings", [])],
+            }
     return None
 
 
