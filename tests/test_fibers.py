@@ -1,15 +1,22 @@
 """Tests of warp_hair.geometry: the fiber container, its two file formats and the procedural generators."""
 
+import hashlib
 import itertools
 import struct
+import tomllib
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from helpers.scenes import front_camera
 
 from warp_hair.geometry.assembly import FiberAssembly, FiberDataError
 from warp_hair.geometry.formats import load_fibers, save_fibers
 from warp_hair.geometry.generators import curly, fur, swatch, wavy
+from warp_hair.realisation import realisation_draw
+from warp_hair.scene import GENERATORS as SCENE_GENERATORS
+from warp_hair.scene import scene_from_dict
 
 BENCH_FIBERS = Path(__file__).parents[1] / "benchmarks" / "standard_swatch_fibers.txt"
 GENERATORS = [swatch, wavy, curly, fur]
@@ -445,3 +452,175 @@ def test_draped_swatch_lies_on_its_cylinder():
         assert arc == pytest.approx(0.5 * (0.25 + z_flat) / 0.25, rel=1e-3)  # chords of a 48-segment arc
     with pytest.raises(ValueError, match=r"drape = 0.1 is too tight"):
         swatch(count=12, layers=2, length=0.5, width=0.2, drape=0.1)
+
+
+# Per shipped target whose scenes use a generator (and the example scene): the SHA-256 (first 32 hex digits) of
+# its strands' float32 points and radii, and of realisation 1's (`warp_hair.realisation`), recorded with the
+# generators as they were before clumps, strays and per-layer phases (commit 702ed71) by hashing
+# GENERATORS[name](**[fibers]).
+SHIPPED_STRANDS = {
+    "auburn_curly": ("1dd03b0a5f2b13960b86ebf3323e50ee", "020207a7f13ddbca6ca085e718b52253"),
+    "black_straight": ("05b6762fe1cfca874f2392cf12e455f2", "09ee49cdfa1ff6cd7f4b224e8ed85c23"),
+    "blonde_straight": ("a62d5470f0d0a01a4eccd80bb0a65035", "db08acd025f30b291a40846f09e5a0c9"),
+    "brown_wavy": ("fc5b9b69f6c5b0473de3b261394049e7", "e84f295415e6e5d6af213cc864bd078e"),
+    "chestnut_straight": ("cd266fa8872fa48be3426f86441ffe80", "4aa5d2d3fedfbd59e76f88d415ec25a2"),
+    "cycles_blonde_curly": ("c51d3de50848342aa5cb804237432fe8", "3543fe7763dd6749b4a7f7a31d6661c3"),
+    "cycles_blonde_straight": ("a84fb54e11a6212c40ee882ae6fa9cf3", "b2620b78ccf7e25d85b695968184a377"),
+    "cycles_blonde_wavy": ("d455d776bb312cb3d7d37f6284f76c4b", "9e819b0c3cebe35ea5465b34783ef449"),
+    "cycles_brown_curly": ("fe6c54f4bfe58e1e17394d37e8a11af5", "08adbda25e742cd91bab0eec74244e27"),
+    "cycles_brown_straight": ("d8b335d571e2a99fadf92beb758270dd", "f6c02145eae5d7a8a69a666d1d4b8543"),
+    "cycles_brown_wavy": ("f19d48459e6fcac7d1c4f20b35c3b80d", "4411e9e0742214d6d8e31817d0f2a81c"),
+    "cycles_dark_curly": ("1af48e3df7f604d251073f4f2210c9bd", "3be1ddd067813b4f7e7d33ec0e4efda1"),
+    "cycles_dark_straight": ("69ba0c6005bd5f465d6bb14daa315065", "06fd281e39cfc188f51c12b07d21fdc2"),
+    "cycles_dark_wavy": ("51df500b8a9da8fba0e99c4be6fcb3d1", "93cda2f0fd90226a0ed6094bf0c7e78b"),
+    "fur_patch": ("073b04517d2583f88285d39a0597eb0d", "0a78c236dc5f9ed1c440882357a65627"),
+    "mitsuba_blonde_straight": ("a84fb54e11a6212c40ee882ae6fa9cf3", "b2620b78ccf7e25d85b695968184a377"),
+    "mitsuba_brown_straight": ("d8b335d571e2a99fadf92beb758270dd", "f6c02145eae5d7a8a69a666d1d4b8543"),
+    "mitsuba_dark_wavy": ("51df500b8a9da8fba0e99c4be6fcb3d1", "93cda2f0fd90226a0ed6094bf0c7e78b"),
+    "photo_blonde_straight_jpeg": ("a84fb54e11a6212c40ee882ae6fa9cf3", "b2620b78ccf7e25d85b695968184a377"),
+    "photo_blonde_straight_png": ("a84fb54e11a6212c40ee882ae6fa9cf3", "b2620b78ccf7e25d85b695968184a377"),
+    "photo_brown_straight_jpeg": ("d8b335d571e2a99fadf92beb758270dd", "f6c02145eae5d7a8a69a666d1d4b8543"),
+    "photo_brown_straight_png": ("d8b335d571e2a99fadf92beb758270dd", "f6c02145eae5d7a8a69a666d1d4b8543"),
+    "photo_dark_wavy_jpeg": ("51df500b8a9da8fba0e99c4be6fcb3d1", "93cda2f0fd90226a0ed6094bf0c7e78b"),
+    "photo_dark_wavy_png": ("51df500b8a9da8fba0e99c4be6fcb3d1", "93cda2f0fd90226a0ed6094bf0c7e78b"),
+    "examples/swatch.toml": ("dd24eb52c82c4a12db21f79508dacfdb", "6e5eac57201981556d9693cb131264b4"),
+}
+
+
+def _strands_digest(assembly):
+    data = np.ascontiguousarray(assembly.points).tobytes() + np.ascontiguousarray(assembly.radii).tobytes()
+    return hashlib.sha256(data).hexdigest()[:32]
+
+
+def test_every_shipped_scene_generates_the_strands_it_always_did():
+    """New generator keys default to the recipes as they were: every shipped target's scene (and the example)
+    gives bit for bit the strands, and the realisation, it gave before they were added. (The points are float32
+    from float64 sums and sines: a platform's sine differing in its last bit changes a float32 only within a
+    float64 ulp of a rounding boundary, about one value in 2^29.)"""
+    root = Path(__file__).parents[1]
+    generated = [
+        path.parent.name
+        for path in root.glob("targets/*/scene_front.toml")
+        if "generator" in tomllib.loads(path.read_text())["fibers"]
+    ]
+    assert sorted(SHIPPED_STRANDS) == sorted([*generated, "examples/swatch.toml"])
+    for name, (expected, expected_other) in SHIPPED_STRANDS.items():
+        path = root / name if "/" in name else root / "targets" / name / "scene_front.toml"
+        table = tomllib.loads(path.read_text())["fibers"]
+        generator = SCENE_GENERATORS[table["generator"]]
+        arguments = {k: v for k, v in table.items() if k not in ("generator", "curve", "tolerance")}
+        assert _strands_digest(generator(**arguments)) == expected, path
+        draw = realisation_draw(SimpleNamespace(source={"fibers": table}), 1)
+        assert _strands_digest(generator(**{**arguments, **draw})) == expected_other, path
+
+
+def _front_swing(generator, **kwargs):
+    """Per fiber, its wave: x minus the straight swatch's axes, which the same seed draws alike."""
+    waved = generator(**kwargs).points.reshape(kwargs["count"], -1, 3)
+    straight_keys = ("count", "layers", "length", "width", "segments", "seed", "jitter")
+    straight = swatch(**{k: kwargs[k] for k in straight_keys}).points.reshape(kwargs["count"], -1, 3)
+    return (waved[..., 0] - straight[..., 0]).astype(np.float64)
+
+
+def test_layer_phase_jitter_gives_each_layer_its_own_wave_and_keeps_the_front_layers():
+    recipe = {
+        "count": 30,
+        "layers": 3,
+        "length": 0.5,
+        "width": 0.2,
+        "segments": 40,
+        "seed": 4,
+        "jitter": 0.1,
+        "phase_jitter": 0.0,
+    }
+    in_step = _front_swing(wavy, **recipe, wavelength=0.25)
+    by_layer = _front_swing(wavy, **recipe, wavelength=0.25, layer_phase_jitter=1.0)
+    layers = [slice(10 * k, 10 * (k + 1)) for k in range(3)]
+    for part in layers:  # within a layer the fibers wave in step (phase_jitter 0)
+        np.testing.assert_allclose(by_layer[part], by_layer[part][:1].repeat(10, 0), atol=1e-6)
+    np.testing.assert_allclose(by_layer[layers[0]], in_step[layers[0]], atol=1e-6)  # the front layer at `phase`
+    np.testing.assert_allclose(in_step, in_step[:1].repeat(30, 0), atol=1e-6)  # without it, one phase for all
+    # The deeper layers' offsets from the front's, over 20 seeds: uniform in [0, 2π · 0.5).
+    y = np.linspace(-0.25, 0.25, 41)[:-1]  # two whole waves
+    offsets = []
+    for seed in range(20):
+        swing = _front_swing(wavy, **{**recipe, "seed": seed}, wavelength=0.25, layer_phase_jitter=0.5)[::10, :-1]
+        phase = np.angle(swing @ np.exp(-2j * np.pi * y / 0.25)) + np.pi / 2  # sin(φ + ωy): its φ
+        offsets += list(np.mod(phase[1:] - phase[0], 2 * np.pi))
+    offsets = np.array(offsets)
+    assert np.all((offsets < np.pi + 1e-3) | (offsets > 2 * np.pi - 1e-3))
+    assert np.std(offsets) == pytest.approx(np.pi / np.sqrt(12), rel=0.35)  # 40 draws: ±11% (1σ)
+    curled = curly(count=30, layers=3, length=0.4, segments=40, seed=4, phase_jitter=0.0, layer_phase_jitter=0.5)
+    flat = curly(count=30, layers=3, length=0.4, segments=40, seed=4, phase_jitter=0.0)
+    np.testing.assert_array_equal(curled.points[: 10 * 41], flat.points[: 10 * 41])
+    assert not np.allclose(curled.points[10 * 41 :], flat.points[10 * 41 :])
+
+
+def test_clumps_pull_each_fiber_toward_the_nearest_guide_toward_the_tips():
+    recipe = {"count": 60, "layers": 3, "length": 0.4, "width": 0.3, "segments": 20, "seed": 6}
+    plain = swatch(**recipe).points.reshape(60, -1, 3).astype(np.float64)
+    tight = swatch(**recipe, clumps=5, clump_strength=1.0).points.reshape(60, -1, 3).astype(np.float64)
+    half = swatch(**recipe, clumps=5, clump_strength=0.5).points.reshape(60, -1, 3).astype(np.float64)
+    np.testing.assert_allclose(tight[:, 0], plain[:, 0], atol=1e-7)  # roots stay
+    guides = np.flatnonzero(np.all(np.abs(tight - plain) < 1e-7, axis=(1, 2)))
+    assert len(guides) == 5  # only the guides keep their whole course
+    nearest = guides[np.argmin(np.abs(plain[:, None, 0, 0] - plain[guides, 0, 0]), axis=1)]
+    np.testing.assert_allclose(tight[:, -1], plain[nearest, -1], atol=1e-6)  # at strength 1 the tips meet the guide
+    # Pulled by strength × height: at the tips half way at 0.5, a quarter of the way half way up.
+    t = np.linspace(0, 1, 21)[None, :, None]
+    np.testing.assert_allclose(half, plain + 0.5 * t * (plain[nearest] - plain), atol=1e-6)
+    assert len(np.unique(tight[:, -1].round(6), axis=0)) == 5
+
+
+def test_strays_leave_the_front_surface_and_the_rest_stay():
+    recipe = {"count": 40, "layers": 2, "length": 0.4, "width": 0.2, "segments": 40, "seed": 2}
+    plain = swatch(**recipe).points.reshape(40, -1, 3).astype(np.float64)
+    strayed = swatch(**recipe, strays=4, stray_lift=0.05).points.reshape(40, -1, 3).astype(np.float64)
+    moved = np.flatnonzero(np.any(strayed != plain, axis=(1, 2)))
+    assert len(moved) == 4 and np.all(moved < 20)  # four fibers of the front layer
+    lift = strayed[moved, :, 2] - plain[moved, :, 2]
+    assert np.all(np.diff(lift, axis=1) >= 0) and np.all(lift[:, 0] == 0)  # rising from the root on
+    assert np.all((lift[:, -1] >= 0.025 - 1e-6) & (lift[:, -1] <= 0.05 + 1e-6))
+    drift = np.abs(strayed[moved, -1, 0] - plain[moved, -1, 0])
+    assert np.all(drift <= 0.5 * lift[:, -1] + 1e-6)
+    assert np.all(lift[:, : int(0.75 * 40) + 1].min(axis=1) == 0)  # each leaves in its first three quarters
+    # Over a drape, outward from the rod: the stray tips lie beyond every other fiber's distance from its axis.
+    draped = swatch(**recipe, strays=4, drape=0.25).points.reshape(40, -1, 3).astype(np.float64)
+    reach = np.hypot(draped[..., 1], draped[..., 2] + 0.25)
+    others = np.setdiff1d(np.arange(40), moved)
+    assert reach[moved, -1].min() > reach[others].max() + 0.4 * 0.04  # default lift: a tenth of the length
+
+
+def test_a_thick_opaque_swatch_of_many_layers():
+    """Twelve layers (the front ones hide the back ones), draped: each layer at its own depth, the gap between
+    layers the default one; a swatch deeper than its rod is an error naming both."""
+    fibers = swatch(count=456, layers=12, length=0.5, width=0.4, jitter=0.15, segments=16, seed=1)
+    depths = [layer[..., 2].mean() for layer in layer_slices(fibers, 12)]
+    spacing = 0.4 / 38
+    np.testing.assert_allclose(np.diff(depths), -(2 * 0.004 + 0.15 * spacing), rtol=0.05)
+    draped = swatch(count=456, layers=12, length=0.5, width=0.4, jitter=0.15, segments=16, seed=1, drape=0.25)
+    assert draped.num_strands == 456
+    with pytest.raises(ValueError, match=r"drape = 0.25 is smaller than the swatch's depth 0.39"):
+        swatch(count=1200, layers=40, length=0.5, width=0.4, jitter=0.15, segments=4, drape=0.25)
+
+
+@pytest.mark.parametrize(
+    "keys, message",
+    [
+        ({"clumps": 1.5}, "clumps must be an integer, got 1.5"),
+        ({"clumps": -1}, "clumps must be at least 0, got -1"),
+        ({"clumps": 41}, "clumps must be at most the 40 fibers, got 41"),
+        ({"clump_strength": 0.5}, r"clump_strength needs clumps \(the number of clumps, at least 1\)"),
+        ({"clumps": 3, "clump_strength": 1.5}, r"clump_strength must be in \[0, 1\], got 1.5"),
+        ({"strays": 21}, "strays must be at most the front layer's 20 fibers"),
+        ({"strays": 2, "stray_lift": -0.1}, "stray_lift must be a positive finite number, got -0.1"),
+        ({"stray_lift": 0.1}, "stray_lift needs strays"),
+        ({"layer_phase_jitter": 1.5}, r"layer_phase_jitter must be in \[0, 1\], got 1.5"),
+    ],
+)
+def test_bad_clumps_strays_and_layer_phases_name_the_key_in_the_scene(keys, message):
+    fibers = {"generator": "wavy", "count": 40, "layers": 2, "length": 0.3, "segments": 8, **keys}
+    light = {"type": "directional", "direction": [0.0, 0.0, -1.0], "irradiance": [1.0, 1.0, 1.0]}
+    data = {"camera": front_camera(0.3, (4, 4)), "lights": [light], "fibers": fibers, "hair": {"albedo": [0.5] * 3}}
+    with pytest.raises(ValueError, match=r"\[fibers\] generator 'wavy': " + message):
+        scene_from_dict(data)

@@ -95,6 +95,50 @@ def test_a_wavy_swatchs_realisations_keep_where_its_waves_crest():
     assert np.abs(swing(scene_from_dict(data).fibers) - swing(scene.fibers)).max() > 0.03
 
 
+def test_realisations_redraw_clumps_strays_and_layer_phases_and_keep_the_recipe():
+    """A wavy recipe with clumps, strays and a phase per layer: each realisation draws other clump guides, other
+    strays and other phases for the deeper layers, and keeps what the recipe states: four clumps meeting at
+    their guides' tips, three strays, and the front layer's waves cresting where the scene's do."""
+    fibers = {
+        "generator": "wavy", "count": 30, "layers": 3, "length": 0.3, "width": 0.15, "segments": 30, "seed": 9,
+        "phase_jitter": 0.0, "layer_phase_jitter": 1.0, "clumps": 4, "clump_strength": 1.0, "strays": 3,
+        "stray_lift": 0.03,
+    }  # fmt: skip
+    scene = scene_from_dict({"camera": front_camera(0.3, (8, 8)), "lights": LIGHTS, "fibers": fibers, "hair": HAIR})
+    recipe = {key: value for key, value in fibers.items() if key != "generator"}
+
+    def strands(index):
+        """(guides, strays, each layer's wave) of realisation `index`, taken apart by generating it without
+        strays, and without clumps as well."""
+        arguments = {**recipe, **(realisation_draw(scene, index) if index else {})}
+        drop = ("clumps", "clump_strength", "strays", "stray_lift")
+        points = [
+            generator(**{key: v for key, v in arguments.items() if key not in omit}).points.reshape(30, -1, 3)
+            for generator, omit in ((wavy, drop), (wavy, drop[2:]), (wavy, ()))
+        ]
+        plain, clumped, full = points
+        np.testing.assert_array_equal(full.reshape(-1, 3), realisation(scene, index).fibers.points)
+        straight_keys = ("count", "layers", "length", "width", "segments", "seed", "shift")
+        straight = swatch(**{key: arguments[key] for key in straight_keys if key in arguments})
+        wave = (plain[..., 0] - straight.points.reshape(30, -1, 3)[..., 0])[::10]  # one fiber per layer
+        guides = np.flatnonzero(np.all(clumped == plain, axis=(1, 2)))
+        strays = np.flatnonzero(np.any(full != clumped, axis=(1, 2)))
+        assert len(guides) == 4 and len(np.unique(clumped[:, -1], axis=0)) == 4 and len(strays) == 3
+        return set(guides), set(strays), wave
+
+    guides, strays, wave = strands(0)
+    others = [strands(k) for k in (1, 2, 3)]
+    assert all(other[0] != guides for other in others) and all(other[1] != strays for other in others)
+    for _, _, other_wave in others:
+        np.testing.assert_allclose(other_wave[0], wave[0], atol=1e-6)  # the front layer's crests stay
+    assert max(np.abs(other[2][1:] - wave[1:]).max() for other in others) > 0.01  # amplitude 0.02: redrawn
+    assert set(realisation(scene, 1).source["fibers"].items()) - set(scene.source["fibers"].items()) <= {
+        ("seed", realisation_draw(scene, 1)["seed"]),
+        ("shift", realisation_draw(scene, 1)["shift"]),
+        ("phase", realisation_draw(scene, 1)["phase"]),
+    }
+
+
 def test_realisation_of_a_file_groom_says_why(tmp_path):
     fibers = tmp_path / "fibers.txt"
     fibers.write_text("0 -0.1 0 0.004\n0 0.1 0 0.004\n", encoding="utf-8")

@@ -13,6 +13,10 @@ the swatch's look at the scale of many fibers, which a scene "like" a photograph
 density, and for wavy and curly fibers the phase their waves share (where the swatch's waves crest, `phase`;
 with phase_jitter 0 the waves of a whole layer crest together, and redrawing that would move a pattern the
 image shows as plainly as its highlight band: on the Cycles dark wavy swatch it moved a fit's β_n by 0.04).
+With `layer_phase_jitter` that phase is the front layer's, which is kept; the deeper layers' offsets from it,
+the clump guides (`clumps`), which fibers stray and how (`strays`) are drawn from the seed, and so redrawn,
+while the recipe's numbers (how many clumps and how strongly they pull, how many strays and how far they
+lift, how independent the layers' waves are) stay as stated.
 Realisation k of a scene is always the same, and k = 0 is the scene itself.
 """
 

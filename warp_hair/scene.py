@@ -41,7 +41,7 @@ USD_FIBER_OPTIONS = ("prim", "radius", "tolerance", "segments")
 CURVE_KINDS = ("polyline", "catmull-rom")
 CURVE_OPTIONS = ("curve", "tolerance")
 # Generator arguments that must be integers; `patch` takes one number or two; every other argument one number.
-INTEGER_GENERATOR_ARGS = frozenset({"count", "layers", "segments", "seed"})
+INTEGER_GENERATOR_ARGS = frozenset({"count", "layers", "segments", "seed", "clumps", "strays"})
 PAIR_GENERATOR_ARGS = frozenset({"patch"})
 # Below this sine of the angle between up and the view direction, the camera frame is undefined.
 PARALLEL_TOLERANCE = 1e-6

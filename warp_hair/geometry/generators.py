@@ -36,6 +36,10 @@ def swatch(
     layer_gap=None,
     drape=None,
     shift=0.0,
+    clumps=0,
+    clump_strength=None,
+    strays=0,
+    stray_lift=None,
 ):
     """A flat swatch of straight, parallel fibers, like a hair swatch card.
 
@@ -69,6 +73,21 @@ def swatch(
             wrapping round to the other, so that the swatch keeps its width and density: with another seed, another
             realisation of the same recipe (`warp_hair.realisation`). Jitter and wander are drawn as they are
             without it; a wrapped fiber's may take its axis up to 5/8 jitter × spacing past the width.
+        clumps: number of clumps the fibers gather into, 0 (the default: none) to `count`. Each clump's guide is a
+            fiber drawn at random; every fiber joins the guide nearest to it across the swatch (in x at the root),
+            so a clump is a lock of neighbouring fibers through every layer.
+        clump_strength: how far a clump's fibers are pulled toward their guide, in [0, 1]: a fiber moves towards
+            the guide's own curve (x and z) by clump_strength × its height from root (0) to tip (1), so at
+            strength 1 the tips meet on the guide. Default 0.5; only with `clumps`.
+        strays: number of stray fibers, 0 (the default) to the front layer's fiber count: fibers of the front
+            layer drawn at random that leave the swatch's surface (towards +z, outward over a drape) from a point
+            drawn in the first three quarters of their length, rising as the square of the distance from there,
+            to a height at the tip uniform in [½, 1] × `stray_lift` and drifting sideways by up to half that.
+        stray_lift: the greatest height of a stray's tip above the surface, scene units. Default: a tenth of
+            `length`; only with `strays`.
+
+    Clump guides, strays and their shapes are drawn from the seed in streams of their own, apart from the
+    jitter's: a recipe without them gives the fibers it always gave, and another seed draws them afresh.
 
     With the default spacing and layer gap no two fibers intersect. A smaller spacing, or a `width` that
     implies one, packs them tighter and lets neighbours overlap.
@@ -76,6 +95,7 @@ def swatch(
     _, y, x, z = _straight_swatch(
         count, layers, length, radius, spacing, jitter, segments, width, seed, layer_gap, shift
     )
+    x, z = _groom(x, y, z, count, layers, seed, clumps, clump_strength, strays, stray_lift)
     return _swatch_assembly(x, y, z, radius, drape)
 
 
@@ -96,19 +116,30 @@ def wavy(
     drape=None,
     shift=0.0,
     phase=None,
+    layer_phase_jitter=0.0,
+    clumps=0,
+    clump_strength=None,
+    strays=0,
+    stray_lift=None,
 ):
     """A swatch of wavy fibers: the fibers of `swatch`, each swinging in x as amplitude·sin(2π·y/wavelength + phase).
 
     Args:
-        count, layers, length, radius, spacing, jitter, width, seed, layer_gap, drape, shift: as for `swatch`
-            (fiber axes reach up to `amplitude` beyond its width; `length` is the extent along y, not the arc length).
+        count, layers, length, radius, spacing, jitter, width, seed, layer_gap, drape, shift, clumps,
+            clump_strength, strays, stray_lift: as for `swatch` (fiber axes reach up to `amplitude` beyond its
+            width; `length` is the extent along y, not the arc length). A clump's fibers take on its guide's wave
+            towards their tips.
         amplitude: half the peak-to-peak swing of a wave in x, scene units.
         wavelength: length of one wave along y, scene units.
-        phase_jitter: how independent the fibers' waves are, in [0, 1]. Each fiber's phase is a phase shared
-            by the swatch plus a random offset uniform in [0, 2π·phase_jitter): 0 gives waves in step, as in a
-            combed wavy swatch, 1 independent waves. Fibers out of step cross their neighbours.
-        phase: the phase shared by the swatch's fibers, radians: where its waves crest, a property of the
-            swatch at the scale of many fibers. Default: drawn from the seed (`shared_phase`).
+        phase_jitter: how independent the fibers' waves are, in [0, 1]. Each fiber's phase is its layer's phase
+            plus a random offset uniform in [0, 2π·phase_jitter): 0 gives waves in step, as in a combed wavy
+            swatch, 1 independent waves. Fibers out of step cross their neighbours.
+        phase: the phase of the front layer's waves, radians (of every layer's with `layer_phase_jitter` 0): where
+            its waves crest, a property of the swatch at the scale of many fibers. Default: drawn from the seed
+            (`shared_phase`).
+        layer_phase_jitter: how independent the layers' waves are, in [0, 1]: layer k > 0 waves at `phase` plus
+            an offset uniform in [0, 2π·layer_phase_jitter), as in a swatch combed layer by layer; 0 (the
+            default) gives every layer the same phase, 1 independent layers.
         segments: straight segments per fiber. Default: 12 per wavelength, ceil(12·length / wavelength).
     """
     _check_positive(amplitude=amplitude, wavelength=wavelength)
@@ -116,8 +147,10 @@ def wavy(
     rng, y, x, z = _straight_swatch(
         count, layers, length, radius, spacing, jitter, segments, width, seed, layer_gap, shift
     )
-    angle = _fiber_phases(count, phase_jitter, rng, phase)[:, None] + 2 * np.pi * y / wavelength
-    return _swatch_assembly(x + amplitude * np.sin(angle), y, z, radius, drape)
+    phases = _fiber_phases(count, phase_jitter, rng, phase) + _layer_phases(count, layers, layer_phase_jitter, seed)
+    x = x + amplitude * np.sin(phases[:, None] + 2 * np.pi * y / wavelength)
+    x, z = _groom(x, y, z, count, layers, seed, clumps, clump_strength, strays, stray_lift)
+    return _swatch_assembly(x, y, z, radius, drape)
 
 
 def curly(
@@ -137,21 +170,27 @@ def curly(
     drape=None,
     shift=0.0,
     phase=None,
+    layer_phase_jitter=0.0,
+    clumps=0,
+    clump_strength=None,
+    strays=0,
+    stray_lift=None,
 ):
     """A swatch of curly fibers: helices around the fiber axes of `swatch`, all turning the same way.
 
     Each fiber is (x + curl_radius·cos a, y, z + curl_radius·sin a) with a = 2π·y/pitch + phase.
 
     Args:
-        count, layers, length, radius, spacing, jitter, width, seed, layer_gap, drape, shift: as for `swatch`
-            (fibers reach up to `curl_radius` beyond its width and layers; `length` is the extent along y, not the arc
-            length).
+        count, layers, length, radius, spacing, jitter, width, seed, layer_gap, drape, shift, clumps,
+            clump_strength, strays, stray_lift: as for `swatch` (fibers reach up to `curl_radius` beyond its width
+            and layers; `length` is the extent along y, not the arc length).
         curl_radius: radius of the helix, scene units.
         pitch: rise along y per turn, scene units.
-        phase_jitter: how independent the fibers' curls are, in [0, 1]. Each fiber's phase is a phase shared
-            by the swatch plus a random offset uniform in [0, 2π·phase_jitter): 1 gives independent curls,
-            0 curls in step (one ringlet-like sheet).
-        phase: the phase shared by the swatch's fibers, radians; default: drawn from the seed (`shared_phase`).
+        phase_jitter: how independent the fibers' curls are, in [0, 1]. Each fiber's phase is its layer's phase
+            plus a random offset uniform in [0, 2π·phase_jitter): 1 gives independent curls, 0 curls in step (one
+            ringlet-like sheet).
+        phase: the phase of the front layer's curls, radians; default: drawn from the seed (`shared_phase`).
+        layer_phase_jitter: how independent the layers' curls are, in [0, 1], as for `wavy`.
         segments: straight segments per fiber. Default: 16 per turn, ceil(16·length / pitch).
     """
     _check_positive(curl_radius=curl_radius, pitch=pitch)
@@ -159,8 +198,11 @@ def curly(
     rng, y, x, z = _straight_swatch(
         count, layers, length, radius, spacing, jitter, segments, width, seed, layer_gap, shift
     )
-    angle = _fiber_phases(count, phase_jitter, rng, phase)[:, None] + 2 * np.pi * y / pitch
-    return _swatch_assembly(x + curl_radius * np.cos(angle), y, z + curl_radius * np.sin(angle), radius, drape)
+    phases = _fiber_phases(count, phase_jitter, rng, phase) + _layer_phases(count, layers, layer_phase_jitter, seed)
+    angle = phases[:, None] + 2 * np.pi * y / pitch
+    x, z = x + curl_radius * np.cos(angle), z + curl_radius * np.sin(angle)
+    x, z = _groom(x, y, z, count, layers, seed, clumps, clump_strength, strays, stray_lift)
+    return _swatch_assembly(x, y, z, radius, drape)
 
 
 def fur(
@@ -276,8 +318,7 @@ def _swatch_axes(y, count, layers, radius, spacing, width, jitter, layer_gap, rn
     _check_positive(radius=radius)
     if not 0 <= jitter <= _MAX_JITTER:
         raise ValueError(f"jitter must be in [0, {_MAX_JITTER}], got {jitter}")
-    sizes = np.full(layers, count // layers)
-    sizes[: count % layers] += 1
+    sizes = _layer_sizes(count, layers)
     spacing = _swatch_spacing(int(sizes[0]), radius, spacing, width, jitter)
     layer_gap = 2 * radius + jitter * spacing if layer_gap is None else layer_gap
     _check_positive(layer_gap=layer_gap)
@@ -304,6 +345,99 @@ def _swatch_axes(y, count, layers, radius, spacing, width, jitter, layer_gap, rn
     wander_phase = rng.uniform(0, 2 * np.pi, count)
     bow = np.sin(2 * np.pi * y / wander_wavelength[:, None] + wander_phase[:, None])
     return x[:, None] + wander[:, None] * bow, np.repeat(z[:, None], len(y), axis=1)
+
+
+def _layer_sizes(count, layers):
+    """Fibers per layer: the first `count % layers` layers hold one more."""
+    sizes = np.full(layers, count // layers)
+    sizes[: count % layers] += 1
+    return sizes
+
+
+def _layer_of(count, layers):
+    """Each fiber's layer (strands are listed layer by layer)."""
+    return np.repeat(np.arange(layers), _layer_sizes(count, layers))
+
+
+def _stream(seed, purpose):
+    """A random generator for one of the later keys (_LAYER_PHASES, _CLUMPS, _STRAYS), independent of the seed's
+    main generator and of each other (NumPy's spawned seed sequences): the draws of a recipe without those keys
+    stay what they were, and one key's draws do not move when another's are added."""
+    return np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(purpose,)))
+
+
+_LAYER_PHASES, _CLUMPS, _STRAYS = 1, 2, 3
+# A stray leaves the surface somewhere in the first this fraction of its length.
+_STRAY_DEPARTURE = 0.75
+
+
+def _layer_phases(count, layers, layer_phase_jitter, seed):
+    """Per fiber, its layer's phase offset (0 for the front layer), or 0.0 with layer_phase_jitter 0."""
+    layer_phase_jitter = validate.real("layer_phase_jitter", layer_phase_jitter)
+    if not 0 <= layer_phase_jitter <= 1:
+        raise ValueError(f"layer_phase_jitter must be in [0, 1], got {layer_phase_jitter!r}")
+    if layer_phase_jitter == 0:
+        return 0.0
+    offsets = 2 * np.pi * layer_phase_jitter * _stream(seed, _LAYER_PHASES).uniform(0, 1, layers)
+    offsets[0] = 0.0  # the front layer waves at `phase`, which every realisation keeps
+    return offsets[_layer_of(count, layers)]
+
+
+def _groom(x, y, z, count, layers, seed, clumps, clump_strength, strays, stray_lift):
+    """The fiber axes x, z (S, N) at heights y (N,) gathered into clumps, then with strays lifted off the front."""
+    x, z = _clump(x, y, z, count, seed, clumps, clump_strength)
+    return _stray(x, y, z, count, layers, seed, strays, stray_lift)
+
+
+def _clump(x, y, z, count, seed, clumps, clump_strength):
+    clumps = validate.integer("clumps", clumps, minimum=0, maximum=None)
+    if clumps > count:
+        raise ValueError(f"clumps must be at most the {count} fibers, got {clumps}")
+    if not clumps:
+        if clump_strength is not None:
+            raise ValueError("clump_strength needs clumps (the number of clumps, at least 1)")
+        return x, z
+    strength = 0.5 if clump_strength is None else validate.real("clump_strength", clump_strength)
+    if not 0 <= strength <= 1:
+        raise ValueError(f"clump_strength must be in [0, 1], got {strength!r}")
+    guides = _stream(seed, _CLUMPS).choice(count, clumps, replace=False)
+    # Each fiber joins the guide nearest across the swatch at the root: the one sorted just left or right of it.
+    root, order = x[:, 0], np.argsort(x[guides, 0], kind="stable")
+    ranked = root[guides][order]
+    right = np.clip(np.searchsorted(ranked, root), 0, clumps - 1)
+    left = np.clip(right - 1, 0, clumps - 1)
+    nearer = np.where(np.abs(root - ranked[left]) <= np.abs(root - ranked[right]), left, right)
+    guide = guides[order][nearer]
+    pull = strength * (y - y[0]) / (y[-1] - y[0])
+    return x + pull * (x[guide] - x), z + pull * (z[guide] - z)
+
+
+def _stray(x, y, z, count, layers, seed, strays, stray_lift):
+    front = np.flatnonzero(_layer_of(count, layers) == 0)
+    strays = validate.integer("strays", strays, minimum=0, maximum=None)
+    if strays > len(front):
+        raise ValueError(
+            f"strays must be at most the front layer's {len(front)} fibers (strays leave the swatch's front "
+            f"surface), got {strays}"
+        )
+    if not strays:
+        if stray_lift is not None:
+            raise ValueError("stray_lift needs strays (the number of stray fibers, at least 1)")
+        return x, z
+    extent = y[-1] - y[0]
+    lift = extent / 10 if stray_lift is None else validate.real("stray_lift", stray_lift)
+    _check_positive(stray_lift=lift)
+    rng = _stream(seed, _STRAYS)
+    chosen = rng.choice(front, strays, replace=False)
+    departure = _STRAY_DEPARTURE * rng.uniform(0, 1, strays)[:, None]
+    height = lift * rng.uniform(0.5, 1, strays)[:, None]
+    drift = height * rng.uniform(-0.5, 0.5, strays)[:, None]
+    # Rising as the square of the distance from where it leaves: its tangent turns smoothly away from the surface.
+    rise = (np.clip((y - y[0]) / extent - departure, 0, None) / (1 - departure)) ** 2
+    x, z = x.copy(), z.copy()
+    x[chosen] += drift * rise
+    z[chosen] += height * rise
+    return x, z
 
 
 def _swatch_spacing(per_layer, radius, spacing, width, jitter):
