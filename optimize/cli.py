@@ -410,7 +410,12 @@ def _add_photo(actions) -> None:
         help="per --image, in order: the direction its directional light travels, in the rig's frame "
         "(x across, y along the fibers, z towards the camera)",
     )
-    photo.add_argument("--hdri", metavar="EXR", help="a lat-long EXR taken where the swatch stood, for every view")
+    photo.add_argument(
+        "--hdri",
+        metavar="EXR",
+        help="a lat-long EXR taken where the swatch stood, for every view, in the rig's frame (+y up the image, "
+        "u = 0 looking away from the camera); with --light, those directional lights as well",
+    )
     photo.add_argument(
         "--transfer", choices=TRANSFERS, default="auto", help="the photos' transfer curve (default auto)"
     )
@@ -422,6 +427,49 @@ def _add_photo(actions) -> None:
     photo.add_argument("--layers", type=int, default=4, help="layers of fibers (default 4)")
     photo.add_argument("--fiber-radius", type=float, default=0.004, help="fiber radius (default 0.004)")
     photo.add_argument("--drape", type=float, default=0.25, help="the rod's radius, draped rig (default 0.25)")
+    shape = photo.add_mutually_exclusive_group()
+    shape.add_argument(
+        "--waves",
+        type=_pair("AMPLITUDE,WAVELENGTH"),
+        metavar="AMPLITUDE,WAVELENGTH",
+        help="wavy fibers (the wavy generator): half their peak-to-peak swing and the length of a wave, scene units",
+    )
+    shape.add_argument(
+        "--curls",
+        type=_pair("RADIUS,PITCH"),
+        metavar="RADIUS,PITCH",
+        help="curly fibers (the curly generator): the helix's radius and its rise per turn, scene units",
+    )
+    photo.add_argument(
+        "--phase-jitter",
+        type=float,
+        metavar="F",
+        help="with --waves or --curls: how independent the fibers' waves are, 0 (in step: combed) to 1 "
+        "(default: the generator's, 0.15 for waves, 1 for curls)",
+    )
+    photo.add_argument(
+        "--layer-phase-jitter",
+        type=float,
+        metavar="F",
+        help="with --waves or --curls: how independent the layers' waves are, 0 (default: in step) to 1 (a "
+        "swatch combed layer by layer)",
+    )
+    photo.add_argument("--clumps", type=int, metavar="N", help="swatch rigs: the fibers gather into N clumps")
+    photo.add_argument(
+        "--clump-strength",
+        type=float,
+        metavar="S",
+        help="with --clumps: how far a clump's fibers are pulled to its guide at the tips, 0 to 1 (default 0.5)",
+    )
+    photo.add_argument(
+        "--strays", type=int, metavar="N", help="swatch rigs: N fibers of the front layer leave its surface"
+    )
+    photo.add_argument(
+        "--stray-lift",
+        type=float,
+        metavar="L",
+        help="with --strays: the highest a stray's tip rises off the surface, scene units (default length / 10)",
+    )
     photo.add_argument("--patch", type=float, default=0.3, help="fur patch size (default 0.3)")
     photo.add_argument("--fur-length", type=float, default=0.1, help="fur length (default 0.1)")
     photo.add_argument("--elevation", type=float, default=30.0, help="fur rig: camera's degrees above the patch (30)")
@@ -466,6 +514,21 @@ def _add_photo(actions) -> None:
         help="the masked card's normal in the rig's frame, or 'camera' (facing it, the default)",
     )
     photo.set_defaults(run=run_photo)
+
+
+def _pair(names: str):
+    """An argparse type: two numbers A,B, as `names` calls them."""
+
+    def parse(text: str) -> tuple:
+        try:
+            values = tuple(float(v) for v in text.split(","))
+        except ValueError:
+            values = ()
+        if len(values) != 2:
+            raise argparse.ArgumentTypeError(f"expected two numbers {names}, got {text!r}")
+        return values
+
+    return parse
 
 
 def _reflectance(text: str) -> float | list:

@@ -14,10 +14,17 @@ across x, the camera on +z looking at the origin (the top of the rod, for a drap
 a flat swatch; for a fur patch the camera looks down at the patch from `--elevation` degrees above its plane).
 A directional light's vector is the direction its light travels, in that frame: (0.2, −0.3, −1) comes from
 behind the camera, a little above and to the left; (0, −0.15, 1) from behind the swatch. An HDRI taken where the
-swatch stood replaces the directional lights (`--hdri`, a lat-long EXR).
+swatch stood (`--hdri`, a lat-long EXR in the rig's frame: +y up the image, u = 0 looking away from the camera,
+docs/scenes.md) lights every view; `--light` given with it adds its directional light per photo (a flash or the
+sun besides the room).
 
 Rigs: `draped` a swatch laid over a rod of radius `--drape` (the highlight band a photo shows), `flat` a swatch
-on a card, `fur` a patch of fur (`--patch`, `--fur-length`, `--count`). The camera: orthographic (`--ortho-width`,
+on a card, `fur` a patch of fur (`--patch`, `--fur-length`, `--count`). A swatch's fibers are straight unless
+`--waves AMPLITUDE,WAVELENGTH` or `--curls RADIUS,PITCH` (the wavy and curly generators, with
+`--phase-jitter` and `--layer-phase-jitter`), and may gather into `--clumps N` (`--clump-strength`) and have
+`--strays N` (`--stray-lift`) leave the front surface; a thick swatch is more `--layers` (and `--count`).
+The rig's strands are a recipe, never the photographed ones, so target.toml says `realisations = "random"`: the
+fit renders other realisations of it (optimize/realisations.py). The camera: orthographic (`--ortho-width`,
 the view's width in scene units), or perspective at `--distance` with `--fov`, or EXIF's focal length with
 `--sensor-width` (mm; the 35 mm equivalent focal length's 36 mm when EXIF gives that). A grey card behind the
 swatch (`--card REFLECTANCE`) is rendered as the scenes' [card]: its pixels pin the gains and white balance. A
@@ -45,6 +52,7 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
+from warp_hair.geometry.generators import CURL_SEGMENTS, WAVE_SEGMENTS
 from warp_hair.io import write_exr
 from warp_hair.photo import read_photo
 
@@ -54,6 +62,32 @@ BACKGROUND_TOLERANCE = 0.05
 # The [render] spp written: a photo's noise (its sensor's, its codes') taken as a 1024-sample render's, as the
 # shipped peer targets are; the photo's quantisation is counted apart (identify.py).
 PHOTO_SPP = 1024
+# Light paths of the [render] written: 32 bounces lose nothing measurable in a swatch of 4 layers, but 12 layers of
+# light hair (albedo 0.8, 0.7, 0.5) render 2.1% darker than at 64 (docs/scenes.md, many layers).
+MAX_DEPTH, THICK_MAX_DEPTH, THICK_LAYERS = 32, 64, 5
+# The swatch generators' keys the flags set, and those flags: a generator's error names the flag the user gave.
+FIBER_FLAGS = {
+    "count": "--count",
+    "layers": "--layers",
+    "length": "--length",
+    "width": "--width",
+    "radius": "--fiber-radius",
+    "drape": "--drape",
+    "amplitude": "--waves",
+    "wavelength": "--waves",
+    "curl_radius": "--curls",
+    "pitch": "--curls",
+    "phase_jitter": "--phase-jitter",
+    "layer_phase_jitter": "--layer-phase-jitter",
+    "clumps": "--clumps",
+    "clump_strength": "--clump-strength",
+    "strays": "--strays",
+    "stray_lift": "--stray-lift",
+}
+# The swatch generators' keys that flags of their own name give as they are, and every flag that shapes a swatch's
+# fibers, not a fur patch's.
+SHAPE_KEYS = ("phase_jitter", "layer_phase_jitter", "clumps", "clump_strength", "strays", "stray_lift")
+SWATCH_FLAGS = ("waves", "curls", *SHAPE_KEYS)
 START_HAIR = {"albedo": [0.5, 0.5, 0.5], "beta_m": 0.3, "beta_n": 0.3, "alpha": 2.0, "eta": 1.55}
 
 
@@ -200,6 +234,29 @@ def _card_blocks(path: Path, shape, width: int, flags: np.ndarray) -> tuple:
 
 
 def _fibers_table(rig: str, args) -> dict:
+    """The [fibers] table of the rig and the flags, checked by running its generator (errors name the flag)."""
+    table = _rig_fibers(rig, args)
+    from warp_hair.scene import GENERATORS
+
+    arguments = {key: value for key, value in table.items() if key != "generator"}
+    try:
+        GENERATORS[table["generator"]](**arguments)
+    except (TypeError, ValueError) as error:
+        flag = FIBER_FLAGS.get(str(error).split(" ")[0], "the rig's fibers")
+        raise ValueError(f"{flag}: {error}") from None
+    return table
+
+
+def _rig_fibers(rig: str, args) -> dict:
+    given = [name for name in SWATCH_FLAGS if getattr(args, name, None) is not None]
+    if rig == "fur" and given:
+        flags = ", ".join("--" + name.replace("_", "-") for name in given)
+        raise ValueError(f"{flags}: the swatch rigs' (draped, flat), not --rig fur's")
+    if getattr(args, "waves", None) is None and getattr(args, "curls", None) is None:
+        waved = [name for name in ("phase_jitter", "layer_phase_jitter") if name in given]
+        if waved:
+            flags = ", ".join("--" + name.replace("_", "-") for name in waved)
+            raise ValueError(f"{flags}: the phases of waves or curls; give --waves or --curls")
     if rig == "fur":
         return {
             "generator": "fur",
@@ -223,7 +280,35 @@ def _fibers_table(rig: str, args) -> dict:
     }
     if rig == "draped":
         table["drape"] = args.drape
+    shape = None
+    if getattr(args, "waves", None) is not None:
+        shape = ("wavy", "amplitude", "wavelength", args.waves, WAVE_SEGMENTS)
+    elif getattr(args, "curls", None) is not None:
+        shape = ("curly", "curl_radius", "pitch", args.curls, CURL_SEGMENTS)
+    if shape is not None:
+        generator, size, period, (size_value, period_value), per_period = shape
+        table["generator"] = generator
+        table[size], table[period] = size_value, period_value
+        if period_value > 0 and math.isfinite(period_value):  # else the generator's error names it
+            table["segments"] = max(table["segments"], math.ceil(per_period * args.length / period_value))
+    for name in SHAPE_KEYS:
+        if getattr(args, name, None) is not None:
+            table[name] = getattr(args, name)
     return table
+
+
+def _environment(hdri) -> dict | None:
+    """The [[lights]] table of --hdri, the map checked now (read, finite, non-negative) rather than at the fit."""
+    if hdri is None:
+        return None
+    from warp_hair.scene import EnvironmentLight
+
+    path = Path(hdri).resolve()
+    try:
+        EnvironmentLight(file=path)
+    except ValueError as error:
+        raise ValueError(f"--hdri: {str(error).removeprefix('file: ')}") from None
+    return {"type": "environment", "file": str(path)}
 
 
 def _camera_table(rig: str, args, photo, resolution) -> dict:
@@ -262,11 +347,13 @@ def make_photo_target(out_dir, args, log=None) -> list[Path]:
     images = [Path(p) for p in args.image]
     if args.rig not in RIGS:
         raise ValueError(f"--rig {args.rig!r}; allowed: {list(RIGS)}")
-    if args.hdri is None and len(args.light or []) != len(images):
+    if (args.hdri is None or args.light) and len(args.light or []) != len(images):
         raise ValueError(
             f"{len(images)} photo(s) but {len(args.light or [])} --light direction(s): give one --light "
             "per --image, in the same order (or --hdri for all)"
         )
+    environment = _environment(args.hdri)
+    fibers = _fibers_table(args.rig, args)
     if args.mask and len(args.mask) not in (1, len(images)) and args.mask != ["auto"]:
         raise ValueError("--mask takes 'auto' or one mask file per --image")
     card_masks = _card_masks(args, len(images))
@@ -303,9 +390,9 @@ def make_photo_target(out_dir, args, log=None) -> list[Path]:
             "solves each photo's gain and the white balance.",
             _table("camera", _camera_table(args.rig, args, photo, resolution)),
         ]
-        if args.hdri is not None:
-            parts.append(_table("lights", {"type": "environment", "file": str(Path(args.hdri).resolve())}, True))
-        else:
+        if environment is not None:
+            parts.append(_table("lights", environment, True))
+        if args.light:
             parts.append(
                 _table(
                     "lights",
@@ -313,11 +400,12 @@ def make_photo_target(out_dir, args, log=None) -> list[Path]:
                     True,
                 )
             )
-        parts += [_table("fibers", _fibers_table(args.rig, args)), _table("hair", START_HAIR)]
+        parts += [_table("fibers", fibers), _table("hair", START_HAIR)]
         if args.card is not None:
             parts.append(_table("card", {"albedo": [args.card] * 3}))
         # A photo has no samples: its spp says how noisy `targets check` and the fit's refinement take it to be.
-        parts.append(_table("render", {"spp": PHOTO_SPP, "max_depth": 32, "seed": 1}))
+        depth = THICK_MAX_DEPTH if fibers.get("layers", 1) >= THICK_LAYERS else MAX_DEPTH
+        parts.append(_table("render", {"spp": PHOTO_SPP, "max_depth": depth, "seed": 1}))
         (out_dir / scene_name).write_text("\n\n".join(parts) + "\n", encoding="utf-8")
         write_exr(
             out_dir / exr_name, image, {"photo": {"file": path.name, "transfer": photo.transfer, "exif": photo.exif}}
@@ -339,6 +427,9 @@ def make_photo_target(out_dir, args, log=None) -> list[Path]:
         "are fitted with the hair.",
         'gains = "per-image"',
         'white_balance = "fit"',
+        "# The scenes' [fibers] are the rig's recipe, never the photographed strands: the fit renders other",
+        "# realisations of it and counts the photo's strands as one draw in its σ (optimize/realisations.py).",
+        'realisations = "random"',
     ]
     if any(mask is not None for mask in card_masks):
         lines += ["", _table("card", {"reflectance": args.card_reflectance, "normal": args.card_normal})]

@@ -535,3 +535,91 @@ def test_fur_rig_with_a_perspective_camera_and_an_hdri(tmp_path):
 
 def _gradient(n):
     return (np.linspace(0, 0.4, n)[None, :, None] * np.ones((n, 1, 3))).astype(np.float32)
+
+
+def _swatch_photo(tmp_path, name="swatch.png"):
+    write_photo(tmp_path / name, np.full((40, 40, 3), 0.3, np.float32) + _gradient(40))
+    return tmp_path / name
+
+
+def test_a_wavy_clumpy_swatch_with_strays_is_a_recipe_the_fit_redraws(tmp_path, capsys):
+    """--waves with a phase per layer, clumps and strays: the scene's [fibers] is that recipe, and target.toml says
+    realisations = "random" (the photographed strands are not the scene's), which the target loads with and
+    redraws: another realisation keeps the recipe and moves the strands."""
+    from warp_hair.realisation import realisation
+
+    rc, _, err = _targets_photo(
+        capsys, tmp_path, _swatch_photo(tmp_path), "--waves", "0.012,0.25", "--phase-jitter", "0",
+        "--layer-phase-jitter", "1", "--clumps", "12", "--clump-strength", "0.6", "--strays", "5", "--layers", "12",
+        "--count", "456", "--stray-lift", "0.03", "--resolution", "16",
+    )  # fmt: skip
+    assert rc == 0, err
+    target = load_target(tmp_path / "made")
+    assert target.realisations == "random"
+    assert "never the photographed strands" in (tmp_path / "made" / "target.toml").read_text()
+    scene = target.images[0].scene
+    fibers = scene.source["fibers"]
+    assert {key: fibers[key] for key in ("generator", "amplitude", "wavelength", "phase_jitter")} == {
+        "generator": "wavy", "amplitude": 0.012, "wavelength": 0.25, "phase_jitter": 0.0,
+    }  # fmt: skip
+    assert (fibers["layer_phase_jitter"], fibers["clumps"], fibers["clump_strength"]) == (1.0, 12, 0.6)
+    assert (fibers["strays"], fibers["stray_lift"], fibers["layers"], fibers["segments"]) == (5, 0.03, 12, 128)
+    assert scene.render.max_depth == 64  # twelve layers: the light's paths are longer
+    other = realisation(scene, 1)
+    assert other.source["fibers"]["clumps"] == 12 and other.source["fibers"]["strays"] == 5
+    assert not np.allclose(other.fibers.points, scene.fibers.points)
+    rc, _, _ = _targets_photo(capsys, tmp_path, _swatch_photo(tmp_path), "--rig", "flat", "--curls", "0.02,0.05")
+    fibers = load_target(tmp_path / "made").images[0].scene.source["fibers"]
+    assert (rc, fibers["generator"], fibers["segments"]) == (0, "curly", 160)  # 16 a turn over 0.5: not the flat 8
+    assert load_target(tmp_path / "made").images[0].scene.render.max_depth == 32
+
+
+@pytest.mark.parametrize(
+    "options, message",
+    [
+        (["--clumps", "4", "--clump-strength", "2"], r"--clump-strength: clump_strength must be in \[0, 1\], got 2.0"),
+        (["--clump-strength", "0.5"], r"--clump-strength: clump_strength needs clumps"),
+        (["--strays", "200"], r"--strays: strays must be at most the front layer's 38 fibers"),
+        (["--waves", "0,0.2"], r"--waves: amplitude must be a positive finite number, got 0.0"),
+        (["--curls", "0.02,-1"], r"--curls: pitch must be a positive finite number, got -1.0"),
+        (["--phase-jitter", "0.5"], r"--phase-jitter: the phases of waves or curls; give --waves or --curls"),
+        (["--waves", "0.01,0.2", "--layer-phase-jitter", "3"], r"--layer-phase-jitter: layer_phase_jitter must be"),
+        (["--rig", "fur", "--clumps", "3"], r"--clumps: the swatch rigs' \(draped, flat\), not --rig fur's"),
+    ],
+)
+def test_bad_fiber_flags_name_the_flag(tmp_path, capsys, options, message):
+    import re
+
+    rc, _, err = _targets_photo(capsys, tmp_path, _swatch_photo(tmp_path), *options)
+    assert rc == 2 and re.search(message, err), err
+    assert not (tmp_path / "made").exists()
+
+
+@pytest.mark.parametrize(
+    "options, message",
+    [
+        (["--waves", "0.01"], "argument --waves: expected two numbers AMPLITUDE,WAVELENGTH, got '0.01'"),
+        (["--waves", "0.01,0.2", "--curls", "0.01,0.1"], "argument --curls: not allowed with argument --waves"),
+    ],
+)
+def test_waves_take_two_numbers_and_exclude_curls(tmp_path, capsys, options, message):
+    with pytest.raises(SystemExit) as exit_status:
+        _targets_photo(capsys, tmp_path, _swatch_photo(tmp_path), *options)
+    assert exit_status.value.code == 2 and message in capsys.readouterr().err
+
+
+def test_an_hdri_is_checked_now_and_lights_every_view_with_the_given_lights(tmp_path, capsys):
+    from warp_hair.io import write_exr
+
+    photo = _swatch_photo(tmp_path)
+    rc, _, err = _targets_photo(capsys, tmp_path, photo, "--hdri", str(tmp_path / "none.exr"))
+    assert rc == 2 and "--hdri: " in err and "none.exr" in err and not (tmp_path / "made").exists()
+    write_exr(tmp_path / "bad.exr", np.full((8, 16, 3), -1.0, np.float32))
+    rc, _, err = _targets_photo(capsys, tmp_path, photo, "--hdri", str(tmp_path / "bad.exr"))
+    assert rc == 2 and "bad.exr holds negative or non-finite radiance" in err
+    write_exr(tmp_path / "sky.exr", np.full((8, 16, 3), 0.5, np.float32))
+    rc, _, err = _targets_photo(capsys, tmp_path, photo, "--hdri", str(tmp_path / "sky.exr"))  # with its --light
+    assert rc == 0, err
+    lights = load_target(tmp_path / "made").images[0].scene.lights
+    assert [type(light).__name__ for light in lights] == ["EnvironmentLight", "DirectionalLight"]
+    assert lights[1].direction == pytest.approx(np.array([0.2, -0.3, -1]) / np.linalg.norm([0.2, -0.3, -1]))

@@ -21,6 +21,8 @@ _MAX_JITTER = 0.4
 # The default spacing is this much more than the spacing at which neighbours could just touch, so that
 # float32 rounding never makes them overlap.
 _SPACING_MARGIN = 1.05
+# The default segments of a wavy fiber per wavelength, of a curly one per turn.
+WAVE_SEGMENTS, CURL_SEGMENTS = 12, 16
 
 
 def swatch(
@@ -143,7 +145,7 @@ def wavy(
         segments: straight segments per fiber. Default: 12 per wavelength, ceil(12·length / wavelength).
     """
     _check_positive(amplitude=amplitude, wavelength=wavelength)
-    segments = _segments_per_period(segments, length, wavelength, 12, "wavelength")
+    segments = _segments_per_period(segments, length, wavelength, WAVE_SEGMENTS, "wavelength")
     rng, y, x, z = _straight_swatch(
         count, layers, length, radius, spacing, jitter, segments, width, seed, layer_gap, shift
     )
@@ -194,7 +196,7 @@ def curly(
         segments: straight segments per fiber. Default: 16 per turn, ceil(16·length / pitch).
     """
     _check_positive(curl_radius=curl_radius, pitch=pitch)
-    segments = _segments_per_period(segments, length, pitch, 16, "pitch")
+    segments = _segments_per_period(segments, length, pitch, CURL_SEGMENTS, "pitch")
     rng, y, x, z = _straight_swatch(
         count, layers, length, radius, spacing, jitter, segments, width, seed, layer_gap, shift
     )
