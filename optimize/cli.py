@@ -15,6 +15,7 @@ targets/ (e.g. blonde_straight).
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 import time
 from pathlib import Path
@@ -330,7 +331,13 @@ def add_targets(subparsers) -> None:
         metavar="NAMES",
         help=f"the controls a fit would fit (default {','.join(DEFAULT_FIT)})",
     )
-    check.add_argument("--at", nargs="+", metavar="NAME=V", help="check at these values instead of truth.json's")
+    check.add_argument(
+        "--at",
+        nargs="+",
+        metavar="NAME=V|PARAMS",
+        help="check at these values instead of truth.json's (a photo has none): NAME=V, or a fit's params.json (or "
+        "its directory) for the look it fitted, a quick fit's estimate; NAME=V given with it override its values",
+    )
     check.add_argument(
         "--realisation-samples",
         type=int,
@@ -583,6 +590,26 @@ def run_targets(args: argparse.Namespace) -> int:
     return 0
 
 
+def _check_values(items, names) -> dict:
+    """--at's values: a fit's params.json (or its directory), its look's values of the checked controls `names`,
+    and NAME=V items, which override them."""
+    values = {}
+    for item in items or ():
+        if "=" in item:
+            continue
+        path = Path(item) / "params.json" if Path(item).is_dir() else Path(item)
+        try:
+            look = json.loads(path.read_text(encoding="utf-8"))["look"]
+        except (OSError, ValueError, KeyError, TypeError) as error:
+            reason = "it has no look" if isinstance(error, (KeyError, TypeError)) else error
+            raise ValueError(
+                f"--at {item}: not NAME=V and not a fit's params.json (or its directory) to read a look from: {reason}"
+            ) from None
+        values.update({name: look[name] for name in names if name in look})
+    values.update(parse_assignments([item for item in items or () if "=" in item], "--at"))
+    return values
+
+
 def _check_target(args: argparse.Namespace) -> int:
     from .card_region import summary as card_summary
     from .identify import check_target, describe
@@ -598,7 +625,7 @@ def _check_target(args: argparse.Namespace) -> int:
     start = time.perf_counter()
     result = check_target(
         target,
-        parse_assignments(args.at, "--at"),
+        _check_values(args.at, parse_control_names(names, target.hair.colour_input)),
         names,
         spp=args.spp,
         model_error=args.model_error,

@@ -1,8 +1,9 @@
 """Whether a target's images identify its controls: the fit's expected uncertainty, before any fit is run.
 
-    warp-hair targets check TARGET [--fit NAMES] [--at NAME=V ...] [--spp N] [--model-error E] [--threads T]
+    warp-hair targets check TARGET [--fit NAMES] [--at NAME=V ... | FIT_DIR/params.json] [--spp N] [--model-error E]
 
-The loss is linearised at the target's true controls (truth.json, or given values) as the fit linearises it
+The loss is linearised at the target's true controls (truth.json, or given values: a look, or a fit's estimate
+from its params.json, for a photo that has no truth) as the fit linearises it
 (`linearize.py`: weighted, pooled residuals, their Jacobian A, loss weights W; CHECK_LINEARISATIONS of them at
 CHECK_SPP per render, their Jacobians pooled). The target's own noise then moves the least-squares estimate by
 
@@ -96,6 +97,12 @@ class Identifiability:
     # The measure of fit at the checked controls (goodness.py): what a fit landing there should show; well above
     # 1 where the scenes do not describe the images even at these controls.
     goodness: object | None = None
+    # A photographed target (`is_photo`): its remedies are a photographer's, not more samples of a render.
+    photo: bool = False
+    gains: str = "none"  # the target's gains (optimize/camera.py): what pins them is a remedy
+    card: bool = False  # a grey card in it (marked or rendered) pins them already
+    views: int = 1
+    quantisation: np.ndarray | None = None  # (p,) the part of σ target noise from the photos' 8- or 16-bit codes
 
     @property
     def sigma(self) -> np.ndarray:
@@ -160,7 +167,16 @@ class Identifiability:
             f"camera unknowns (fitted with the hair; pinned when the expected σ is below {100 * CAMERA_BOUND:g}%):"
         ]
         for label, value, sigma in self.camera:
-            verdict = "pinned" if sigma < CAMERA_BOUND else "not pinned: it trades off with the hair"
+            verdict = (
+                "pinned"
+                if sigma < CAMERA_BOUND
+                else "not pinned: it trades off with the hair"
+                + (
+                    " (a grey card in the shot pins it: targets photo --card-mask)"
+                    if self.photo and not self.card
+                    else ""
+                )
+            )
             lines.append(f"  {label:<18} {value:.4f}  σ {100 * sigma:.2f}%  {verdict}")
         return "\n".join(lines)
 
@@ -232,8 +248,9 @@ def check_target(
     if missing:
         raise ValueError(
             f"{target.name}: no true value for {', '.join(missing)} (the target has "
-            f"{'no truth.json' if target.truth is None else 'none in truth.json'}); give the controls "
-            "to check at (--at NAME=V)"
+            f"{'no truth.json' if target.truth is None else 'none in truth.json'}); give the look to check at: "
+            "--at NAME=V ... (the look you expect), or a quick fit's estimate, --at FIT_DIR/params.json (e.g. "
+            f"`warp-hair fit {target.directory} -o quick --iters 30 --refine 2`)"
         )
     unknown = sorted(set(at) - set(names))
     if unknown:
@@ -327,6 +344,10 @@ def check_target(
             (label, float(v), float(np.sqrt(max(cov_gg[k, k], 0.0))))
             for k, (label, v) in enumerate(zip(projection.labels, values))
         ]
+    quantised = None
+    if quantisation is not None:
+        cov_q = h_inv @ _target_gradient_covariance(lins, total / n, [0.0] * len(factors), quantisation) @ h_inv
+        quantised = np.sqrt(np.maximum(np.diag(cov_q), 0.0))
     result = Identifiability(
         target=target.name,
         origin=target.origin,
@@ -345,9 +366,20 @@ def check_target(
         fit_points=fit_points,
         fit_spp=fit_spp,
         goodness=goodness_of_fit(lins[0], target, settings, render_spp, quantisation, draw),
+        photo=is_photo(target),
+        gains=target.gains,
+        card=any(image.card is not None or image.scene.card is not None for image in target.images),
+        views=len(target.images),
+        quantisation=quantised,
     )
     # What keeps each control from being identified needs the whole account (its σ parts) first.
     return dataclasses.replace(result, problems=_problems(result, flat))
+
+
+def is_photo(target) -> bool:
+    """Whether the target's images are photographs: decoded from a PNG, JPEG, TIFF or raw file, or an EXR that
+    `warp-hair targets photo` wrote from one (its header's "photo" record)."""
+    return any(image.photo is not None or "photo" in image.metadata for image in target.images)
 
 
 def _realisation_linearisations(target, at, settings, render_spp, seed, threads, count) -> list:
@@ -389,7 +421,8 @@ def _target_gradient_covariance(lins, a, variance_factors, extra=None) -> np.nda
 
 
 def _problems(result: Identifiability, flat: np.ndarray) -> list:
-    """Per control that fails the rule, what fails and what would help."""
+    """Per control that fails the rule, what fails and what would help: for a photographed target, what to
+    photograph (`_photo_remedy`), for a render, what to render."""
     problems = []
     model = result.model_error / 0.01 * np.abs(result.shift)
     drawn = np.zeros(len(model)) if result.realisation is None else result.realisation
@@ -398,7 +431,13 @@ def _problems(result: Identifiability, flat: np.ndarray) -> list:
         bound, sigma = result.bounds[k], result.sigma[k]
         if flat[k]:
             problems.append(
-                f"{label}: the images do not change with it at all; add a view or a light in which it shows, or fix it"
+                f"{label}: the images do not change with it at all; "
+                + (
+                    "photograph a view in which it shows (front- and back-lit: a light behind the swatch shows the "
+                    "light that went through the fibers), or fix it (leave it out of --fit)"
+                    if result.photo
+                    else "add a view or a light in which it shows, or fix it"
+                )
             )
             continue
         if np.isnan(bound) or sigma < bound:
@@ -419,6 +458,13 @@ def _problems(result: Identifiability, flat: np.ndarray) -> list:
                 f"spp) add {fitted[k]:.3g}: fit with about {2 * steps} Gauss-Newton steps (--refine {2 * steps}; "
                 "that part falls as one over the square root of the steps)"
             )
+        elif beyond_samples and drawn[k] > model[k] and result.photo:
+            message += (
+                f"; the photographed strands, one draw of the recipe that no fit of them knows, alone move it by "
+                f"{drawn[k]:.3g} (over {result.realisation_samples} realisations), and no longer exposure removes "
+                "that: get more strands in view (a wider crop of the swatch, or the camera further back, or a wider "
+                "swatch: that part falls about as one over the square root of the strands seen)"
+            )
         elif beyond_samples and drawn[k] > model[k]:
             message += (
                 f"; the target's strands, one draw of their recipe that no fit of them knows, alone move it by "
@@ -426,6 +472,19 @@ def _problems(result: Identifiability, flat: np.ndarray) -> list:
                 "that: show more strands (a wider swatch or more of it in view: that part falls about as one over "
                 "the square root of the strands seen), or give the scenes the very strands and fit them (realisations "
                 '= "fixed")'
+            )
+        elif beyond_samples and result.photo:
+            message += (
+                f"; a {100 * result.model_error:g}% brightness disagreement alone moves it by {model[k]:.3g}, "
+                "and no longer exposure removes that: "
+                + (
+                    'fit the photos\' exposures (gains = "per-image" in target.toml, or "exif" where every photo '
+                    "has its EXIF exposure), which absorb a uniform disagreement, or photograph a view in which it "
+                    "changes the image otherwise than brightness does (front- and back-lit)"
+                    if result.gains == "none"
+                    else "photograph a view in which it changes the image otherwise than brightness does (front- "
+                    "and back-lit: a light behind the swatch)"
+                )
             )
         elif beyond_samples:
             message += (
@@ -437,12 +496,17 @@ def _problems(result: Identifiability, flat: np.ndarray) -> list:
         else:  # the target's own noise: more samples of it, the fit's part as it is where that leaves room
             room = bound**2 - rest - fitted[k] ** 2
             factor = result.noise[k] ** 2 / (room if room > 0 else bound**2 - rest)
+            other = result.correlation[k]
+            traded = other if other is not None and abs(other[1]) > CORRELATION_WARNING else None
+            if result.photo:
+                message += "; " + _photo_remedy(result, k, traded, rest, fitted[k])
+                problems.append(message)
+                continue
             spp = ", ".join(str(int(np.ceil(factor * n))) for n in sorted(set(result.target_spp)))
             samples = f"render the target with {factor:.2g}× the samples ({spp} spp; σ falls as 1/√spp)"
-            other = result.correlation[k]
-            if other is not None and abs(other[1]) > CORRELATION_WARNING:
+            if traded is not None:
                 message += (
-                    f"; it trades off with {other[0]} (correlation {other[1]:+.2f}): add a view that tells "
+                    f"; it trades off with {traded[0]} (correlation {traded[1]:+.2f}): add a view that tells "
                     "them apart (a light from another side, another camera)"
                     + (
                         f", or {samples}"
@@ -454,6 +518,58 @@ def _problems(result: Identifiability, flat: np.ndarray) -> list:
                 message += f"; {samples}, or add another view (a light from another side, another camera)"
         problems.append(message)
     return problems
+
+
+def _photo_remedy(result: Identifiability, k: int, traded, rest: float, fitted: float) -> str:
+    """What a photographer can do where the photos' own noise leaves control k unpinned; `traded` is (the control
+    it trades off with, ρ) or None, `rest` the variance no exposure removes (model error, strands' draw), `fitted`
+    the fit's own renders' σ. A photo's noise does not change the fit's renders, so where they leave no room, the
+    photos' part and theirs are each given half of what is left: more steps of the fit as well."""
+    bound = result.bounds[k]
+    room = bound**2 - rest - fitted**2
+    steps = 0
+    if room <= 0:
+        room = (bound**2 - rest) / 2
+        steps = 2 * int(np.ceil(fitted**2 / room * result.fit_points))
+    factor = result.noise[k] ** 2 / room
+    remedies = []
+    if result.gains != "none" and not result.card:
+        card = "a grey card in the shot (`targets photo --card-mask FILE --card-reflectance 0.18`)"
+        exif = 'manual exposures with EXIF (gains = "exif": one gain, the views\' ratios known)'
+        pins = f"{card} or {exif}" if result.gains == "per-image" and result.views > 1 else card
+        remedies.append(f"fix the photos' gains, which the hair's brightness trades off with: {pins}")
+    view = (
+        "a back-lit view besides the front-lit one (a light behind the swatch)"
+        if result.views == 1
+        else "another view (a light from another side, or another camera angle)"
+    )
+    if traded is not None:
+        remedies.append(
+            f"it trades off with {traded[0]} (correlation {traded[1]:+.2f}): photograph {view} to tell them apart"
+        )
+    else:
+        remedies.append(f"photograph {view}")
+    remedies.append("more hair in view (the camera closer, or a wider swatch filling the frame: more pixels on it)")
+    quantised = 0.0 if result.quantisation is None else result.quantisation[k]
+    if quantised**2 > 0.5 * result.noise[k] ** 2:
+        remedies.append(f"16-bit TIFF or raw photos (the 8-bit codes' rounding alone gives σ {quantised:.3g})")
+    shots = int(np.ceil(factor))
+    if factor <= MANY_SAMPLES:
+        remedies.append(
+            f"less noise in each photo: a longer exposure at a lower ISO, or about {shots} shots of each view "
+            "averaged on a tripod (σ falls as one over the square root of the light gathered)"
+        )
+    else:
+        remedies.append(f"less noise alone would take about {shots} shots of each view averaged")
+    text = "; or ".join(remedies)
+    if steps:
+        text += (
+            f"; the fit's own renders ({result.fit_points} averaged Gauss-Newton points at {result.fit_spp} spp) add "
+            f"{fitted:.3g} through the same trade-offs, which better photos of the same views do not change: what "
+            f"pins the hair better (a card, a view) shrinks both parts, and Gauss-Newton steps alone would take about "
+            f"{steps} (--refine {steps})"
+        )
+    return text
 
 
 def describe(result: Identifiability) -> str:

@@ -2,14 +2,15 @@
 
 import copy
 import dataclasses
+import json
 
 import numpy as np
 import pytest
 from helpers.scenes import front_camera, toml_text
 
-from optimize.cli import main
+from optimize.cli import _check_values, main
 from optimize.fit import FitSettings, gauss_newton_spp
-from optimize.identify import check_target, describe
+from optimize.identify import Identifiability, _problems, check_target, describe
 from optimize.linearize import linearize, loss_weights, pool_like_loss
 from optimize.refine import JACOBIAN_WINDOW
 from optimize.settings import ALBEDO_BOUND, BETA_BOUND, BOUNDS
@@ -164,8 +165,9 @@ def test_the_check_needs_values_to_check_at(tmp_path, capsys):
     (directory / "truth.json").unlink()
     assert main(["targets", "check", str(directory)]) == 2
     assert (
-        "no true value for albedo, beta_m, beta_n (the target has no truth.json); give the controls to check "
-        "at (--at NAME=V)" in capsys.readouterr().err
+        "no true value for albedo, beta_m, beta_n (the target has no truth.json); give the look to check at: --at "
+        "NAME=V ... (the look you expect), or a quick fit's estimate, --at FIT_DIR/params.json (e.g. `warp-hair fit "
+        f"{directory} -o quick --iters 30 --refine 2`)" in capsys.readouterr().err
     )
     assert main(["targets", "check", str(directory), "--realisation-samples", "1"]) == 2
     assert "realisation samples must be an integer >= 2, got 1" in capsys.readouterr().err
@@ -204,3 +206,88 @@ def test_over_random_realisations_the_expected_sigma_counts_the_targets_strands(
     scatter = _estimate_scatter(target, settings, lin, draws, spp=256, threads=2)
     assert np.all(scatter > 2 * result.noise)
     np.testing.assert_allclose(result.sigma, scatter, rtol=0.35)
+
+
+def test_the_check_reads_a_fits_look_from_its_params_json(tmp_path, capsys):
+    """--at FIT_DIR (or its params.json): the look a quick fit left, of the controls checked; NAME=V overrides."""
+    fit_dir = tmp_path / "quick"
+    fit_dir.mkdir()
+    look = {"albedo": [0.5, 0.4, 0.3], "beta_m": 0.28, "beta_n": 0.33, "alpha": 2.0, "eta": 1.55}
+    (fit_dir / "params.json").write_text(json.dumps({"look": look}))
+    names = ("albedo", "beta_m", "beta_n")
+    assert _check_values([str(fit_dir)], names) == {"albedo": [0.5, 0.4, 0.3], "beta_m": 0.28, "beta_n": 0.33}
+    assert _check_values([str(fit_dir / "params.json"), "beta_n=0.4"], names)["beta_n"] == [0.4]
+    directory = write_target(tmp_path / "t", [[0.2, -0.3, -1.0]], 0.15, 8)
+    (fit_dir / "params.json").write_text(json.dumps({"fitted": {}}))
+    assert main(["targets", "check", str(directory), "--at", str(fit_dir)]) == 2
+    assert f"--at {fit_dir}: not NAME=V and not a fit's params.json" in capsys.readouterr().err
+    assert main(["targets", "check", str(directory), "--at", str(tmp_path / "none.json")]) == 2
+    assert "none.json: not NAME=V and not a fit's params.json (or its directory)" in capsys.readouterr().err
+
+
+PHOTO_TERMS = ("grey card in the shot", "photograph", "more hair in view", "shots of each view averaged")
+
+
+def test_a_photo_targets_advice_is_a_photographers():
+    """The light photo-like swatch (its PNGs as a camera saves them, front- and back-lit): its red albedo is not
+    pinned, and the check says what to photograph (a grey card, EXIF exposures, another view, more hair in view,
+    less noise), never to render it with more samples; the same account for a render says to render it so."""
+    target = load_target(SHIPPED_TARGETS / "photo_blonde_straight_png")
+    result = check_target(target, render_spp=4, linearisations=2, threads=2)
+    assert result.photo and result.views == 2 and not result.card
+    advice = {problem.split(":")[0]: problem for problem in result.problems}
+    assert "albedo[r]" in advice
+    assert all(term in advice["albedo[r]"] for term in PHOTO_TERMS) and 'gains = "exif"' in advice["albedo[r]"]
+    assert "render the target" not in describe(result) and "more samples" not in describe(result)
+    rendered = _problems(dataclasses.replace(result, photo=False), ~np.isfinite(result.noise))
+    assert "render the target with" in rendered[0] and not any(term in rendered[0] for term in PHOTO_TERMS)
+
+
+def _account(**parts):
+    """An Identifiability of five controls whose σ parts are `parts` (each (5,)), the rest 0."""
+    zero = np.zeros(5)
+    fields = {
+        "target": "t", "origin": "unknown", "values": {"albedo": [0.5] * 3, "beta_m": 0.3, "beta_n": 0.3},
+        "labels": ["albedo[r]", "albedo[g]", "albedo[b]", "beta_m", "beta_n"], "target_spp": [1024],
+        "noise": zero, "shift": zero, "model_error": 0.01, "correlation": [None] * 5,
+        "bounds": np.array([0.02, 0.02, 0.02, 0.03, 0.03]), "realisation": zero, "realisation_samples": 24,
+        "fit_noise": zero, "fit_points": 8, "fit_spp": 64, "photo": True, "gains": "none", "views": 1,
+        "quantisation": zero,
+    }  # fmt: skip
+    return Identifiability(**{**fields, **parts})
+
+
+def test_every_cause_has_a_photographers_remedy():
+    """Per cause of a control's σ: the images not changing with it (β_m), a brightness disagreement with no gains
+    fitted (albedo[r]), the photos' 8-bit codes (albedo[g]), the strands' draw (β_n), the fit's own renders beside
+    the photos' noise (albedo[b]): a photographer's remedy for a photo, the renderer's for a render."""
+    result = _account(
+        noise=np.array([0.001, 0.03, 0.025, np.inf, 0.001]),
+        shift=np.array([0.025, 0.0, 0.0, 0.0, 0.0]),
+        quantisation=np.array([0.0, 0.028, 0.0, 0.0, 0.0]),
+        realisation=np.array([0.0, 0.0, 0.0, 0.0, 0.05]),
+        fit_noise=np.array([0.0, 0.0, 0.03, 0.0, 0.0]),
+    )
+    flat = np.array([False, False, False, True, False])
+    photo = dict(zip(result.labels, _problems(result, flat)))
+    assert photo["albedo[r]"].endswith(
+        'fit the photos\' exposures (gains = "per-image" in target.toml, or "exif" where every photo has its EXIF '
+        "exposure), which absorb a uniform disagreement, or photograph a view in which it changes the image "
+        "otherwise than brightness does (front- and back-lit)"
+    )
+    assert "16-bit TIFF or raw photos (the 8-bit codes' rounding alone gives σ 0.028)" in photo["albedo[g]"]
+    assert "a back-lit view besides the front-lit one" in photo["albedo[g]"]
+    assert "grey card" not in photo["albedo[g]"]  # gains = "none": nothing to fix
+    assert "better photos of the same views do not change" in photo["albedo[b]"]
+    # Half of what is left each: the fit's 0.03 down to 0.02/√2 takes 8 · (0.03² / 0.0002) = 36 points, 72 steps.
+    assert "Gauss-Newton steps alone would take about 72 (--refine 72)" in photo["albedo[b]"]
+    assert photo["beta_m"].endswith(
+        "photograph a view in which it shows (front- and back-lit: a light behind the swatch shows the light that "
+        "went through the fibers), or fix it (leave it out of --fit)"
+    )
+    assert "get more strands in view (a wider crop of the swatch, or the camera further back" in photo["beta_n"]
+    assert 'realisations = "fixed"' not in photo["beta_n"]
+    rendered = dict(zip(result.labels, _problems(dataclasses.replace(result, photo=False), flat)))
+    assert "fit exposure as well" in rendered["albedo[r]"] and "render the target with" in rendered["albedo[g]"]
+    assert 'realisations = "fixed"' in rendered["beta_n"] and "add a view or a light" in rendered["beta_m"]
+    assert not any(term in text for text in rendered.values() for term in PHOTO_TERMS)
