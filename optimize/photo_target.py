@@ -55,6 +55,7 @@ from PIL import Image
 from warp_hair.geometry.generators import CURL_SEGMENTS, WAVE_SEGMENTS
 from warp_hair.io import write_exr
 from warp_hair.photo import read_photo
+from warp_hair.scene import GENERATORS, EnvironmentLight
 
 RIGS = ("draped", "flat", "fur")
 FOV_TOLERANCE = 0.02
@@ -83,6 +84,13 @@ FIBER_FLAGS = {
     "clump_strength": "--clump-strength",
     "strays": "--strays",
     "stray_lift": "--stray-lift",
+}
+FUR_FLAGS = {
+    "count": "--count",
+    "patch": "--patch",
+    "length": "--fur-length",
+    "root_radius": "--fiber-radius",
+    "tip_radius": "--fiber-radius",
 }
 # The swatch generators' keys that flags of their own name give as they are, and every flag that shapes a swatch's
 # fibers, not a fur patch's.
@@ -236,13 +244,12 @@ def _card_blocks(path: Path, shape, width: int, flags: np.ndarray) -> tuple:
 def _fibers_table(rig: str, args) -> dict:
     """The [fibers] table of the rig and the flags, checked by running its generator (errors name the flag)."""
     table = _rig_fibers(rig, args)
-    from warp_hair.scene import GENERATORS
-
     arguments = {key: value for key, value in table.items() if key != "generator"}
     try:
         GENERATORS[table["generator"]](**arguments)
     except (TypeError, ValueError) as error:
-        flag = FIBER_FLAGS.get(str(error).split(" ")[0], "the rig's fibers")
+        flags = FUR_FLAGS if rig == "fur" else FIBER_FLAGS
+        flag = flags.get(str(error).split(" ")[0], "the rig's fibers")
         raise ValueError(f"{flag}: {error}") from None
     return table
 
@@ -301,8 +308,6 @@ def _environment(hdri) -> dict | None:
     """The [[lights]] table of --hdri, the map checked now (read, finite, non-negative) rather than at the fit."""
     if hdri is None:
         return None
-    from warp_hair.scene import EnvironmentLight
-
     path = Path(hdri).resolve()
     try:
         EnvironmentLight(file=path)

@@ -585,6 +585,7 @@ def test_a_wavy_clumpy_swatch_with_strays_is_a_recipe_the_fit_redraws(tmp_path, 
         (["--phase-jitter", "0.5"], r"--phase-jitter: the phases of waves or curls; give --waves or --curls"),
         (["--waves", "0.01,0.2", "--layer-phase-jitter", "3"], r"--layer-phase-jitter: layer_phase_jitter must be"),
         (["--rig", "fur", "--clumps", "3"], r"--clumps: the swatch rigs' \(draped, flat\), not --rig fur's"),
+        (["--rig", "fur", "--fur-length", "-1"], r"--fur-length: length must be a positive finite number, got -1.0"),
     ],
 )
 def test_bad_fiber_flags_name_the_flag(tmp_path, capsys, options, message):
