@@ -156,7 +156,7 @@ def interpenetration_note(target: Target) -> str | None:
             rule = image.scene.render.interpenetration
             return (
                 f"the target's strands interpenetrate ({report.pairs} pairs of {report.num_strands} strands) and its "
-                f"images are {made_by(target.origin)}: renderers disagree there (issue 23's swatch: 2-18% in "
+                f"images were {made_by(target.origin)}: renderers disagree there (issue 23's swatch: 2-18% in "
                 f'image means). This fit renders with [render] interpenetration = "{rule}"; a Cycles 4.x CPU '
                 'render needs "exit", Mitsuba 3 "enter" (docs/scenes.md, "Interpenetrating strands")'
             )
