@@ -30,8 +30,10 @@ def records(roots) -> list:
             if path.name != "params.json" and not path.name.startswith("k"):
                 continue
             data = json.loads(path.read_text(encoding="utf-8"))
-            truth, sigma = data.get("true") or data.get("truth"), data.get("uncertainty")
-            fitted = data.get("fitted")
+            # params.json's keys, else realisation_acceptance.py's
+            truth = data.get("true") or data.get("truth")
+            sigma = data.get("uncertainty") or data.get("uncertainties")
+            fitted = data.get("fitted") or data.get("values")
             if not truth or not sigma or not fitted:
                 continue
             names = [name for name in fitted if name in truth and name in sigma]
