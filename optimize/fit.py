@@ -674,7 +674,9 @@ class FitRun:
             uncertainty_parts=None if uncertainty is None else uncertainty.parts,
             camera=camera_report,
             goodness=goodness,
-            failures=[] if interrupted else failures(values, descent.history.loss, refinement, camera_report, goodness),
+            failures=[]
+            if interrupted
+            else failures(values, descent.history.loss, evaluation.loss, refinement, camera_report, goodness),
         )
 
     def camera_report(self, evaluation: Evaluation, refinement: Refinement | None) -> dict | None:

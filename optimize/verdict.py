@@ -2,8 +2,9 @@
 
 A fit fails, and `warp-hair fit` exits with FAILED_STATUS, when
 
-- its descent's loss ended above where it started, or its refinement ended worse than it started beyond
-  noise (refine.py keeps that from happening; the check stays as the promise);
+- its loss at the result is above its first iteration's (which renders fewer samples, so carries more of our
+  noise), or its refinement ended worse than it started beyond noise (refine.py keeps that from happening; the
+  check stays as the promise);
 - a fitted control ran to the end of its range (within BOUND_FRACTION of it): the latents (latents.py) never
   reach a bound, so a control there is one the images pushed as far as the range lets it go, where a
   convergent fit would have stopped: albedo 0 behind a gain of 343 on a bright photo, say;
@@ -36,10 +37,11 @@ WHITE_BALANCE_RANGE = (0.2, 5.0)  # camera white balance multipliers, relative t
 FAILED_CHI2 = 1.5
 
 
-def failures(values: dict, loss_history, refinement, camera_report, goodness) -> list[str]:
-    """Why the fit failed (module docstring), each reason with what to try; empty when it did not."""
+def failures(values: dict, loss_history, final_loss: float, refinement, camera_report, goodness) -> list[str]:
+    """Why the fit failed (module docstring), each reason with what to try; empty when it did not. loss_history:
+    the descent's losses; final_loss: the fit's at its result (the same image loss, of the final renders)."""
     reasons = []
-    reasons += _loss_rose(loss_history, refinement)
+    reasons += _loss_rose(loss_history, final_loss, refinement)
     reasons += _at_bounds(values)
     reasons += _camera(camera_report)
     if goodness is not None and goodness.significant and goodness.ratio > FAILED_CHI2:
@@ -62,18 +64,18 @@ def failures(values: dict, loss_history, refinement, camera_report, goodness) ->
     return reasons
 
 
-def _loss_rose(loss_history, refinement) -> list[str]:
+def _loss_rose(loss_history, final_loss: float, refinement) -> list[str]:
     reasons = []
     history = np.asarray(loss_history, dtype=np.float64)
-    if len(history) >= 5:
-        # The first iterations render a quarter of the samples, so their loss carries more of our noise: an end
-        # above them is no noise.
-        first, last = float(history[0]), float(np.mean(history[-5:]))
-        if last > first:
-            reasons.append(
-                f"the descent's loss ended above where it started ({first:.4g} -> {last:.4g}): lower the "
-                "learning rate (--lr) or start nearer (--init)"
-            )
+    # The fit's loss at its result against its first iteration's: the same image loss, and the first iteration
+    # renders a quarter of the samples, so its loss carries more of our noise. An end above it is no noise.
+    # (The descent alone may rise where it starts at the optimum: its first steps are noisy; what counts is
+    # where the fit ends.)
+    if len(history) and np.isfinite(final_loss) and final_loss > float(history[0]):
+        reasons.append(
+            f"the fit's loss ended above where it started ({float(history[0]):.4g} -> {final_loss:.4g}): lower "
+            "the learning rate (--lr), start nearer (--init), or fit with more iterations (--iters)"
+        )
     if refinement is not None and refinement.start_misfit is not None and refinement.end_misfit is not None:
         (start, s0), (end, s1) = refinement.start_misfit, refinement.end_misfit
         noise = float(np.hypot(s0, s1))

@@ -165,24 +165,26 @@ def _goodness(ratio, significant=True, photo=False):
 def test_verdict_names_each_failure_and_passes_a_good_fit():
     good = {"albedo": [0.3, 0.2, 0.1], "beta_m": 0.3, "beta_n": 0.4}
     falling = np.linspace(1.0, 0.1, 20)
-    assert failures(good, falling, None, None, _goodness(1.1, significant=False)) == []
+    end = 0.05  # the fit's loss at its result
+    assert failures(good, falling, end, None, None, _goodness(1.1, significant=False)) == []
 
-    [reason] = failures({**good, "albedo": [0.0004, 0.002, 0.3]}, falling, None, None, None)[:1]
+    [reason] = failures({**good, "albedo": [0.0004, 0.002, 0.3]}, falling, end, None, None, None)[:1]
     assert "albedo[r] ran to the end of its range" in reason
-    [reason] = failures(good, falling[::-1], None, None, None)
-    assert "descent's loss ended above where it started" in reason
+    [reason] = failures(good, falling, 1.2, None, None, None)
+    assert "loss ended above where it started (1 -> 1.2)" in reason
+    assert failures(good, falling[::-1], end, None, None, None) == []  # the descent may rise; the fit's end counts
     camera = {
         "gains": {"front": [2.0, 0.1], "back": [550.0, 60922.0]},
         "white_balance": {"value": [1, 1, 1], "sigma": [0, 0, 0]},
     }
-    [reason] = failures(good, falling, None, camera, None)
+    [reason] = failures(good, falling, end, None, camera, None)
     assert "gain of view back ran to 550" in reason
-    [reason] = failures(good, falling, None, None, _goodness(6.0))
+    [reason] = failures(good, falling, end, None, None, _goodness(6.0))
     assert "does not describe the images" in reason and "view back" in reason and "brightest third" in reason
-    assert "JPEG" not in reason and "JPEG" in failures(good, falling, None, None, _goodness(6.0, photo=True))[0]
-    assert failures(good, falling, None, None, _goodness(1.3)) == []  # above noise, below FAILED_CHI2: σ scaled
+    assert "JPEG" not in reason and "JPEG" in failures(good, falling, end, None, None, _goodness(6.0, photo=True))[0]
+    assert failures(good, falling, end, None, None, _goodness(1.3)) == []  # above noise, below FAILED_CHI2: σ scaled
     refinement = types.SimpleNamespace(start_misfit=(0.041, 0.001), end_misfit=(0.089, 0.001))
-    [reason] = failures(good, falling, refinement, None, None)
+    [reason] = failures(good, falling, end, refinement, None, None)
     assert "ended worse than it started" in reason
 
 

@@ -210,7 +210,7 @@ def test_the_model_part_is_written_and_printed():
         "true",
         "error",
     ]
-    assert "1% disagreement in brightness between mitsuba" in table
+    assert "1% disagreement in brightness between the target (rendered by mitsuba) and warp-hair" in table
     plain = types.SimpleNamespace(
         values=fit_result.values,
         uncertainties=result.parts["noise"],
