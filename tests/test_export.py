@@ -11,13 +11,16 @@ import subprocess
 import sys
 import warnings
 import xml.etree.ElementTree as ET
+from pathlib import Path
 
 import numpy as np
 import pytest
 from scipy.special import i0e
 
 from warp_hair.cli import main
-from warp_hair.export import LossyExportWarning, export, load_look
+from warp_hair.controls import CONTROL_NAMES, CONTROLS, controls_of
+from warp_hair.export import RENDERERS, LossyExportWarning, controls_table, export, load_look
+from warp_hair.export.common import Cannot, declared, warn_unwritten
 from warp_hair.export.cycles import coat_from_r_roughness_scale, node_settings
 from warp_hair.model.params import HairParams, lobe_variances, logistic_scale
 
@@ -358,3 +361,106 @@ def test_cli_reports_what_a_renderer_cannot_express(tmp_path, capsys):
     assert main(["export", str(look), "--to", "mitsuba", "-o", str(tmp_path / "hair.xml")]) == 0
     err = capsys.readouterr().err
     assert "warp-hair: warning: mitsuba export: it has no R-roughness scale: r_roughness_scale = 0.5" in err
+
+
+# --- What each exporter declares it writes, control by control (WRITES) --------------------------------------
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def written(renderer, text):
+    """{parameter: value as written} of an exported file, read back as the renderer's parser would see it."""
+    if renderer == "mitsuba":
+        return {e.get("name"): e.get("value") for e in ET.fromstring(text)}
+    if renderer == "pbrt":
+        return pbrt_parameters(text)
+    if renderer == "cycles":
+        namespace = {}
+        exec(text.split("def make_material")[0].replace("import bpy", ""), namespace)
+        return namespace["INPUTS"]
+    (bsdf,) = ET.fromstring(text).iter("chiang_hair_bsdf")
+    return {e.get("name"): e.get("value") for e in bsdf}
+
+
+def moved(params, name):
+    """The look with one control moved as gradcheck moves it (a step every control's table entry gives)."""
+    how, amount = CONTROLS[name].gradcheck_move
+    value = np.asarray(getattr(params, name), dtype=np.float64)
+    value = value * amount if how == "scale" else value + amount
+    return params.replace(**{name: value.tolist()})
+
+
+def test_every_exporter_declares_every_control_of_the_table():
+    for module in RENDERERS.values():
+        assert tuple(module.WRITES) == CONTROL_NAMES, module.NAME
+
+
+def test_a_declaration_missing_or_inventing_a_control_is_refused():
+    mitsuba = RENDERERS["mitsuba"].WRITES
+    lacking = {name: what for name, what in mitsuba.items() if name != "r_roughness_scale"}
+    with pytest.raises(ImportError, match=r"mitsuba.py declares nothing for the controls \['r_roughness_scale'\]"):
+        declared("mitsuba", lacking)
+    with pytest.raises(ImportError, match=r"the table does not have: \['hue'\]"):
+        declared("mitsuba", dict(mitsuba, hue=mitsuba["eta"]))
+
+
+def test_a_control_added_to_the_table_stops_the_exporters_import():
+    """As a developer meets it: a new entry in CONTROLS, and `import warp_hair.export` names it."""
+    code = (
+        "import dataclasses, warp_hair.controls as c\n"
+        "c.CONTROLS['hue'] = dataclasses.replace(c.CONTROLS['eta'], name='hue')\n"
+        "c.CONTROL_NAMES = tuple(c.CONTROLS)\n"
+        "import warp_hair.export\n"
+    )
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT)
+    assert run.returncode != 0
+    assert re.search(r"ImportError: warp_hair/export/\w+\.py declares nothing for the controls \['hue'\]", run.stderr)
+
+
+@pytest.mark.parametrize("to", RENDERERS)
+def test_each_declaration_is_what_the_export_does(to):
+    """A control declared written moves one of its declared parameters; one declared unwritable moves none, and
+    the export warns with the declaration's reason. Every parameter declared is one the renderer is given."""
+    seen = set()
+    for colour, base in LOOKS.items():
+        base = base.replace(r_roughness_scale=0.5)  # where Cycles' Coat and MaterialX's clamp express it
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", LossyExportWarning)
+            before = written(to, export(base, to))
+        for name in controls_of(colour):
+            what = RENDERERS[to].WRITES[name]
+            look = moved(base, name)
+            with warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("always")
+                after = written(to, export(look, to))
+            seen |= set(after)
+            changed = {key for key in after.keys() | before.keys() if after.get(key) != before.get(key)}
+            messages = [str(w.message) for w in caught if w.category is LossyExportWarning]
+            if isinstance(what, Cannot):
+                assert not changed, (name, changed)
+                assert any(m.startswith(f"{to} export: {what.reason}: {name} = ") for m in messages), messages
+            else:
+                assert changed & set(what.parameters), (colour, name, changed, what.parameters)
+    declared_parameters = {
+        p for what in RENDERERS[to].WRITES.values() if not isinstance(what, Cannot) for p in what.parameters
+    }
+    assert declared_parameters <= seen, declared_parameters - seen
+
+
+def test_unwritten_controls_warn_only_when_the_look_sets_them():
+    declaration = {"albedo": Cannot("it has no albedo", "σ_a of 1")}
+    with pytest.warns(LossyExportWarning, match=r"^x export: it has no albedo: albedo = \(0.6, 0.4, 0.2\) is dropped"):
+        warn_unwritten(LOOKS["albedo"], "x", declaration)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        # not given: no albedo, and no melanin (whose default, 0, is for the other pigment's look)
+        warn_unwritten(LOOKS["sigma_a"], "x", dict(declaration, eumelanin=Cannot("no melanin", "none")))
+        warn_unwritten(LOOKS["albedo"], "x", {"r_roughness_scale": Cannot("no scale", "1")})  # at its default
+
+
+def test_docs_table_is_the_declarations():
+    table = controls_table()
+    assert table.count("\n") == 2 + len(CONTROL_NAMES)
+    assert table in (ROOT / "docs" / "export.md").read_text(encoding="utf-8"), (
+        "docs/export.md's table of what each renderer writes is not warp_hair.export.controls_table(): paste it in"
+    )

@@ -7,9 +7,10 @@
 
 A LOOK is a fit's params.json (its "look": every control, fitted and fixed), a JSON object of controls (a
 target's truth.json), or a scene file (its [hair] table). Each renderer names, parametrises and signs the model
-differently; each module converts (its docstring says from which source code), and warns with a
-`LossyExportWarning` where the renderer cannot express a control. The tilt sign convention is stated once, in
-`warp_hair.export.common`.
+differently; each module converts (its docstring says from which source code), declares in its `WRITES`, control
+by control, what it writes or why it cannot (checked against the table of controls when it is imported), and warns
+with a `LossyExportWarning` where the renderer cannot express a control. `controls_table()` is that declaration as
+the table docs/export.md shows. The tilt sign convention is stated once, in `warp_hair.export.common`.
 """
 
 from __future__ import annotations
@@ -22,13 +23,22 @@ from ..controls import CONTROL_NAMES
 from ..io import read_text
 from ..model.params import HairParams
 from . import cycles, materialx, mitsuba, pbrt
-from .common import LossyExportWarning
+from .common import Cannot, LossyExportWarning
 
 RENDERERS = {module.NAME: module for module in (mitsuba, pbrt, cycles, materialx)}
 # The key of a fit's params.json (optimize/report.py) that holds every control of the fitted look.
 LOOK_KEY = "look"
 
-__all__ = ["RENDERERS", "LossyExportWarning", "default_filename", "export", "load_look", "parse_renderers", "renderer"]
+__all__ = [
+    "RENDERERS",
+    "LossyExportWarning",
+    "controls_table",
+    "default_filename",
+    "export",
+    "load_look",
+    "parse_renderers",
+    "renderer",
+]
 
 
 def renderer(name: str):
@@ -105,3 +115,23 @@ def export(look, to: str, path=None) -> str:
     if path is not None:
         Path(path).write_text(text, encoding="utf-8")
     return text
+
+
+def _cell(what) -> str:
+    if isinstance(what, Cannot):
+        return f"not written ({what.reason}): dropped with a warning"
+    names = ", ".join(f"`{name}`" for name in what.parameters)
+    return f"{names}: {what.note}" if what.note else names
+
+
+def controls_table() -> str:
+    """Every control and what each renderer's export makes of it (the modules' `WRITES`), as a Markdown table."""
+    rows = [
+        "| control | " + " | ".join(RENDERERS) + " |",
+        "|---" * (1 + len(RENDERERS)) + "|",
+        *(
+            f"| `{name}` | " + " | ".join(_cell(module.WRITES[name]) for module in RENDERERS.values()) + " |"
+            for name in CONTROL_NAMES
+        ),
+    ]
+    return "\n".join(rows) + "\n"

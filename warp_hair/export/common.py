@@ -1,5 +1,11 @@
 """What the exporters share: the controls as every renderer's hair model takes them, and how they report loss.
 
+Each exporter declares, for every control of `warp_hair.controls.CONTROLS`, what it writes it as (`Writes`, the
+renderer's parameter names) or why it cannot (`Cannot`, which is also the warning a look that sets it gets):
+`WRITES = declared(NAME, {...})`, which stops the import when a control of the table is missing or a name is not
+one, so that a control added to the table cannot be dropped silently by an exporter (as model/jacobian.py stops
+for a control without its derivative).
+
 Tilt sign, stated once for all exporters: warp-hair's α > 0 is the physical cuticle tilt (docs/MODEL.md, "Cuticle
 tilt"): for strands listed root first, the R lobe shifts toward the root (it peaks at θ_i + θ_o = −2α with θ
 positive toward the tip). Blender Cycles' `Offset` and MaterialX's `cuticle_angle` rotate the same way;
@@ -10,7 +16,11 @@ from __future__ import annotations
 
 import math
 import warnings
+from dataclasses import dataclass
 
+import numpy as np
+
+from .. import controls as table
 from ..model.params import HairParams, effective_beta
 
 # The sign each renderer's tilt parameter takes relative to ours (see the module docstring).
@@ -23,6 +33,70 @@ class LossyExportWarning(UserWarning):
 
 def lossy(renderer: str, message: str) -> None:
     warnings.warn(f"{renderer} export: {message}", LossyExportWarning, stacklevel=3)
+
+
+@dataclass(frozen=True)
+class Writes:
+    """The renderer's parameter(s) a control goes into, and a brief note on how."""
+
+    parameters: tuple
+    note: str = ""
+
+
+@dataclass(frozen=True)
+class Cannot:
+    """A control the renderer cannot express. A look that moves it off its default is exported without it and
+    warned: "{reason}: {control} = {value} is dropped ({instead})"."""
+
+    reason: str
+    instead: str
+
+
+def writes(*parameters: str, note: str = "") -> Writes:
+    return Writes(parameters, note)
+
+
+# Mitsuba's and pbrt's hair models have no counterpart of our R-roughness scale.
+NO_R_ROUGHNESS_SCALE = Cannot(
+    "it has no R-roughness scale", "its R lobe gets the longitudinal roughness of β_m unscaled"
+)
+
+
+def declared(renderer: str, declaration: dict) -> dict:
+    """`declaration` ({control: Writes or Cannot}, for `renderer`), checked against the table of controls: an
+    ImportError names the controls it lacks or does not know."""
+    missing = [name for name in table.CONTROL_NAMES if name not in declaration]
+    unknown = sorted(set(declaration) - set(table.CONTROL_NAMES))
+    wrong = [name for name, what in declaration.items() if not isinstance(what, (Writes, Cannot))]
+    empty = [name for name, what in declaration.items() if isinstance(what, Writes) and not what.parameters]
+    problems = [
+        f"{what} {names}"
+        for what, names in (
+            ("declares nothing for the controls", missing),
+            ("declares controls the table does not have:", unknown),
+            ("declares neither Writes nor Cannot for", wrong),
+            ("names no parameter for", empty),
+        )
+        if names
+    ]
+    if problems:
+        raise ImportError(
+            f"warp_hair/export/{renderer}.py {'; '.join(problems)} (the table: {list(table.CONTROL_NAMES)})"
+        )
+    return {name: declaration[name] for name in table.CONTROL_NAMES}
+
+
+def _shown(value) -> str:
+    values = np.atleast_1d(np.asarray(value, dtype=np.float64))
+    return f"{values[0]:g}" if values.size == 1 else "(" + ", ".join(f"{v:g}" for v in values) + ")"
+
+
+def warn_unwritten(params: HairParams, renderer: str, declaration: dict) -> None:
+    """Warn for each control the renderer cannot express that the look sets (given, and not its default)."""
+    for name, what in declaration.items():
+        value = getattr(params, name)
+        if isinstance(what, Cannot) and value is not None and np.any(np.asarray(value) != table.CONTROLS[name].default):
+            lossy(renderer, f"{what.reason}: {name} = {_shown(value)} is dropped ({what.instead})")
 
 
 def roughness(params: HairParams) -> tuple[float, float]:
@@ -46,12 +120,3 @@ def fmt(x: float) -> str:
     if not math.isfinite(x):
         raise ValueError(f"cannot export the non-finite value {x}")
     return repr(x)
-
-
-def no_r_roughness_scale(params: HairParams, renderer: str) -> None:
-    if params.r_roughness_scale != 1.0:
-        lossy(
-            renderer,
-            f"it has no R-roughness scale: r_roughness_scale = {params.r_roughness_scale:g} is "
-            "dropped (its R lobe gets the longitudinal roughness of β_m unscaled)",
-        )

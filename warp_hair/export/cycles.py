@@ -31,13 +31,28 @@ from __future__ import annotations
 import math
 
 from ..model.params import TALK_ALBEDO_INVERSION, HairParams, longitudinal_polynomial
-from .common import fmt, lossy, roughness, sigma_a, tilt_degrees
+from .common import declared, fmt, lossy, roughness, sigma_a, tilt_degrees, warn_unwritten, writes
 
 NAME = "cycles"
 SUFFIX = ".py"
 # bsdf_hair_chiang_setup clamps roughness (and the R lobe's (1 - coat) * roughness) to this interval.
 ROUGHNESS_CLAMP = (0.001, 1.0)
 MATERIAL_NAME = "warp-hair look"
+# What the Principled Hair BSDF gets of each control (common.py, `declared`); the docstring above says how.
+WRITES = declared(
+    NAME,
+    {
+        "albedo": writes("Color", "Absorption Coefficient", note="Color, or σ_a for a calibrated albedo inversion"),
+        "sigma_a": writes("Absorption Coefficient"),
+        "eumelanin": writes("Absorption Coefficient", note="d'Eon's coefficients, not Cycles' Melanin"),
+        "pheomelanin": writes("Absorption Coefficient", note="d'Eon's coefficients, not Cycles' Melanin"),
+        "beta_m": writes("Roughness"),
+        "beta_n": writes("Radial Roughness"),
+        "alpha": writes("Offset", note="α in radians"),
+        "eta": writes("IOR"),
+        "r_roughness_scale": writes("Coat", note="only ≤ 1 and above Cycles' clamp, else a warning"),
+    },
+)
 
 
 def coat_from_r_roughness_scale(beta_m: float, scale: float) -> float:
@@ -72,6 +87,7 @@ def coat_from_r_roughness_scale(beta_m: float, scale: float) -> float:
 
 def node_settings(params: HairParams) -> dict:
     """{"parametrization": ..., "inputs": {socket name: value}} of the Principled Hair BSDF (model CHIANG)."""
+    warn_unwritten(params, NAME, WRITES)
     beta_m, beta_n = roughness(params)
     inputs = {}
     if params.colour_input == "albedo" and params.albedo_inversion == TALK_ALBEDO_INVERSION:

@@ -23,7 +23,7 @@ import math
 import xml.etree.ElementTree as ET
 
 from ..model.params import HairParams, logistic_polynomial, longitudinal_polynomial
-from .common import fmt, lossy, roughness, sigma_a, tilt_degrees
+from .common import declared, fmt, lossy, roughness, sigma_a, tilt_degrees, warn_unwritten, writes
 
 NAME = "materialx"
 SUFFIX = ".mtlx"
@@ -32,6 +32,22 @@ MATERIALX_VERSION = "1.39"
 ROUGHNESS_CLAMP = (0.001, 1.0)
 # chiang_hair_roughness's default scale_TT and scale_TRT (Marschner et al. 2003), applied to v squared.
 LOBE_SCALES = {"R": 1.0, "TT": 0.5, "TRT": 2.0}
+_LOBES = tuple(f"roughness_{lobe}" for lobe in LOBE_SCALES)
+# What chiang_hair_bsdf gets of each control (common.py, `declared`); the docstring above says how.
+WRITES = declared(
+    NAME,
+    {
+        "albedo": writes("absorption_coefficient", note="the talk's inversion at β_n"),
+        "sigma_a": writes("absorption_coefficient"),
+        "eumelanin": writes("absorption_coefficient", note="d'Eon's coefficients"),
+        "pheomelanin": writes("absorption_coefficient", note="d'Eon's coefficients"),
+        "beta_m": writes(*_LOBES, note="each lobe's v, clamped by MaterialX with a warning"),
+        "beta_n": writes(*_LOBES, note="each lobe's s, clamped by MaterialX with a warning"),
+        "alpha": writes("cuticle_angle", note="(α + π/2) / π with α in radians"),
+        "eta": writes("ior"),
+        "r_roughness_scale": writes("roughness_R", note="its v, clamped by MaterialX with a warning"),
+    },
+)
 
 
 def lobe_roughness(params: HairParams) -> dict:
@@ -64,6 +80,7 @@ def _input(parent, name, type_, value):
 
 def document_text(params: HairParams, name: str = "warp_hair_look") -> str:
     """The .mtlx document: chiang_hair_bsdf → surface → surfacematerial `name`."""
+    warn_unwritten(params, NAME, WRITES)
     root = ET.Element("materialx", version=MATERIALX_VERSION)
     root.append(ET.Comment(f" warp-hair look; controls: {params.to_dict()} "))
     bsdf = ET.SubElement(root, "chiang_hair_bsdf", name=f"{name}_bsdf", type="BSDF")

@@ -13,7 +13,7 @@ Conversion (Mitsuba 3.9, src/bsdfs/hair.cpp, class Hair: the constructor's prope
   floored value is written.
 - `scale_tilt` = −α in degrees: `reframe_with_scales` rotates the R lobe by −2α like pbrt (common.py).
 - `int_ior` = η and `ext_ior` = 1: Mitsuba's η is int_ior / ext_ior and ext_ior defaults to air (1.000277).
-- No R-roughness scale: a scale other than 1 is dropped with a LossyExportWarning.
+- No R-roughness scale: a scale other than 1 is dropped with a LossyExportWarning (`WRITES`).
 
 Render it on `bsplinecurve` with a polyline's vertices as control points: Mitsuba's `linearcurve` hands the
 BSDF a frame whose tangent is not the fiber's (docs/MODEL.md), and both shapes flip the tangent with the side of
@@ -28,17 +28,32 @@ from __future__ import annotations
 from xml.sax.saxutils import quoteattr
 
 from ..model.params import HairParams
-from .common import fmt, no_r_roughness_scale, roughness, sigma_a, tilt_degrees
+from .common import NO_R_ROUGHNESS_SCALE, declared, fmt, roughness, sigma_a, tilt_degrees, warn_unwritten, writes
 
 NAME = "mitsuba"
 SUFFIX = ".xml"
 # The scene-description version `load_string` needs on a root element.
 XML_VERSION = "3.0.0"
+# What the hair BSDF gets of each control (common.py, `declared`); the docstring above says how.
+WRITES = declared(
+    NAME,
+    {
+        "albedo": writes("sigma_a", note="the talk's inversion at β_n"),
+        "sigma_a": writes("sigma_a"),
+        "eumelanin": writes("sigma_a", note="d'Eon's coefficients"),
+        "pheomelanin": writes("sigma_a", note="d'Eon's coefficients"),
+        "beta_m": writes("longitudinal_roughness"),
+        "beta_n": writes("azimuthal_roughness"),
+        "alpha": writes("scale_tilt", note="−α"),
+        "eta": writes("int_ior", note="ext_ior = 1"),
+        "r_roughness_scale": NO_R_ROUGHNESS_SCALE,
+    },
+)
 
 
 def bsdf_dict(params: HairParams) -> dict:
     """The `hair` BSDF as a `mitsuba.load_dict` dictionary."""
-    no_r_roughness_scale(params, NAME)
+    warn_unwritten(params, NAME, WRITES)
     beta_m, beta_n = roughness(params)
     return {
         "type": "hair",

@@ -11,7 +11,7 @@ bxdfs.cpp `HairBxDF::HairBxDF`):
   talk's, with √(π/8) on the logistic scale.
 - `"float alpha"` = −α in degrees: HairBxDF rotates the R lobe by −2α (common.py states the sign convention).
 - `"float eta"` = η.
-- No R-roughness scale: a scale other than 1 is dropped with a LossyExportWarning.
+- No R-roughness scale: a scale other than 1 is dropped with a LossyExportWarning (`WRITES`).
 
 pbrt reads the fiber offset h from the curve's v coordinate: use it on `Shape "curve" "string type" "cylinder"`.
 """
@@ -19,15 +19,30 @@ pbrt reads the fiber offset h from the curve's v coordinate: use it on `Shape "c
 from __future__ import annotations
 
 from ..model.params import HairParams
-from .common import fmt, no_r_roughness_scale, roughness, sigma_a, tilt_degrees
+from .common import NO_R_ROUGHNESS_SCALE, declared, fmt, roughness, sigma_a, tilt_degrees, warn_unwritten, writes
 
 NAME = "pbrt"
 SUFFIX = ".pbrt"
+# What the hair material gets of each control (common.py, `declared`); the docstring above says how.
+WRITES = declared(
+    NAME,
+    {
+        "albedo": writes("rgb sigma_a", note="the talk's inversion at β_n"),
+        "sigma_a": writes("rgb sigma_a"),
+        "eumelanin": writes("rgb sigma_a", note="d'Eon's coefficients"),
+        "pheomelanin": writes("rgb sigma_a", note="d'Eon's coefficients"),
+        "beta_m": writes("float beta_m"),
+        "beta_n": writes("float beta_n"),
+        "alpha": writes("float alpha", note="−α"),
+        "eta": writes("float eta"),
+        "r_roughness_scale": NO_R_ROUGHNESS_SCALE,
+    },
+)
 
 
 def material_parameters(params: HairParams) -> dict:
     """{pbrt parameter declaration ("rgb sigma_a", "float beta_m", ...): list of values}."""
-    no_r_roughness_scale(params, NAME)
+    warn_unwritten(params, NAME, WRITES)
     beta_m, beta_n = roughness(params)
     return {
         "rgb sigma_a": sigma_a(params),
