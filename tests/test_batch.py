@@ -275,7 +275,10 @@ refine = 0
     while time.time() < deadline and not (render_done.exists() and _task_processes("ray::warp-hair fit")):
         assert process.poll() is None, process.communicate()
         time.sleep(0.2)
-    assert render_done.exists(), "the batch's render did not finish within 300 s"
+    if not render_done.exists():
+        process.kill()
+        process.communicate()
+        pytest.fail("the batch's render did not finish within 300 s")
     process.send_signal(signal.SIGINT)
     start = time.time()
     _, err = process.communicate(timeout=30)
