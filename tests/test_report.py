@@ -7,7 +7,7 @@ import shutil
 
 import numpy as np
 import pytest
-from helpers.scenes import front_camera, toml_text, write_front_back_target
+from helpers.scenes import small_swatch_text, write_front_back_target
 
 from optimize.cli import main
 from optimize.fit import FitResult, FitSettings, History
@@ -21,26 +21,7 @@ TARGET_SPP = 256
 
 
 def swatch_text(direction):
-    """A 40-fiber draped swatch under one directional light, 16×16 pixels, at TARGET_SPP."""
-    return toml_text(
-        {
-            "camera": front_camera(0.24, (16, 16)),
-            "lights": [{"type": "directional", "direction": direction, "irradiance": [3.0, 3.0, 3.0]}],
-            "fibers": {
-                "generator": "swatch",
-                "count": 40,
-                "layers": 2,
-                "length": 0.3,
-                "width": 0.22,
-                "radius": 0.004,
-                "drape": 0.15,
-                "segments": 12,
-                "seed": 5,
-            },
-            "hair": dict(TRUTH),
-            "render": {"spp": TARGET_SPP, "max_depth": 8, "seed": 2},
-        }
-    )
+    return small_swatch_text(direction, TRUTH, TARGET_SPP)
 
 
 @pytest.fixture(scope="module")

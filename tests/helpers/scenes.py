@@ -88,6 +88,30 @@ def sparse_scene(hair, resolution=(16, 16), spp=128):
 FRONT_BACK = (("front", [0.2, -0.3, -1.0]), ("back", [0.0, -0.15, 1.0]))
 
 
+def small_swatch_text(direction, hair: dict, spp: int = 64) -> str:
+    """A 40-fiber draped swatch under one directional light, 16×16 pixels: a target scene small enough for a fit
+    in a test (`write_front_back_target` makes a front- and a back-lit one)."""
+    return toml_text(
+        {
+            "camera": front_camera(0.24, (16, 16)),
+            "lights": [{"type": "directional", "direction": direction, "irradiance": [3.0, 3.0, 3.0]}],
+            "fibers": {
+                "generator": "swatch",
+                "count": 40,
+                "layers": 2,
+                "length": 0.3,
+                "width": 0.22,
+                "radius": 0.004,
+                "drape": 0.15,
+                "segments": 12,
+                "seed": 5,
+            },
+            "hair": dict(hair),
+            "render": {"spp": spp, "max_depth": 8, "seed": 2},
+        }
+    )
+
+
 def write_front_back_target(directory, scene_text):
     """A target directory of the same scene lit from the front and from behind: `scene_text(direction)` gives
     each scene file; target.toml lists them (the images are left to `make_target`)."""
