@@ -43,7 +43,6 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
-from statistics import NormalDist
 
 import numpy as np
 
@@ -58,7 +57,6 @@ SEED_STRIDE = 7919  # each linearisation renders with its own seeds
 JACOBIAN_WINDOW = 8  # linearisations whose Jacobians are pooled
 EMPIRICAL_POINTS = 4  # end points needed before their own scatter is trusted to tell their noise
 REFINABLE_LOSSES = ("l2", "rel_l2")
-NOISE_QUANTILE = 0.99  # a step shorter than this quantile of pure-noise steps is noise (`within_noise`)
 MISFIT_Z = 2.0  # a step whose misfit rises by more than this many standard errors made the fit worse
 # The result gives way to the best point seen only this many standard errors apart: the lowest of n noisy
 # misfits lies about 1.8 (n = 16) to 2.2 (n = 48) of theirs below their mean, so at 2 an estimate at the optimum
@@ -294,27 +292,6 @@ def _unsettled(points: list, steps: int, names) -> str:
         f"moving, by {moved:.3g} over the last {len(points)}): the estimate may be off by more than its "
         "uncertainty; fit again from this result (--init) or with more steps (--refine)"
     )
-
-
-def within_noise(step: np.ndarray, lin: Linearization) -> bool:
-    """Whether `step` is no longer than our render noise alone would make a step from the optimum:
-    δᵀ Σ⁻¹ δ ≤ χ²_p(NOISE_QUANTILE), Σ = `Linearization.step_covariance`. Such a step is kept whatever its
-    slope test says. At the optimum the trapezoid estimate of the change is −½ n₂ᵀ H⁻¹ n₁ for the two
-    linearisations' independent gradient noises n₁, n₂: its sign is a coin flip, and undoing half the steps
-    there only wastes their renders (the retry reuses the same noisy gradient, shorter). Far from the optimum
-    the steps are longer than the noise and the slope test decides, as before."""
-    cov = lin.step_covariance
-    if not np.all(np.isfinite(cov)) or not np.all(np.isfinite(step)):
-        return False
-    distance = float(step @ np.linalg.pinv(cov) @ step)
-    return distance <= chi2_quantile(NOISE_QUANTILE, len(step))
-
-
-def chi2_quantile(q: float, dof: int) -> float:
-    """The q-quantile of χ² with `dof` degrees of freedom, by Wilson and Hilferty's cube-root normal
-    approximation (1931): within 1% of the exact value at q = 0.99 for dof ≥ 2."""
-    c = 2.0 / (9.0 * dof)
-    return dof * (1.0 - c + NormalDist().inv_cdf(q) * c**0.5) ** 3
 
 
 def drift_statistic(points: list) -> np.ndarray:
