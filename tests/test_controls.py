@@ -50,7 +50,7 @@ def test_columns_tile_theta_for_each_colour_input(colour_input):
     unused = set(range(THETA_SIZE)) - set(taken)
     assert unused == ({2} if colour_input == "melanin" else set())
     assert all(0 <= k < THETA_SIZE for k in taken)
-    assert THETA_SIZE == 8
+    assert THETA_SIZE == 3 + len(SCALAR_CONTROLS)  # the colour's three columns, then one per scalar
     for name in controls_of(colour_input):
         assert len(CONTROLS[name].columns) == CONTROLS[name].size
 
@@ -202,8 +202,8 @@ def test_theta_vector_refuses_a_wrong_set_of_controls():
         theta_vector("albedo", {"albedo": [0.5] * 3})
     with pytest.raises(ValueError, match="takes 3 value"):
         theta_vector("sigma_a", dict(MATERIALS["sigma_a"].to_dict(), sigma_a=[1.0, 2.0]))
-    with pytest.raises(ValueError, match="8 components"):
-        named_theta("albedo", np.zeros(7))
+    with pytest.raises(ValueError, match=f"{THETA_SIZE} components"):
+        named_theta("albedo", np.zeros(THETA_SIZE - 1))
     with pytest.raises(ValueError, match="unknown colour input"):
         controls_of("rgb")
 

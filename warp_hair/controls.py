@@ -259,6 +259,64 @@ CONTROLS = {
             gradcheck_move=("add", 0.1),
             gradcheck_step=0.4,
         ),
+        # Hair as it grows (model/variation.py, docs/MODEL.md "Strand-to-strand and root-to-tip variation"): each
+        # strand's random value u in [0, 1] scales its look by 1 + 2(u − ½)·spread, as Cycles' Principled Hair
+        # `Random Color` and `Random Roughness` do; the tip's absorption ramps in over the last tip_length of the
+        # strand. Their defaults are no variation, where every strand renders as the material (bit for bit).
+        # A spread's first-order effect averages out over strands, so the fit starts it inside the range.
+        _control(
+            "color_spread",
+            1,
+            8,
+            0.0,
+            1.0,
+            default=0.0,
+            unit="fraction",
+            doc="strand-to-strand spread of the pigment: a melanin look's as Cycles' Random Color, else of σ_a",
+            fit_start=0.25,
+            gradcheck_move=("add", 0.1),
+            gradcheck_step=0.05,
+        ),
+        _control(
+            "roughness_spread",
+            1,
+            9,
+            0.0,
+            1.0,
+            default=0.0,
+            unit="fraction",
+            doc="strand-to-strand spread of β_m and β_n together, as Cycles' Random Roughness",
+            fit_start=0.25,
+            gradcheck_move=("add", 0.1),
+            gradcheck_step=0.05,
+        ),
+        # The log map suits a factor; 1e-3 to 1e3 spans bleached to dyed ends by far.
+        _control(
+            "tip_absorption",
+            1,
+            10,
+            1e-3,
+            1e3,
+            default=1.0,
+            unit="factor",
+            doc="the tip's absorption over the root's (< 1: lighter tips), reached at the tip",
+            fit_hi=math.inf,
+            gradcheck_move=("scale", 0.8),
+            gradcheck_step=0.1,
+        ),
+        _control(
+            "tip_length",
+            1,
+            11,
+            0.0,
+            1.0,
+            lo_open=True,
+            default=0.5,
+            unit="fraction of the strand",
+            doc="how far from the tip the absorption changes (linearly in arc length, from the root's to the tip's)",
+            gradcheck_move=("add", 0.1),
+            gradcheck_step=0.05,
+        ),
     )
 }
 

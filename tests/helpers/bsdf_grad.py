@@ -81,7 +81,10 @@ COLOUR_MELANIN = wp.constant(COLOUR_MODES["melanin"])
 
 # Column of each scalar control in theta.
 SCALAR_CONTROLS = {name: column(name) for name in SCALAR_NAMES}
-BETA_M, BETA_N, ALPHA, ETA, R_ROUGHNESS_SCALE = SCALAR_CONTROLS.values()
+# The variation's controls (model/variation.py) act per strand, not in one material's BSDF: their columns are 0 here.
+BETA_M, BETA_N, ALPHA, ETA, R_ROUGHNESS_SCALE = (
+    SCALAR_CONTROLS[name] for name in ("beta_m", "beta_n", "alpha", "eta", "r_roughness_scale")
+)
 
 # Rows of the Jacobian: S_r, S_g, S_b, pdf.
 VALUE_ROWS = (0, 1, 2)

@@ -62,6 +62,16 @@ NO_R_ROUGHNESS_SCALE = Cannot(
 )
 
 
+# A hair model with one look for every fiber (pbrt-v4's HairBxDF, Mitsuba 3's hair, MaterialX's chiang_bsdf):
+# the variation's controls (model/variation.py) are written as the material's own look.
+NO_VARIATION = {
+    "color_spread": Cannot("it has one look for every strand", "every strand gets the material's colour"),
+    "roughness_spread": Cannot("it has one look for every strand", "every strand gets the material's roughness"),
+    "tip_absorption": Cannot("it has no root-to-tip change", "the root's absorption runs to the tip"),
+    "tip_length": Cannot("it has no root-to-tip change", "the root's absorption runs to the tip"),
+}
+
+
 def declared(renderer: str, declaration: dict) -> dict:
     """`declaration` ({control: Writes or Cannot}, for `renderer`), checked against the table of controls: an
     ImportError names the controls it lacks or does not know."""

@@ -31,7 +31,7 @@ from __future__ import annotations
 import math
 
 from ..model.params import TALK_ALBEDO_INVERSION, HairParams, longitudinal_polynomial
-from .common import declared, fmt, lossy, roughness, sigma_a, tilt_degrees, warn_unwritten, writes
+from .common import NO_VARIATION, declared, fmt, lossy, roughness, sigma_a, tilt_degrees, warn_unwritten, writes
 
 NAME = "cycles"
 SUFFIX = ".py"
@@ -51,6 +51,7 @@ WRITES = declared(
         "alpha": writes("Offset", note="α in radians"),
         "eta": writes("IOR"),
         "r_roughness_scale": writes("Coat", note="only ≤ 1 and above Cycles' clamp, else a warning"),
+        **NO_VARIATION,
     },
 )
 

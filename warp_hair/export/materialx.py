@@ -23,7 +23,7 @@ import math
 import xml.etree.ElementTree as ET
 
 from ..model.params import HairParams, logistic_polynomial, longitudinal_polynomial
-from .common import declared, fmt, lossy, roughness, sigma_a, tilt_degrees, warn_unwritten, writes
+from .common import NO_VARIATION, declared, fmt, lossy, roughness, sigma_a, tilt_degrees, warn_unwritten, writes
 
 NAME = "materialx"
 SUFFIX = ".mtlx"
@@ -46,6 +46,7 @@ WRITES = declared(
         "alpha": writes("cuticle_angle", note="(α + π/2) / π with α in radians"),
         "eta": writes("ior"),
         "r_roughness_scale": writes("roughness_R", note="its v, clamped by MaterialX with a warning"),
+        **NO_VARIATION,
     },
 )
 

@@ -28,7 +28,17 @@ from __future__ import annotations
 from xml.sax.saxutils import quoteattr
 
 from ..model.params import HairParams
-from .common import NO_R_ROUGHNESS_SCALE, declared, fmt, roughness, sigma_a, tilt_degrees, warn_unwritten, writes
+from .common import (
+    NO_R_ROUGHNESS_SCALE,
+    NO_VARIATION,
+    declared,
+    fmt,
+    roughness,
+    sigma_a,
+    tilt_degrees,
+    warn_unwritten,
+    writes,
+)
 
 NAME = "mitsuba"
 SUFFIX = ".xml"
@@ -47,6 +57,7 @@ WRITES = declared(
         "alpha": writes("scale_tilt", note="−α"),
         "eta": writes("int_ior", note="ext_ior = 1"),
         "r_roughness_scale": NO_R_ROUGHNESS_SCALE,
+        **NO_VARIATION,
     },
 )
 

@@ -19,7 +19,17 @@ pbrt reads the fiber offset h from the curve's v coordinate: use it on `Shape "c
 from __future__ import annotations
 
 from ..model.params import HairParams
-from .common import NO_R_ROUGHNESS_SCALE, declared, fmt, roughness, sigma_a, tilt_degrees, warn_unwritten, writes
+from .common import (
+    NO_R_ROUGHNESS_SCALE,
+    NO_VARIATION,
+    declared,
+    fmt,
+    roughness,
+    sigma_a,
+    tilt_degrees,
+    warn_unwritten,
+    writes,
+)
 
 NAME = "pbrt"
 SUFFIX = ".pbrt"
@@ -36,6 +46,7 @@ WRITES = declared(
         "alpha": writes("float alpha", note="−α"),
         "eta": writes("float eta"),
         "r_roughness_scale": NO_R_ROUGHNESS_SCALE,
+        **NO_VARIATION,
     },
 )
 

@@ -157,6 +157,20 @@ class FiberAssembly:
             index_in_strand,
         )
 
+    def segment_arc_fractions(self):
+        """(start, span), (M,) float64 each in `segments` order: the share of its strand's length before each
+        segment and the share it covers (a strand of zero length shares it equally), for root-to-tip profiles."""
+        p0, p1, _, _, strand_id, _ = self.segments()
+        lengths = np.linalg.norm(p1.astype(np.float64) - p0.astype(np.float64), axis=1)
+        totals = np.bincount(strand_id, weights=lengths, minlength=self.num_strands)
+        counts = self.vertex_counts - 1
+        degenerate = totals[strand_id] <= 0.0
+        span = np.where(degenerate, 1.0 / counts[strand_id], lengths / np.where(degenerate, 1.0, totals[strand_id]))
+        before = np.cumsum(span) - span
+        first_of_strand = np.concatenate([[0], np.cumsum(counts)[:-1]])
+        start = before - before[first_of_strand][strand_id]
+        return start, span
+
     def _segment_start_vertices(self):
         # Every vertex starts a segment except the last vertex of each strand.
         starts = np.ones(self.num_vertices, dtype=bool)

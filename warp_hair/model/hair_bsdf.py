@@ -34,7 +34,7 @@ from .lobes import (
     trimmed_logistic,
     wrap_angle,
 )
-from .params import HairParams
+from .params import HairParams, lobe_variances, logistic_scale
 
 
 @wp.struct
@@ -55,12 +55,30 @@ class HairCoefficients:
 
 
 def hair_coefficients(params: HairParams) -> HairCoefficients:
+    return coefficients_from(params.absorption, params.eta, params.lobe_variances, params.logistic_scale, params.alpha)
+
+
+def strand_coefficients(params: HairParams, looks) -> list:
+    """Each strand's HairCoefficients (model/variation.py's StrandLooks: its σ_a, β_m and β_n)."""
+    return [
+        coefficients_from(
+            looks.sigma_a[i],
+            params.eta,
+            lobe_variances(looks.beta_m[i], params.r_roughness_scale),
+            logistic_scale(looks.beta_n[i]),
+            params.alpha,
+        )
+        for i in range(len(looks.beta_m))
+    ]
+
+
+def coefficients_from(sigma_a, eta, v, s, alpha) -> HairCoefficients:
+    """The coefficients of σ_a (RGB), η, the lobes' variances v [R, TT, TRT, residual], the logistic scale s and
+    the tilt α (degrees): a material's, or one strand's (model/variation.py)."""
     c = HairCoefficients()
-    c.sigma_a = wp.vec3(*params.absorption)
-    c.eta = float(params.eta)
+    c.sigma_a = wp.vec3(*sigma_a)
+    c.eta = float(eta)
     # The per-lobe normalisations are per material: formed here once, in float64.
-    v = params.lobe_variances
-    s = params.logistic_scale
     c.inv_v = wp.vec4(*(1.0 / v))
     c.m_norm = wp.vec4(*longitudinal_norm(v))
     c.cone = wp.mat44(*cone_constants(v).ravel())
@@ -68,7 +86,7 @@ def hair_coefficients(params: HairParams) -> HairCoefficients:
     c.inv_s = float(1.0 / s)
     c.n_norm = float(logistic_norm(s))
     c.n_tail = float(logistic_tail(s))
-    angles = np.radians(params.alpha) * np.array([1.0, 2.0, 4.0])
+    angles = np.radians(alpha) * np.array([1.0, 2.0, 4.0])
     c.sin_2k_alpha = wp.vec3(*np.sin(angles))
     c.cos_2k_alpha = wp.vec3(*np.cos(angles))
     return c

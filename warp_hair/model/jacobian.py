@@ -68,12 +68,32 @@ controls_vec = wp.types.vector(length=THETA_SIZE, dtype=wp.float32)
 value_jacobian_mat = wp.types.matrix(shape=(3, THETA_SIZE), dtype=wp.float32)
 # The scalar controls whose columns hair_value_jacobian fills (after the colour's). A control added to the table
 # without its derivative here stops the import, rather than fitting with a gradient of 0.
-_DIFFERENTIATED = ("beta_m", "beta_n", "alpha", "eta", "r_roughness_scale")
+_DIFFERENTIATED = (
+    "beta_m",
+    "beta_n",
+    "alpha",
+    "eta",
+    "r_roughness_scale",
+    "color_spread",
+    "roughness_spread",
+    "tip_absorption",
+    "tip_length",
+)
 if set(_DIFFERENTIATED) != set(SCALAR_CONTROLS):
     raise ImportError(f"model/jacobian.py differentiates {_DIFFERENTIATED}, the table has {SCALAR_CONTROLS}")
 _COLOUR_COLUMNS = 3
 assert all(k < _COLOUR_COLUMNS for name in COLOUR_CONTROL_NAMES for k in CONTROLS[name].columns)
-_BETA_M, _BETA_N, _ALPHA, _ETA, _R_ROUGHNESS_SCALE = (column(name) for name in _DIFFERENTIATED)
+(
+    _BETA_M,
+    _BETA_N,
+    _ALPHA,
+    _ETA,
+    _R_ROUGHNESS_SCALE,
+    _COLOR_SPREAD,
+    _ROUGHNESS_SPREAD,
+    _TIP_ABSORPTION,
+    _TIP_LENGTH,
+) = (column(name) for name in _DIFFERENTIATED)
 
 # ∂θ_o,p/∂α of the tilted angles (R: θ_o + 2α, TT: θ_o − α, TRT: θ_o − 4α, residual: θ_o), per degree of α.
 _TILT = wp.constant(wp.vec4(2.0 * math.pi / 180.0, -math.pi / 180.0, -4.0 * math.pi / 180.0, 0.0))
@@ -90,6 +110,14 @@ class CoefficientDerivatives:
     m_norm_log_slope: wp.vec4  # ∂ln m_norm_p/∂ln v_p
     d_log_s_d_beta_n: float
     n_norm_log_slope: float  # ∂ln n_norm/∂ln s
+    # The variation's controls (model/variation.py); all 0 for a look without variation. The tip's are the
+    # vertex's (`material.vertex_derivatives` fills them where the hit lies along its strand).
+    d_sigma_d_color_spread: wp.vec3
+    d_sigma_d_roughness_spread: wp.vec3
+    d_log_v_d_roughness_spread: float
+    d_log_s_d_roughness_spread: float
+    d_sigma_d_tip_absorption: wp.vec3
+    d_sigma_d_tip_length: wp.vec3
 
 
 def _slope(mapping, x: float) -> float:
@@ -125,22 +153,55 @@ def coefficient_derivatives(params: HairParams) -> CoefficientDerivatives:
         d_colour = np.eye(3)
     else:
         d_colour[:, column("eumelanin")], d_colour[:, column("pheomelanin")] = EUMELANIN_SIGMA_A, PHEOMELANIN_SIGMA_A
+    return _derivatives(d_colour, d_beta_n, params.beta_m, params.beta_n, params.r_roughness_scale)
+
+
+def _log_v_slope(beta_m: float) -> float:
+    """∂ln v/∂β_m at β_m (0 at the floor)."""
+    return _slope(longitudinal_variance, beta_m) / longitudinal_variance(beta_m) if _live(beta_m) else 0.0
+
+
+def _log_s_slope(beta_n: float) -> float:
+    """∂ln s/∂β_n at β_n (0 at the floor)."""
+    return _slope(logistic_scale, beta_n) / logistic_scale(beta_n) if _live(beta_n) else 0.0
+
+
+def _derivatives(d_colour, d_beta_n, beta_m, beta_n, r_roughness_scale) -> CoefficientDerivatives:
+    """CoefficientDerivatives of a material (or a strand) with these roughnesses, from ∂σ_a/∂θ."""
     k = CoefficientDerivatives()
-    k.d_sigma_d_colour = wp.mat33(*d_colour.ravel())
+    k.d_sigma_d_colour = wp.mat33(*np.ravel(d_colour))
     k.d_sigma_d_beta_n = wp.vec3(*d_beta_n)
-    k.d_log_v_d_beta_m = 0.0
-    if _live(params.beta_m):
-        k.d_log_v_d_beta_m = _slope(longitudinal_variance, params.beta_m) / longitudinal_variance(params.beta_m)
-    k.d_log_v_r_d_scale = 1.0 / params.r_roughness_scale
+    k.d_log_v_d_beta_m = _log_v_slope(beta_m)
+    k.d_log_v_r_d_scale = 1.0 / r_roughness_scale
     # m_norm = 1 / (v (1 − e^(−y))), y = 2/v: ∂ln m_norm/∂ln v = −1 + y e^(−y) / (1 − e^(−y)); no overflow at small v.
-    y = 2.0 / lobe_variances(params.beta_m, params.r_roughness_scale)
+    y = 2.0 / lobe_variances(beta_m, r_roughness_scale)
     k.m_norm_log_slope = wp.vec4(*(-1.0 + y * np.exp(-y) / -np.expm1(-y)))
-    s = logistic_scale(params.beta_n)
-    k.d_log_s_d_beta_n = _slope(logistic_scale, params.beta_n) / s if _live(params.beta_n) else 0.0
+    s = logistic_scale(beta_n)
+    k.d_log_s_d_beta_n = _log_s_slope(beta_n)
     # n_norm = 1 / (s tanh(z/2)), z = π/s: ∂ln n_norm/∂ln s = −1 + z / sinh z, formed with e^(−z).
     z = math.pi / s
     k.n_norm_log_slope = -1.0 + 2.0 * z * math.exp(-z) / -math.expm1(-2.0 * z)
     return k
+
+
+def strand_derivatives(params: HairParams, looks) -> list:
+    """Each strand's CoefficientDerivatives (model/variation.py's StrandLooks): its own roughnesses and ∂σ_a/∂θ,
+    the look's β through the strand's (f_r, or 0 where clamped), and the spreads' columns."""
+    out = []
+    for i in range(len(looks.beta_m)):
+        beta_m, beta_n = float(looks.beta_m[i]), float(looks.beta_n[i])
+        k = _derivatives(
+            looks.d_sigma_d_colour[i], looks.d_sigma_d_beta_n[i], beta_m, beta_n, params.r_roughness_scale
+        )
+        log_v, log_s = _log_v_slope(beta_m), _log_s_slope(beta_n)
+        k.d_log_v_d_beta_m = float(log_v * looks.d_beta_m_d_beta_m[i])
+        k.d_log_s_d_beta_n = float(log_s * looks.d_beta_n_d_beta_n[i])
+        k.d_sigma_d_color_spread = wp.vec3(*looks.d_sigma_d_color_spread[i])
+        k.d_sigma_d_roughness_spread = wp.vec3(*looks.d_sigma_d_roughness_spread[i])
+        k.d_log_v_d_roughness_spread = float(log_v * looks.d_beta_m_d_spread[i])
+        k.d_log_s_d_roughness_spread = float(log_s * looks.d_beta_n_d_spread[i])
+        out.append(k)
+    return out
 
 
 @wp.struct
@@ -257,8 +318,15 @@ def hair_value_jacobian(L: LobeSetup, G: LobeSetupGrad, k: CoefficientDerivative
     d_eta = wp.vec4(-E.x[0] * G.dphi_d_eta[0], -E.x[1] * G.dphi_d_eta[1], -E.x[2] * G.dphi_d_eta[2], 0.0)
 
     d_sigma = lobe_sum(G.dA_d_sigma, d)  # ∂S_c/∂σ_a,c
-    d_beta_m = lobe_sum(L.A, wp.cw_mul(d, log_v)) * k.d_log_v_d_beta_m
-    d_beta_n = lobe_sum(L.A, wp.cw_mul(d, log_s)) * k.d_log_s_d_beta_n + wp.cw_mul(d_sigma, k.d_sigma_d_beta_n)
+    d_log_v = lobe_sum(L.A, wp.cw_mul(d, log_v))  # ∂S_c/∂ln v (every lobe's v scales together)
+    d_log_s = lobe_sum(L.A, wp.cw_mul(d, log_s))  # ∂S_c/∂ln s
+    d_beta_m = d_log_v * k.d_log_v_d_beta_m
+    d_beta_n = d_log_s * k.d_log_s_d_beta_n + wp.cw_mul(d_sigma, k.d_sigma_d_beta_n)
+    d_roughness_spread = (
+        d_log_v * k.d_log_v_d_roughness_spread
+        + d_log_s * k.d_log_s_d_roughness_spread
+        + wp.cw_mul(d_sigma, k.d_sigma_d_roughness_spread)
+    )
     d_tilt = lobe_sum(L.A, wp.cw_mul(d, wp.cw_mul(G.tilt, E.theta_o)))
     d_index = lobe_sum(L.A, wp.cw_mul(d, d_eta)) + lobe_sum(G.dA_d_eta, d)
     d_scale = (d[0] * log_v[0] * k.d_log_v_r_d_scale) * L.A[0]
@@ -271,4 +339,8 @@ def hair_value_jacobian(L: LobeSetup, G: LobeSetupGrad, k: CoefficientDerivative
         J[c, _ALPHA] = d_tilt[c]
         J[c, _ETA] = d_index[c]
         J[c, _R_ROUGHNESS_SCALE] = d_scale[c]
+        J[c, _COLOR_SPREAD] = d_sigma[c] * k.d_sigma_d_color_spread[c]
+        J[c, _ROUGHNESS_SPREAD] = d_roughness_spread[c]
+        J[c, _TIP_ABSORPTION] = d_sigma[c] * k.d_sigma_d_tip_absorption[c]
+        J[c, _TIP_LENGTH] = d_sigma[c] * k.d_sigma_d_tip_length[c]
     return J

@@ -36,8 +36,10 @@ from .material import (
     bsdf_setup_grad,
     bsdf_value_jacobian,
     depends_on_controls,
+    HairVariation,
     local_incident,
     scattering_vertex,
+    vertex_derivatives,
 )
 
 # Forward only (the gradient tracer carries its derivatives forward itself, see `make_trace_path`); -O3 for the
@@ -56,6 +58,7 @@ class SceneData:
     camera: CameraData
     fibers: FiberGeometry
     hair: HairCoefficients
+    variation: HairVariation  # each strand's look and the root-to-tip ramp (none: the material's everywhere)
     lights: wp.array(dtype=DirectionalLightData)
     num_lights: int
     env: EnvironmentData
@@ -229,7 +232,7 @@ def make_trace_path(differentiable: bool):
     """The path tracer as a `wp.func` (pbrt's Li); with `differentiable` it also returns the path's ∂L/∂θ.
 
     trace_path(scene, origin, direction, rng, derivs) -> (radiance, D, rng), `derivs` the hair's
-    `model.jacobian.coefficient_derivatives` and D[c, k] = ∂L_c/∂θ_k, the (3, 8) Jacobian of the path's
+    `model.jacobian.coefficient_derivatives` and D[c, k] = ∂L_c/∂θ_k, the (3, THETA_SIZE) Jacobian of the path's
     radiance. The forward variant ignores `derivs` and returns D = 0: the branches under wp.static are compiled
     out of it.
 
@@ -284,9 +287,12 @@ def make_trace_path(differentiable: bool):
             if depth >= scene.max_depth:
                 break
 
-            v = scattering_vertex(scene.fibers, scene.hair, scene.card, hit, t_card, o, d)
+            v = scattering_vertex(scene.fibers, scene.hair, scene.variation, scene.card, hit, t_card, o, d)
             if wp.static(differentiable):
                 dv = bsdf_setup_grad(v)
+                k = derivs
+                if depends_on_controls(v):
+                    k = vertex_derivatives(scene.variation, v, hit.strand, derivs)
 
             if num_emitters > 0:
                 lit, nee, nee_value, lobes_light, rng = sample_ld(scene, v, throughput, num_emitters, select_pdf, rng)
@@ -296,7 +302,7 @@ def make_trace_path(differentiable: bool):
                         D += scaled_rows(nee, G)
                         if depends_on_controls(v):
                             # C_c ∂ log S_c(w_light)/∂θ, only for lit light samples.
-                            J_light = bsdf_value_jacobian(v, dv, derivs, lobes_light)
+                            J_light = bsdf_value_jacobian(v, dv, k, lobes_light)
                             D += scaled_rows(log_weights(nee, nee_value), J_light)
 
             wi, rng = bsdf_sample(v, rng)
@@ -318,7 +324,7 @@ def make_trace_path(differentiable: bool):
             if wp.static(differentiable):
                 # After roulette: a path it ends has no later contribution to carry the vertex's derivative to.
                 if depends_on_controls(v):
-                    G = add_log_derivative(G, bsdf_value_jacobian(v, dv, derivs, lobes), value)
+                    G = add_log_derivative(G, bsdf_value_jacobian(v, dv, k, lobes), value)
         return radiance, D, rng
 
     return _named(trace_path, "trace_path_grad" if differentiable else "trace_path")

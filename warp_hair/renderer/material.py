@@ -48,6 +48,21 @@ CARD = wp.constant(1)
 
 
 @wp.struct
+class HairVariation:
+    """Each strand's own look and the change from root to tip (model/variation.py); with `strands` and `tip` 0
+    every fiber renders with the material's coefficients, exactly as without variation."""
+
+    strands: int  # 1: each strand's coefficients from `hair` (indexed by strand)
+    hair: wp.array(dtype=HairCoefficients)
+    derivs: wp.array(dtype=CoefficientDerivatives)  # each strand's, for the gradient tracer
+    tip: int  # 1: the absorption ramps toward the tip
+    tip_absorption: float
+    tip_length: float
+    segment_start: wp.array(dtype=float)  # arc-length fraction of the strand at each segment's start
+    segment_span: wp.array(dtype=float)  # ... and the fraction the segment covers
+
+
+@wp.struct
 class Vertex:
     """A scattering vertex: the material there and its local frame (x, y, z)."""
 
@@ -62,6 +77,7 @@ class Vertex:
     h: float  # the offset across the fiber (hair only)
     hair: LobeSetup  # what of the hair BSDF depends on wo and h (hair only)
     albedo: wp.vec3  # the card's (card only)
+    intercept: float  # arc-length fraction from the root (hair with a tip ramp only)
 
 
 @wp.func
@@ -82,8 +98,35 @@ def diffuse_value_pdf(albedo: wp.vec3, wi: wp.vec3):
 
 
 @wp.func
+def tip_ramp(t: float, tip_length: float):
+    """clamp((t − (1 − L)) / L, 0, 1): 0 up to 1 − L from the root, 1 at the tip."""
+    return wp.clamp((t - (1.0 - tip_length)) / tip_length, 0.0, 1.0)
+
+
+@wp.func
+def fiber_coefficients(fibers: FiberGeometry, hair: HairCoefficients, variation: HairVariation, hit: FiberHit):
+    """(coefficients, intercept) at a fiber hit: the material's, or its strand's, with the tip's absorption."""
+    c = hair
+    t = float(0.0)
+    if variation.strands != 0:
+        c = variation.hair[hit.strand]
+    if variation.tip != 0:
+        along = wp.clamp(wp.dot(hit.position - fibers.start[hit.segment], fibers.step[hit.segment]), 0.0, 1.0)
+        t = variation.segment_start[hit.segment] + variation.segment_span[hit.segment] * along
+        c.sigma_a = c.sigma_a * (1.0 + (variation.tip_absorption - 1.0) * tip_ramp(t, variation.tip_length))
+    return c, t
+
+
+@wp.func
 def scattering_vertex(
-    fibers: FiberGeometry, hair: HairCoefficients, card: CardData, hit: FiberHit, t_card: float, o: wp.vec3, d: wp.vec3
+    fibers: FiberGeometry,
+    hair: HairCoefficients,
+    variation: HairVariation,
+    card: CardData,
+    hit: FiberHit,
+    t_card: float,
+    o: wp.vec3,
+    d: wp.vec3,
 ):
     """The vertex where the ray o + t d scatters: at the nearer of the fiber hit and the card (t_card). At a fiber,
     x along it (turning smoothly along the strand), z its normal and h the offset across it (docs/MODEL.md,
@@ -114,7 +157,9 @@ def scattering_vertex(
     v.wo = to_local(-d, x, y, z)
     v.h = h
     if v.kind == HAIR:
-        v.hair = lobe_setup(hair, v.wo, h)
+        c, intercept = fiber_coefficients(fibers, hair, variation, hit)
+        v.intercept = intercept
+        v.hair = lobe_setup(c, v.wo, h)
     else:
         v.albedo = card.albedo
     return v
@@ -196,3 +241,28 @@ def bsdf_setup_grad(v: Vertex):
 def bsdf_value_jacobian(v: Vertex, dv: LobeSetupGrad, derivs: CoefficientDerivatives, lobes: LobeEvaluation):
     """∂S_c/∂θ_k (3, 8) toward the direction `lobes` was evaluated at, at a vertex that `depends_on_controls`."""
     return hair_value_jacobian(v.hair, dv, derivs, lobes)
+
+
+@wp.func
+def vertex_derivatives(variation: HairVariation, v: Vertex, strand: int, derivs: CoefficientDerivatives):
+    """The CoefficientDerivatives at a fiber vertex: the material's `derivs`, or its strand's, and with a tip
+    ramp every ∂σ_a/∂θ times the vertex's factor g(t) = σ_a(t)/σ_a, plus the tip controls' own columns."""
+    k = derivs
+    if variation.strands != 0:
+        k = variation.derivs[strand]
+    if variation.tip != 0:
+        a = variation.tip_absorption
+        length = variation.tip_length
+        ramp = tip_ramp(v.intercept, length)
+        g = 1.0 + (a - 1.0) * ramp
+        sigma = v.hair.c.sigma_a / g  # the strand's, before the ramp
+        k.d_sigma_d_colour = k.d_sigma_d_colour * g
+        k.d_sigma_d_beta_n = k.d_sigma_d_beta_n * g
+        k.d_sigma_d_color_spread = k.d_sigma_d_color_spread * g
+        k.d_sigma_d_roughness_spread = k.d_sigma_d_roughness_spread * g
+        k.d_sigma_d_tip_absorption = sigma * ramp
+        d_ramp = float(0.0)  # ∂ramp/∂L = (1 − t)/L² inside the ramp
+        if ramp > 0.0 and ramp < 1.0:
+            d_ramp = (1.0 - v.intercept) / (length * length)
+        k.d_sigma_d_tip_length = sigma * ((a - 1.0) * d_ramp)
+    return k

@@ -19,12 +19,15 @@ from .. import validate
 from ..devices import check_device
 from ..geometry.card import card_data
 from ..geometry.tubes import FiberBVH
-from ..model.hair_bsdf import hair_coefficients
+from ..model.hair_bsdf import HairCoefficients, hair_coefficients, strand_coefficients
+from ..model.jacobian import CoefficientDerivatives, strand_derivatives
+from ..model.variation import has_variation, strand_looks, strand_random
 from ..model.params import HairParams
 from ..scene import DirectionalLight, EnvironmentLight, Scene, check_scene
 from .camera import camera_data
 from .envmap import environment_data
 from .integrator import DirectionalLightData, SceneData
+from .material import HairVariation
 
 
 class PreparedScene:
@@ -60,14 +63,51 @@ class PreparedScene:
         self._has_env = int(env is not None)
         self._camera = camera_data(scene.camera)
         self._card = card_data(scene.card, scene.camera, self.bvh.bounds)
-        self.data = self._scene_data(hair_coefficients(scene.hair))
+        # What a varying look needs of the strands, made when one first does and shared by `with_hair`'s copies:
+        # each strand's random value, the segments' arc-length fractions.
+        self._strand_data = {}
+        self.data = self._scene_data(scene.hair)
         self.resolution = scene.camera.resolution
 
-    def _scene_data(self, hair) -> SceneData:
+    def _variation(self, hair: HairParams) -> HairVariation:
+        """The kernels' HairVariation of a look: empty arrays where it does not vary."""
+        variation = HairVariation()
+        variation.strands = 0
+        variation.tip = 0
+        empty = wp.zeros(0, dtype=float, device=self.device)
+        variation.segment_start = variation.segment_span = empty
+        variation.hair = wp.zeros(0, dtype=HairCoefficients, device=self.device)
+        variation.derivs = wp.zeros(0, dtype=CoefficientDerivatives, device=self.device)
+        variation.tip_absorption = float(hair.tip_absorption)
+        variation.tip_length = float(hair.tip_length)
+        if not has_variation(hair):
+            return variation
+        if hair.color_spread > 0.0 or hair.roughness_spread > 0.0:
+            if "random" not in self._strand_data:
+                self._strand_data["random"] = strand_random(self.scene.fibers.num_strands)
+            looks = strand_looks(hair, self._strand_data["random"])
+            variation.strands = 1
+            variation.hair = wp.array(strand_coefficients(hair, looks), dtype=HairCoefficients, device=self.device)
+            variation.derivs = wp.array(
+                strand_derivatives(hair, looks), dtype=CoefficientDerivatives, device=self.device
+            )
+        if hair.tip_absorption != 1.0:
+            if "arc" not in self._strand_data:
+                start, span = self.scene.fibers.segment_arc_fractions()
+                self._strand_data["arc"] = (
+                    wp.array(start.astype(np.float32), dtype=float, device=self.device),
+                    wp.array(span.astype(np.float32), dtype=float, device=self.device),
+                )
+            variation.tip = 1
+            variation.segment_start, variation.segment_span = self._strand_data["arc"]
+        return variation
+
+    def _scene_data(self, hair: HairParams) -> SceneData:
         data = SceneData()
         data.camera = self._camera
         data.fibers = self.bvh.geometry
-        data.hair = hair
+        data.hair = hair_coefficients(hair)
+        data.variation = self._variation(hair)
         data.lights = self.lights
         data.num_lights = self._num_lights
         data.env = self.env
@@ -86,7 +126,7 @@ class PreparedScene:
             )
         other = copy.copy(self)
         other.scene = dataclasses.replace(self.scene, hair=hair)
-        other.data = self._scene_data(hair_coefficients(hair))
+        other.data = self._scene_data(hair)
         return other
 
 
