@@ -7,7 +7,8 @@ A fit fails, and `warp-hair fit` exits with FAILED_STATUS, when
   check stays as the promise);
 - a fitted control ran to the end of its range (within BOUND_FRACTION of it): the latents (latents.py) never
   reach a bound, so a control there is one the images pushed as far as the range lets it go, where a
-  convergent fit would have stopped: albedo 0 behind a gain of 343 on a bright photo, say;
+  convergent fit would have stopped: albedo 0 behind a gain of 343 on a bright photo, say (not where the end is
+  the control's default, a spread's 0: images without variation take it there);
 - a photo's gain or white balance ran to a value its images cannot support: a σ above half its value, or a
   white balance beyond WHITE_BALANCE_RANGE (no camera's channel multipliers do that);
 - the measure of fit (goodness.py) says that the model does not describe the images: χ²/dof above
@@ -21,6 +22,8 @@ wants to look at them; they are not a result.
 from __future__ import annotations
 
 import numpy as np
+
+from warp_hair.controls import CONTROLS
 
 from .latents import SPECS
 from .refine import BEST_Z
@@ -50,10 +53,11 @@ def failures(values: dict, loss_history, final_loss: float, refinement, camera_r
             f"the fitted look does not describe the images: chi2/dof {goodness.ratio:.1f} (1 is noise alone), worst "
             f"in view {worst.name} ({worst.ratio:.1f}), in {worst.region} ({worst.region_ratio:.1f}). Likely "
             "causes: strands that differ from the scenes' (their arrangement, waves, density: a recipe that does "
-            "not state them), strand-to-strand colour variation, lights or a camera other than the scenes', or "
-            "a control held fixed at a wrong value, or a refinement stuck away from the look; check the scenes "
+            "not state them), strands that vary in colour or roughness, lights or a camera other than the scenes', "
+            "or a control held fixed at a wrong value, or a refinement stuck away from the look; check the scenes "
             "against the photos, fit more controls (--fit), start elsewhere (--init), or mask the region (a mask "
             "image in target.toml)"
+            + _variation_hint(values)
             + (
                 "; a photo's own noise (sensor, JPEG compression) counts as misfit here: with a heavily compressed "
                 "JPEG, try the photo as PNG, TIFF or raw"
@@ -88,6 +92,15 @@ def _loss_rose(loss_history, final_loss: float, refinement) -> list[str]:
     return reasons
 
 
+def _variation_hint(values: dict) -> str:
+    """The --fit that adds the strands' spread, where the fit held it fixed."""
+    spreads = [name for name in ("color_spread", "roughness_spread") if name not in values]
+    if not spreads:
+        return ""
+    fitted = [name for name in values if name in CONTROLS]
+    return f"; if the strands vary from one to the next, fit their spread: --fit {','.join(fitted + spreads)}"
+
+
 def _at_bounds(values: dict) -> list[str]:
     reasons = []
     names = list(values)
@@ -101,6 +114,8 @@ def _at_bounds(values: dict) -> list[str]:
         width = spec.hi - spec.lo
         if x - spec.lo < BOUND_FRACTION * width or spec.hi - x < BOUND_FRACTION * width:
             end = spec.lo if x - spec.lo < spec.hi - x else spec.hi
+            if owner in CONTROLS and end == CONTROLS[owner].default:
+                continue  # a spread's 0, no variation: the images show none, a value like any other
             reasons.append(
                 f"{label} ran to the end of its range ({x:.4g}, the range ends at {end:g}): the images pushed it "
                 "as far as it can go, so no value of it describes them. Check the target's scenes (lights, "

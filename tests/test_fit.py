@@ -14,6 +14,7 @@ from helpers.scenes import front_camera, toml_text, write_front_back_target
 from optimize.cli import main
 from optimize.fit import fit
 from optimize.target import load_target, make_target
+from warp_hair.controls import controls_of
 
 TRUTH = {"albedo": [0.55, 0.38, 0.22], "beta_m": 0.3, "beta_n": 0.4}
 
@@ -115,7 +116,7 @@ def test_fit_command_writes_its_outputs(small_target, tmp_path, capsys):
     assert set(params["fitted"]) == {"albedo", "beta_m"}
     # The look: the fitted controls and the scenes' fixed ones, every control of the hair.
     look = params["look"]
-    assert set(look) == {"albedo", "beta_m", "beta_n", "alpha", "eta", "r_roughness_scale"}
+    assert set(look) == set(controls_of("albedo"))
     assert look["albedo"] == params["fitted"]["albedo"] and look["beta_m"] == params["fitted"]["beta_m"]
     assert all(look[name] == TRUTH[name] for name in TRUTH if name not in params["fitted"])
     assert "longitudinal_roughness" in (out / "hair_mitsuba.xml").read_text()

@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 from helpers.scenes import SPARSE_HAIR, sparse_scene
 
+from warp_hair.controls import SCALAR_CONTROLS
 from warp_hair.renderer.gradients import render_grad
 from warp_hair.renderer.render import render
 
@@ -205,7 +206,7 @@ def test_threads_do_not_change_the_gradient():
 def test_melanin_and_sigma_a_names():
     scene = sparse_scene({"eumelanin": 0.5, "pheomelanin": 0.2}, resolution=(4, 4))
     g = render_grad(scene, np.ones((4, 4, 3)), spp=2)
-    assert set(g) == {"eumelanin", "pheomelanin", "beta_m", "beta_n", "alpha", "eta", "r_roughness_scale"}
+    assert set(g) == {"eumelanin", "pheomelanin", *SCALAR_CONTROLS}
     assert g["eumelanin"] < 0.0  # more melanin, darker
     scene = sparse_scene({"sigma_a": [0.2, 0.3, 0.4]}, resolution=(4, 4))
     g = render_grad(scene, np.ones((4, 4, 3)), spp=2)

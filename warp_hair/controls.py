@@ -321,6 +321,8 @@ CONTROLS = {
 }
 
 CONTROL_NAMES = tuple(CONTROLS)
+# Hair as it grows (model/variation.py): a scene file or truth.json of a look without variation leaves them out.
+VARIATION_CONTROLS = ("color_spread", "roughness_spread", "tip_absorption", "tip_length")
 THETA_SIZE = 1 + max(column for control in CONTROLS.values() for column in control.columns)
 COLOUR_CONTROLS = {
     colour_input: tuple(name for name, control in CONTROLS.items() if control.colour_input == colour_input)

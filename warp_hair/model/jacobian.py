@@ -190,9 +190,7 @@ def strand_derivatives(params: HairParams, looks) -> list:
     out = []
     for i in range(len(looks.beta_m)):
         beta_m, beta_n = float(looks.beta_m[i]), float(looks.beta_n[i])
-        k = _derivatives(
-            looks.d_sigma_d_colour[i], looks.d_sigma_d_beta_n[i], beta_m, beta_n, params.r_roughness_scale
-        )
+        k = _derivatives(looks.d_sigma_d_colour[i], looks.d_sigma_d_beta_n[i], beta_m, beta_n, params.r_roughness_scale)
         log_v, log_s = _log_v_slope(beta_m), _log_s_slope(beta_n)
         k.d_log_v_d_beta_m = float(log_v * looks.d_beta_m_d_beta_m[i])
         k.d_log_s_d_beta_n = float(log_s * looks.d_beta_n_d_beta_n[i])

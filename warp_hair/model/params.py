@@ -17,7 +17,16 @@ from dataclasses import dataclass
 import numpy as np
 
 from .. import validate
-from ..controls import BETA_FLOOR, COLOUR_CONTROL_NAMES, COLOUR_CONTROLS, CONTROL_NAMES, CONTROLS, controls_of, describe
+from ..controls import (
+    BETA_FLOOR,
+    COLOUR_CONTROL_NAMES,
+    COLOUR_CONTROLS,
+    CONTROL_NAMES,
+    CONTROLS,
+    VARIATION_CONTROLS,
+    controls_of,
+    describe,
+)
 
 # d'Eon et al. 2011 absorption of the two melanins per unit fiber radius (docs/MODEL.md, "From artist controls").
 EUMELANIN_SIGMA_A = np.array([0.419, 0.697, 1.37])
@@ -259,8 +268,13 @@ class HairParams:
         return d
 
     def to_table(self) -> dict:
-        """A scene file's [hair] table: the controls, plus [hair.albedo_inversion] when it is not the talk's."""
-        d = self.to_dict()
+        """A scene file's [hair] table: the controls (the variation's only where the look varies: a uniform
+        look's table is as it was before they existed), plus [hair.albedo_inversion] when it is not the talk's."""
+        d = {
+            name: value
+            for name, value in self.to_dict().items()
+            if name not in VARIATION_CONTROLS or value != CONTROLS[name].default
+        }
         if self.albedo_inversion != TALK_ALBEDO_INVERSION:
             d[ALBEDO_INVERSION_KEY] = {"coefficients": list(self.albedo_inversion)}
         return d

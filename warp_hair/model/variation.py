@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..controls import BETA_FLOOR
+from ..controls import BETA_FLOOR, VARIATION_CONTROLS  # noqa: F401 (re-exported: the controls this module maps)
 from .params import (
     EUMELANIN_SIGMA_A,
     PHEOMELANIN_SIGMA_A,
@@ -47,8 +47,6 @@ CYCLES_MELANIN_UNITS = (
     float(_CYCLES_PHEOMELANIN @ PHEOMELANIN_SIGMA_A / (PHEOMELANIN_SIGMA_A @ PHEOMELANIN_SIGMA_A)),
 )
 MELANIN_CLAMP = 1e-4  # Cycles' max(1 − melanin, 0.0001) before the log
-
-VARIATION_CONTROLS = ("color_spread", "roughness_spread", "tip_absorption", "tip_length")
 
 
 def _rot(x, k):

@@ -28,6 +28,7 @@ from ..numerics import FLOAT32_MIN_NORMAL, NO_HIT, power_heuristic, rand2, to_lo
 from .camera import CameraData
 from .envmap import EnvironmentData, env_pdf, env_radiance, env_sample
 from .material import (
+    HairVariation,
     Vertex,
     bsdf_can_reach,
     bsdf_f,
@@ -36,7 +37,6 @@ from .material import (
     bsdf_setup_grad,
     bsdf_value_jacobian,
     depends_on_controls,
-    HairVariation,
     local_incident,
     scattering_vertex,
     vertex_derivatives,

@@ -21,8 +21,8 @@ from ..geometry.card import card_data
 from ..geometry.tubes import FiberBVH
 from ..model.hair_bsdf import HairCoefficients, hair_coefficients, strand_coefficients
 from ..model.jacobian import CoefficientDerivatives, strand_derivatives
-from ..model.variation import has_variation, strand_looks, strand_random
 from ..model.params import HairParams
+from ..model.variation import has_variation, strand_looks, strand_random
 from ..scene import DirectionalLight, EnvironmentLight, Scene, check_scene
 from .camera import camera_data
 from .envmap import environment_data
