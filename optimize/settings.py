@@ -19,7 +19,16 @@ if TYPE_CHECKING:
 
 # The acceptance bounds of a fit: its error per component, against the truth (docs/acceptance.md).
 ALBEDO_BOUND, BETA_BOUND = 0.02, 0.03
-BOUNDS = {"albedo": ALBEDO_BOUND, "beta_m": BETA_BOUND, "beta_n": BETA_BOUND}
+# Hair as it grows (issue 44): the strands' spreads and the tip's absorption factor.
+VARIATION_BOUND = 0.05
+BOUNDS = {
+    "albedo": ALBEDO_BOUND,
+    "beta_m": BETA_BOUND,
+    "beta_n": BETA_BOUND,
+    "color_spread": VARIATION_BOUND,
+    "roughness_spread": VARIATION_BOUND,
+    "tip_absorption": VARIATION_BOUND,
+}
 FINAL_SPP_FACTOR = 4
 DEFAULT_REFINE_STEPS = 8
 # A photo's unknown gains leave a valley along which its albedo trades off against the exposure, and there the
