@@ -55,8 +55,13 @@ def write_target(directory, lights, drape, spp, hair=HAIR):
 
 
 def test_the_bounds_are_the_acceptance_bounds():
-    assert BOUNDS == {"albedo": ALBEDO_BOUND, "beta_m": BETA_BOUND, "beta_n": BETA_BOUND}
+    assert {name: BOUNDS[name] for name in ("albedo", "beta_m", "beta_n")} == {
+        "albedo": ALBEDO_BOUND,
+        "beta_m": BETA_BOUND,
+        "beta_n": BETA_BOUND,
+    }
     assert (ALBEDO_BOUND, BETA_BOUND) == (0.02, 0.03)
+    assert {BOUNDS[name] for name in ("color_spread", "roughness_spread", "tip_absorption")} == {0.05}  # issue 44
 
 
 def test_a_flat_swatch_seen_head_on_under_a_front_light_is_a_bad_target(tmp_path, capsys):
