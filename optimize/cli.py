@@ -32,6 +32,13 @@ from .target import fix_controls, resolve_target
 from .verdict import FAILED_STATUS
 
 
+
+def _bounds_text() -> str:
+    """The acceptance bounds as the help states them: "albedo 0.02, beta_m 0.03, ..."."""
+    from .settings import BOUNDS
+
+    return ", ".join(f"{name} {bound:g}" for name, bound in BOUNDS.items())
+
 def parse_assignments(items, option: str) -> dict:
     """["albedo=0.5,0.4,0.3", "beta_m=0.4"] → {"albedo": [0.5, 0.4, 0.3], "beta_m": [0.4]}."""
     values = {}
@@ -319,7 +326,7 @@ def add_targets(subparsers) -> None:
         "disagreement), the fit's own Monte Carlo error (the mean of its Gauss-Newton points, each from renders "
         "at its samples), the expected sigma of all three (the model error as the fit counts it: 0 for "
         "warp-hair's own targets, 1% for others) and the largest correlation with another control. Identifiable "
-        "when every control's expected sigma is below its acceptance bound (albedo 0.02, beta_m and beta_n 0.03), "
+        f"when every control's expected sigma is below its acceptance bound ({_bounds_text()}), "
         "and pinned where twice it is (a fit lands within the bound about 19 times in 20); else exit status 1, "
         "naming the control and what to add. For photos (whose gains and white balance are fitted, "
         "optimize/camera.py) it also says which of those the images pin. Costs 8 renders of each image at 64 spp.",
