@@ -32,12 +32,12 @@ from .target import fix_controls, resolve_target
 from .verdict import FAILED_STATUS
 
 
-
 def _bounds_text() -> str:
     """The acceptance bounds as the help states them: "albedo 0.02, beta_m 0.03, ..."."""
     from .settings import BOUNDS
 
     return ", ".join(f"{name} {bound:g}" for name, bound in BOUNDS.items())
+
 
 def parse_assignments(items, option: str) -> dict:
     """["albedo=0.5,0.4,0.3", "beta_m=0.4"] → {"albedo": [0.5, 0.4, 0.3], "beta_m": [0.4]}."""

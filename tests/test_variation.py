@@ -161,3 +161,34 @@ def test_arc_fractions_run_root_to_tip_by_length():
 def test_a_varied_render_does_not_depend_on_the_threads():
     scene = _scene({**COLOURS["melanin"], **VARIATION}, max_depth=8)
     np.testing.assert_array_equal(render(scene, spp=4, seed=1, threads=1), render(scene, spp=4, seed=1, threads=2))
+
+
+def test_a_usd_random_primvar_gives_each_strand_its_value(tmp_path):
+    """A groom's own per-curve `random` primvar replaces the index-drawn values: the index's own values written
+    as the primvar render the same image, other values another."""
+    pytest.importorskip("pxr", reason="usd-core is the `usd` extra")
+    from warp_hair.geometry import save_fibers
+
+    hair = {**COLOURS["albedo"], "color_spread": 0.5, "roughness_spread": 0.3}
+    scene = _scene(hair)
+    fibers = scene.fibers
+    drawn = strand_random(fibers.num_strands)
+    for name, values in (("same", drawn), ("reversed", drawn[::-1])):
+        with_random = FiberAssembly(fibers.points, fibers.radii, fibers.strand_offsets, strand_random=values)
+        save_fibers(with_random, tmp_path / f"{name}.usda")
+    same = _scene(hair, fibers={"file": str(tmp_path / "same.usda")})
+    np.testing.assert_array_equal(same.fibers.strand_random, drawn)
+    reference = render(scene, spp=4, seed=1)
+    np.testing.assert_array_equal(render(same, spp=4, seed=1), reference)
+    other = render(_scene(hair, fibers={"file": str(tmp_path / "reversed.usda")}), spp=4, seed=1)
+    assert np.abs(other - reference).max() > 1e-3
+
+
+def test_random_values_outside_the_unit_interval_are_refused():
+    points = np.zeros((2, 2, 3), dtype=np.float32)
+    points[:, 1, 1] = 1.0
+    fibers = FiberAssembly.from_arrays(points, 0.01)
+    with pytest.raises(ValueError, match=r"strand 1: random value 1.5 is outside \[0, 1\]"):
+        FiberAssembly(fibers.points, fibers.radii, fibers.strand_offsets, strand_random=[0.2, 1.5])
+    with pytest.raises(ValueError, match="one value per strand"):
+        FiberAssembly(fibers.points, fibers.radii, fibers.strand_offsets, strand_random=[0.2])

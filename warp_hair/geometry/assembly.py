@@ -59,7 +59,7 @@ class FiberAssembly:
     `FiberDataError` (a ValueError) naming the first bad strand; `source` (a file name) prefixes the message.
     """
 
-    def __init__(self, points, radii, strand_offsets, *, source=None):
+    def __init__(self, points, radii, strand_offsets, *, strand_random=None, source=None):
         # Values beyond float32 range become inf here, which the checks below report by strand.
         with np.errstate(over="ignore"):
             self.points = _frozen(np.array(points, dtype=np.float32))
@@ -67,6 +67,9 @@ class FiberAssembly:
         self.strand_offsets = _frozen(_as_offsets(strand_offsets, source))
         _check_shapes(self.points, self.radii, self.strand_offsets, source)
         _check_strands(self.points, self.radii, self.strand_offsets, source)
+        # Each strand's random value in [0, 1] where the file gives one (a USD `random` primvar); None: the
+        # renderer draws it from the strand's index as Cycles does (model/variation.py).
+        self.strand_random = None if strand_random is None else _frozen(_checked_random(strand_random, self, source))
 
     @classmethod
     def from_arrays(cls, points, radii, *, source=None):
@@ -84,7 +87,7 @@ class FiberAssembly:
         return cls(points.reshape(-1, 3), radii.reshape(-1), offsets, source=source)
 
     @classmethod
-    def from_strands(cls, strands, *, source=None):
+    def from_strands(cls, strands, *, strand_random=None, source=None):
         """Strands of any vertex counts, from an iterable of (points (n, 3), radii (n,) or scalar) pairs."""
         points, radii = [], []
         for strand_points, strand_radii in strands:
@@ -95,7 +98,7 @@ class FiberAssembly:
         offsets = np.concatenate([[0], np.cumsum(counts, dtype=np.int64)])
         if not points:
             return cls(np.zeros((0, 3)), np.zeros(0), offsets, source=source)
-        return cls(np.concatenate(points), np.concatenate(radii), offsets, source=source)
+        return cls(np.concatenate(points), np.concatenate(radii), offsets, strand_random=strand_random, source=source)
 
     @classmethod
     def concatenate(cls, assemblies):
@@ -106,10 +109,13 @@ class FiberAssembly:
         starts = np.cumsum([0] + [a.num_vertices for a in assemblies[:-1]])
         offsets = [np.zeros(1, dtype=np.int64)]
         offsets += [a.strand_offsets[1:] + start for a, start in zip(assemblies, starts)]
+        given = [a.strand_random is not None for a in assemblies]
         return cls(
             np.concatenate([a.points for a in assemblies]),
             np.concatenate([a.radii for a in assemblies]),
             np.concatenate(offsets),
+            # Only where every part has its own: an index-drawn value depends on the strand's place in the whole.
+            strand_random=np.concatenate([a.strand_random for a in assemblies]) if all(given) else None,
         )
 
     @property
@@ -189,6 +195,18 @@ class FiberAssembly:
 
     def __repr__(self):
         return f"FiberAssembly({self.num_strands} strands, {self.num_vertices} vertices, {self.num_segments} segments)"
+
+
+def _checked_random(values, assembly, source):
+    values = np.array(values, dtype=np.float32).reshape(-1)
+    if values.shape != (assembly.num_strands,):
+        raise FiberDataError(
+            f"strand_random must hold one value per strand ({assembly.num_strands}), got {values.size}", source=source
+        )
+    bad = np.flatnonzero(~((values >= 0.0) & (values <= 1.0)))
+    if bad.size:
+        raise FiberDataError(f"random value {values[bad[0]]} is outside [0, 1]", strand=int(bad[0]), source=source)
+    return values
 
 
 def _frozen(array):

@@ -155,4 +155,6 @@ def catmull_rom(fibers, tolerance=DEFAULT_TOLERANCE):
     closes = (j == counts[strand] - 2).astype(np.int64)
     new_points, _, new_radii = _evaluate(points[index], "catmullRom", pieces, closes, radii[index][..., None])
     per_strand = np.bincount(strand, weights=pieces + closes, minlength=len(counts)).astype(np.int64)
-    return FiberAssembly(new_points, new_radii[:, 0], np.concatenate([[0], np.cumsum(per_strand)]))
+    return FiberAssembly(
+        new_points, new_radii[:, 0], np.concatenate([[0], np.cumsum(per_strand)]), strand_random=fibers.strand_random
+    )

@@ -26,6 +26,10 @@ spaced parameters per span when that is given; `vertex` widths are interpolated 
 `varying` ones linearly within each span. Strands are
 listed root first, as the fibers' convention is.
 
+A `random` primvar (one float in [0, 1] per curve) gives each strand its random value for the variation's
+controls (`color_spread`, `roughness_spread`; model/variation.py); without one a strand's comes from its index, as
+Cycles draws a curve's. `save_fibers` writes it where the fibers have their own.
+
 Errors name the file and the prim: no BasisCurves found, vertex counts that do not add up to the points, curves
 with too few control points for their basis, non-finite points, widths of the wrong length, missing widths
 without `radius`.
@@ -43,6 +47,7 @@ from .curves import BASIS_MATRICES, DEFAULT_TOLERANCE, WRAPS, check_tolerance, s
 
 SUFFIXES = (".usd", ".usda", ".usdc")
 WRITE_PRIM = "/Groom/hair"
+RANDOM_PRIMVAR = "random"  # each strand's random value for the variation's controls
 
 
 class UsdCurveError(ValueError):
@@ -96,6 +101,7 @@ def read_usd(path, *, prim=None, radius=None, tolerance=None, segments=None):
         if start is None or not start.IsValid():
             raise UsdCurveError(path, f'no prim at {prim!r} (give an absolute prim path, e.g. "/Groom/hair")')
     strands = []
+    randoms = {}  # prim path → its curves' random values (a `random` primvar), or None
     found = 0
     for node in Usd.PrimRange(start):
         if not node.IsA(UsdGeom.BasisCurves):
@@ -107,12 +113,20 @@ def read_usd(path, *, prim=None, radius=None, tolerance=None, segments=None):
         ):
             continue
         found += 1
-        strands.extend(_curves(path, UsdGeom.BasisCurves(node), Usd, UsdGeom, radius, tolerance, segments))
+        curves = UsdGeom.BasisCurves(node)
+        new = list(_curves(path, curves, Usd, UsdGeom, radius, tolerance, segments))
+        strands.extend(new)
+        randoms[str(node.GetPath())] = _random(path, curves, Usd, UsdGeom, len(new))
     if not found:
         under = "the stage" if prim is None else repr(prim)
         raise UsdCurveError(path, f"no (visible, non-guide) BasisCurves prim under {under}")
+    given = [name for name, values in randoms.items() if values is not None]
+    if given and len(given) != len(randoms):
+        missing = next(name for name, values in randoms.items() if values is None)
+        raise UsdCurveError(path, f"{given[0]} has a random primvar and {missing} has none: give all or none")
+    strand_random = np.concatenate(list(randoms.values())) if given else None
     try:
-        return FiberAssembly.from_strands(strands, source=path)
+        return FiberAssembly.from_strands(strands, strand_random=strand_random, source=path)
     except FiberDataError as error:
         raise UsdCurveError(path, str(error).removeprefix(f"{path}: ")) from None
 
@@ -217,6 +231,26 @@ def _curves(path, curves, Usd, UsdGeom, radius, tolerance, segments):
         yield p, 0.5 * scale * np.asarray(w)
 
 
+def _random(path, curves, Usd, UsdGeom, count):
+    """The curves' `random` primvar (one value in [0, 1] per curve, or one for all), or None where there is none:
+    each strand's random value for the variation's controls (model/variation.py)."""
+    primvar = UsdGeom.PrimvarsAPI(curves.GetPrim()).GetPrimvar(RANDOM_PRIMVAR)
+    if not primvar or not primvar.HasAuthoredValue():
+        return None
+    fail = lambda problem: UsdCurveError(path, problem, str(curves.GetPath()))  # noqa: E731
+    values = np.asarray(primvar.Get(Usd.TimeCode.EarliestTime()), dtype=np.float64).reshape(-1)
+    interpolation = primvar.GetInterpolation()
+    if interpolation not in ("constant", "uniform") or len(values) != (1 if interpolation == "constant" else count):
+        raise fail(
+            f"primvars:{RANDOM_PRIMVAR} must hold one value per curve (uniform, {count}) or one (constant); got "
+            f"{len(values)} {interpolation}"
+        )
+    bad = np.flatnonzero(~((values >= 0.0) & (values <= 1.0)))
+    if bad.size:
+        raise fail(f"primvars:{RANDOM_PRIMVAR} value {values[bad[0]]:g} (curve {int(bad[0])}) is outside [0, 1]")
+    return np.broadcast_to(values, count).astype(np.float32)
+
+
 def _span_count(kind, basis, wrap, n):
     if kind == "linear":
         return n if wrap == "periodic" else n - 1
@@ -227,7 +261,7 @@ def write_usd(assembly, path, *, prim=WRITE_PRIM):
     """Save `assembly` as one linear, nonperiodic BasisCurves prim with per-vertex widths (2 × radius)."""
     path = Path(path)
     Usd, UsdGeom = _pxr(path)
-    from pxr import Vt
+    from pxr import Sdf, Vt
 
     stage = Usd.Stage.CreateInMemory()
     UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y)
@@ -242,6 +276,10 @@ def write_usd(assembly, path, *, prim=WRITE_PRIM):
     curves.CreateCurveVertexCountsAttr(Vt.IntArray.FromNumpy(assembly.vertex_counts.astype(np.int32)))
     curves.CreateWidthsAttr(Vt.FloatArray.FromNumpy(2.0 * np.asarray(assembly.radii, dtype=np.float32)))
     curves.SetWidthsInterpolation(UsdGeom.Tokens.vertex)
+    if assembly.strand_random is not None:
+        UsdGeom.PrimvarsAPI(curves.GetPrim()).CreatePrimvar(
+            RANDOM_PRIMVAR, Sdf.ValueTypeNames.FloatArray, UsdGeom.Tokens.uniform
+        ).Set(Vt.FloatArray.FromNumpy(np.ascontiguousarray(assembly.strand_random, dtype=np.float32)))
     # Export (not CreateNew + Save) so that an existing file is replaced, as the other fiber writers do.
     try:
         written = stage.GetRootLayer().Export(str(path))

@@ -84,7 +84,9 @@ class PreparedScene:
             return variation
         if hair.color_spread > 0.0 or hair.roughness_spread > 0.0:
             if "random" not in self._strand_data:
-                self._strand_data["random"] = strand_random(self.scene.fibers.num_strands)
+                fibers = self.scene.fibers
+                given = fibers.strand_random
+                self._strand_data["random"] = strand_random(fibers.num_strands) if given is None else given
             looks = strand_looks(hair, self._strand_data["random"])
             variation.strands = 1
             variation.hair = wp.array(strand_coefficients(hair, looks), dtype=HairCoefficients, device=self.device)
