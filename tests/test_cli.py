@@ -180,9 +180,9 @@ def test_the_command_leaves_out_warps_own_messages(tiny_scene, tmp_path):
 
 def test_only_the_no_driver_line_is_dropped(capfd):
     """Warp's other native messages (a driver too old, an error) still reach the user."""
-    from warp_hair.devices import NO_DRIVER_LINE, _native_stderr_without
+    from warp_hair.devices import NO_DRIVER_LINE, native_stderr_without
 
-    with _native_stderr_without(NO_DRIVER_LINE):
+    with native_stderr_without(NO_DRIVER_LINE):
         os.write(2, f"Warp CUDA warning: {NO_DRIVER_LINE}. GPU execution will not be available.\n".encode())
         os.write(2, b"Warp CUDA error: Warp requires CUDA driver 12.0 or higher\n")
     assert capfd.readouterr().err == "Warp CUDA error: Warp requires CUDA driver 12.0 or higher\n"

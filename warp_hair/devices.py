@@ -32,14 +32,14 @@ def init_warp(verbose: bool = False) -> None:
     if verbose:
         wp.init()
         return
-    with _native_stderr_without(NO_DRIVER_LINE):
+    with native_stderr_without(NO_DRIVER_LINE):
         wp.init()
 
 
 @contextlib.contextmanager
-def _native_stderr_without(text: str):
+def native_stderr_without(text: str | None):
     """Hold what is written to file descriptor 2 (C code's stderr, which sys.stderr cannot intercept) and pass on
-    the lines that do not contain `text`."""
+    the lines that do not contain `text` (with None, none: native chatter hidden whole)."""
     try:
         sys.stderr.flush()
         saved = os.dup(2)
@@ -54,7 +54,8 @@ def _native_stderr_without(text: str):
             os.dup2(saved, 2)
             os.close(saved)
             held.seek(0)
-            kept = [line for line in held.read().decode(errors="replace").splitlines(True) if text not in line]
+            lines = held.read().decode(errors="replace").splitlines(True)
+            kept = [] if text is None else [line for line in lines if text not in line]
             if kept:
                 sys.stderr.write("".join(kept))
                 sys.stderr.flush()

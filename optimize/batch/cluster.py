@@ -25,8 +25,9 @@ import contextlib
 import logging
 import os
 import socket
-import tempfile
 from pathlib import Path
+
+from warp_hair.devices import native_stderr_without
 
 AUTH_MODE = "RAY_AUTH_MODE"  # Ray's switch: "token" or "disabled"; unset, Ray decides (and so do we)
 MULTI_NODE = "RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER"
@@ -186,7 +187,7 @@ def _answers(host: str, port: int, mode: str) -> bool:
     saved = os.environ.get(AUTH_MODE)
     _set_auth_mode(mode)
     try:
-        with _stderr_hidden():
+        with native_stderr_without(None):  # the C++ client's own complaints: the error says it
             GcsClient(address=f"{host}:{port}").internal_kv_get(b"-", b"warp-hair", timeout=REACH_SECONDS)
         return True
     except AuthenticationError:
@@ -209,19 +210,6 @@ def _token_source() -> str:
     if os.environ.get("RAY_AUTH_TOKEN"):
         return "RAY_AUTH_TOKEN"
     return os.environ.get("RAY_AUTH_TOKEN_PATH") or str(Path.home() / ".ray" / "auth_token")
-
-
-@contextlib.contextmanager
-def _stderr_hidden():
-    """File descriptor 2 to a scratch file, for the C++ code that writes there directly."""
-    saved = os.dup(2)
-    with tempfile.TemporaryFile() as scratch:
-        os.dup2(scratch.fileno(), 2)
-        try:
-            yield
-        finally:
-            os.dup2(saved, 2)
-            os.close(saved)
 
 
 def _restore(name: str, value: str | None) -> None:
