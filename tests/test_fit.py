@@ -9,7 +9,7 @@ import json
 
 import numpy as np
 import pytest
-from helpers.scenes import front_camera, toml_text, write_front_back_target
+from helpers.scenes import draped_swatch_text, write_front_back_target
 
 from optimize.cli import main
 from optimize.fit import fit
@@ -21,25 +21,7 @@ TRUTH = {"albedo": [0.55, 0.38, 0.22], "beta_m": 0.3, "beta_n": 0.4}
 
 def scene_text(direction, spp):
     """A 120-fiber draped swatch with the TRUTH controls under one directional light, 24×24 pixels."""
-    return toml_text(
-        {
-            "camera": front_camera(0.36, (24, 24)),
-            "lights": [{"type": "directional", "direction": direction, "irradiance": [3.0, 3.0, 3.0]}],
-            "fibers": {
-                "generator": "swatch",
-                "count": 120,
-                "layers": 2,
-                "length": 0.5,
-                "width": 0.4,
-                "radius": 0.004,
-                "drape": 0.25,
-                "segments": 16,
-                "seed": 4,
-            },
-            "hair": dict(TRUTH),
-            "render": {"spp": spp, "max_depth": 16, "seed": 3},
-        }
-    )
+    return draped_swatch_text(direction, TRUTH, spp, "fit")
 
 
 # At 1024 spp this target's own noise leaves red albedo uncertain by ±0.03 (1σ, as the fit reports it), the

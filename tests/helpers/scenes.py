@@ -88,28 +88,32 @@ def sparse_scene(hair, resolution=(16, 16), spp=128):
 FRONT_BACK = (("front", [0.2, -0.3, -1.0]), ("back", [0.0, -0.15, 1.0]))
 
 
-def small_swatch_text(direction, hair: dict, spp: int = 64) -> str:
-    """A 40-fiber draped swatch under one directional light, 16×16 pixels: a target scene small enough for a fit
-    in a test (`write_front_back_target` makes a front- and a back-lit one)."""
+# The draped swatches of the fit tests: camera width, pixels a side, the fibers' own keys, max_depth, render seed.
+DRAPED_SWATCHES = {
+    # 40 fibers, 16×16 pixels: a target small enough for a fit in a test.
+    "small": (0.24, 16, {"count": 40, "length": 0.3, "width": 0.22, "drape": 0.15, "segments": 12, "seed": 5}, 8, 2),
+    # 120 fibers, 24×24: the fit command's own test (tests/test_fit.py).
+    "fit": (0.36, 24, {"count": 120, "length": 0.5, "width": 0.4, "drape": 0.25, "segments": 16, "seed": 4}, 16, 3),
+}
+
+
+def draped_swatch_text(direction, hair: dict, spp: int = 64, size: str = "small") -> str:
+    """A two-layer draped swatch (`DRAPED_SWATCHES[size]`) under one directional light, as a scene file's text
+    (`write_front_back_target` makes a front- and a back-lit target of it)."""
+    view, pixels, fibers, max_depth, seed = DRAPED_SWATCHES[size]
     return toml_text(
         {
-            "camera": front_camera(0.24, (16, 16)),
+            "camera": front_camera(view, (pixels, pixels)),
             "lights": [{"type": "directional", "direction": direction, "irradiance": [3.0, 3.0, 3.0]}],
-            "fibers": {
-                "generator": "swatch",
-                "count": 40,
-                "layers": 2,
-                "length": 0.3,
-                "width": 0.22,
-                "radius": 0.004,
-                "drape": 0.15,
-                "segments": 12,
-                "seed": 5,
-            },
+            "fibers": {"generator": "swatch", "layers": 2, "radius": 0.004, **fibers},
             "hair": dict(hair),
-            "render": {"spp": spp, "max_depth": 8, "seed": 2},
+            "render": {"spp": spp, "max_depth": max_depth, "seed": seed},
         }
     )
+
+
+def small_swatch_text(direction, hair: dict, spp: int = 64) -> str:
+    return draped_swatch_text(direction, hair, spp, "small")
 
 
 def write_front_back_target(directory, scene_text):
