@@ -58,38 +58,41 @@ def hair_coefficients(params: HairParams) -> HairCoefficients:
     return coefficients_from(params.absorption, params.eta, params.lobe_variances, params.logistic_scale, params.alpha)
 
 
-def strand_coefficients(params: HairParams, looks) -> list:
-    """Each strand's HairCoefficients (model/variation.py's StrandLooks: its σ_a, β_m and β_n)."""
-    return [
-        coefficients_from(
-            looks.sigma_a[i],
-            params.eta,
-            lobe_variances(looks.beta_m[i], params.r_roughness_scale),
-            logistic_scale(looks.beta_n[i]),
-            params.alpha,
-        )
-        for i in range(len(looks.beta_m))
-    ]
+def strand_coefficients(params: HairParams, looks) -> np.ndarray:
+    """Each strand's HairCoefficients (model/variation.py's StrandLooks: its σ_a, β_m and β_n), as a NumPy
+    structured array (`wp.array(..., dtype=HairCoefficients)` takes it)."""
+    v = lobe_variances(looks.beta_m, params.r_roughness_scale).T  # (S, 4)
+    return coefficients_table(looks.sigma_a, params.eta, v, logistic_scale(looks.beta_n), params.alpha)
 
 
 def coefficients_from(sigma_a, eta, v, s, alpha) -> HairCoefficients:
     """The coefficients of σ_a (RGB), η, the lobes' variances v [R, TT, TRT, residual], the logistic scale s and
-    the tilt α (degrees): a material's, or one strand's (model/variation.py)."""
+    the tilt α (degrees)."""
+    row = coefficients_table(np.atleast_2d(sigma_a), eta, np.atleast_2d(v), np.atleast_1d(s), alpha)[0]
     c = HairCoefficients()
-    c.sigma_a = wp.vec3(*sigma_a)
-    c.eta = float(eta)
-    # The per-lobe normalisations are per material: formed here once, in float64.
-    c.inv_v = wp.vec4(*(1.0 / v))
-    c.m_norm = wp.vec4(*longitudinal_norm(v))
-    c.cone = wp.mat44(*cone_constants(v).ravel())
-    c.s = float(s)
-    c.inv_s = float(1.0 / s)
-    c.n_norm = float(logistic_norm(s))
-    c.n_tail = float(logistic_tail(s))
-    angles = np.radians(alpha) * np.array([1.0, 2.0, 4.0])
-    c.sin_2k_alpha = wp.vec3(*np.sin(angles))
-    c.cos_2k_alpha = wp.vec3(*np.cos(angles))
+    for name in row.dtype.names:
+        setattr(c, name, row[name])
     return c
+
+
+def coefficients_table(sigma_a, eta, v, s, alpha) -> np.ndarray:
+    """HairCoefficients of N materials or strands as a NumPy structured array of `HairCoefficients.numpy_dtype()`:
+    σ_a (N, 3), v (N, 4), s (N,); η and α shared. The per-lobe normalisations are formed here once, in float64,
+    and rounded once to the kernels' float32."""
+    table = np.zeros(len(s), dtype=HairCoefficients.numpy_dtype())
+    table["sigma_a"] = sigma_a
+    table["eta"] = eta
+    table["inv_v"] = 1.0 / v
+    table["m_norm"] = longitudinal_norm(v)
+    table["cone"] = cone_constants(v)
+    table["s"] = s
+    table["inv_s"] = 1.0 / s
+    table["n_norm"] = logistic_norm(s)
+    table["n_tail"] = logistic_tail(s)
+    angles = np.radians(alpha) * np.array([1.0, 2.0, 4.0])
+    table["sin_2k_alpha"] = np.sin(angles)
+    table["cos_2k_alpha"] = np.cos(angles)
+    return table
 
 
 @wp.struct

@@ -166,40 +166,58 @@ def _log_s_slope(beta_n: float) -> float:
     return _slope(logistic_scale, beta_n) / logistic_scale(beta_n) if _live(beta_n) else 0.0
 
 
+def _m_norm_log_slope(v):
+    """∂ln m_norm/∂ln v of m_norm = 1 / (v (1 − e^(−y))), y = 2/v: −1 + y e^(−y) / (1 − e^(−y)), no overflow at
+    small v (NumPy, elementwise)."""
+    y = 2.0 / v
+    return -1.0 + y * np.exp(-y) / -np.expm1(-y)
+
+
+def _n_norm_log_slope(s, exp=math.exp, expm1=math.expm1):
+    """∂ln n_norm/∂ln s of n_norm = 1 / (s tanh(z/2)), z = π/s: −1 + z / sinh z, formed with e^(−z) (scalar, or
+    elementwise with NumPy's exp and expm1)."""
+    z = math.pi / s
+    return -1.0 + 2.0 * z * exp(-z) / -expm1(-2.0 * z)
+
+
 def _derivatives(d_colour, d_beta_n, beta_m, beta_n, r_roughness_scale) -> CoefficientDerivatives:
-    """CoefficientDerivatives of a material (or a strand) with these roughnesses, from ∂σ_a/∂θ."""
+    """CoefficientDerivatives of a material with these roughnesses, from ∂σ_a/∂θ."""
     k = CoefficientDerivatives()
     k.d_sigma_d_colour = wp.mat33(*np.ravel(d_colour))
     k.d_sigma_d_beta_n = wp.vec3(*d_beta_n)
     k.d_log_v_d_beta_m = _log_v_slope(beta_m)
     k.d_log_v_r_d_scale = 1.0 / r_roughness_scale
-    # m_norm = 1 / (v (1 − e^(−y))), y = 2/v: ∂ln m_norm/∂ln v = −1 + y e^(−y) / (1 − e^(−y)); no overflow at small v.
-    y = 2.0 / lobe_variances(beta_m, r_roughness_scale)
-    k.m_norm_log_slope = wp.vec4(*(-1.0 + y * np.exp(-y) / -np.expm1(-y)))
-    s = logistic_scale(beta_n)
+    k.m_norm_log_slope = wp.vec4(*_m_norm_log_slope(lobe_variances(beta_m, r_roughness_scale)))
     k.d_log_s_d_beta_n = _log_s_slope(beta_n)
-    # n_norm = 1 / (s tanh(z/2)), z = π/s: ∂ln n_norm/∂ln s = −1 + z / sinh z, formed with e^(−z).
-    z = math.pi / s
-    k.n_norm_log_slope = -1.0 + 2.0 * z * math.exp(-z) / -math.expm1(-2.0 * z)
+    k.n_norm_log_slope = _n_norm_log_slope(logistic_scale(beta_n))
     return k
 
 
-def strand_derivatives(params: HairParams, looks) -> list:
-    """Each strand's CoefficientDerivatives (model/variation.py's StrandLooks): its own roughnesses and ∂σ_a/∂θ,
-    the look's β through the strand's (f_r, or 0 where clamped), and the spreads' columns."""
-    out = []
-    for i in range(len(looks.beta_m)):
-        beta_m, beta_n = float(looks.beta_m[i]), float(looks.beta_n[i])
-        k = _derivatives(looks.d_sigma_d_colour[i], looks.d_sigma_d_beta_n[i], beta_m, beta_n, params.r_roughness_scale)
-        log_v, log_s = _log_v_slope(beta_m), _log_s_slope(beta_n)
-        k.d_log_v_d_beta_m = float(log_v * looks.d_beta_m_d_beta_m[i])
-        k.d_log_s_d_beta_n = float(log_s * looks.d_beta_n_d_beta_n[i])
-        k.d_sigma_d_color_spread = wp.vec3(*looks.d_sigma_d_color_spread[i])
-        k.d_sigma_d_roughness_spread = wp.vec3(*looks.d_sigma_d_roughness_spread[i])
-        k.d_log_v_d_roughness_spread = float(log_v * looks.d_beta_m_d_spread[i])
-        k.d_log_s_d_roughness_spread = float(log_s * looks.d_beta_n_d_spread[i])
-        out.append(k)
-    return out
+def strand_derivatives(params: HairParams, looks) -> np.ndarray:
+    """Each strand's CoefficientDerivatives (model/variation.py's StrandLooks), as a NumPy structured array of
+    `CoefficientDerivatives.numpy_dtype()` (`wp.array(..., dtype=CoefficientDerivatives)` takes it): its own
+    roughnesses and ∂σ_a/∂θ, the look's β through the strand's (f_r, or 0 where clamped), the spreads' columns."""
+    beta_m, beta_n = looks.beta_m, looks.beta_n
+    live_m, live_n = beta_m > BETA_FLOOR, beta_n > BETA_FLOOR
+    # ∂ln v/∂β and ∂ln s/∂β at each strand's own β (0 at the floor), by the complex step as `_slope`.
+    step = 1e-30
+    log_v = np.where(live_m, np.imag(longitudinal_variance(beta_m + 1j * step)) / step, 0.0)
+    log_v = log_v / longitudinal_variance(beta_m)
+    s = logistic_scale(beta_n)
+    log_s = np.where(live_n, np.imag(logistic_scale(beta_n + 1j * step)) / step, 0.0) / s
+    table = np.zeros(len(beta_m), dtype=CoefficientDerivatives.numpy_dtype())
+    table["d_sigma_d_colour"] = looks.d_sigma_d_colour
+    table["d_sigma_d_beta_n"] = looks.d_sigma_d_beta_n
+    table["d_log_v_d_beta_m"] = log_v * looks.d_beta_m_d_beta_m
+    table["d_log_v_r_d_scale"] = 1.0 / params.r_roughness_scale
+    table["m_norm_log_slope"] = _m_norm_log_slope(lobe_variances(beta_m, params.r_roughness_scale).T)
+    table["d_log_s_d_beta_n"] = log_s * looks.d_beta_n_d_beta_n
+    table["n_norm_log_slope"] = _n_norm_log_slope(s, np.exp, np.expm1)
+    table["d_sigma_d_color_spread"] = looks.d_sigma_d_color_spread
+    table["d_sigma_d_roughness_spread"] = looks.d_sigma_d_roughness_spread
+    table["d_log_v_d_roughness_spread"] = log_v * looks.d_beta_m_d_spread
+    table["d_log_s_d_roughness_spread"] = log_s * looks.d_beta_n_d_spread
+    return table
 
 
 @wp.struct
