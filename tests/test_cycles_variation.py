@@ -11,9 +11,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from warp_hair.export import export
 from warp_hair.geometry.assembly import FiberAssembly
 from warp_hair.geometry.curves import BASIS_MATRICES
-from warp_hair.model.variation import strand_random
+from warp_hair.model.params import HairParams
+from warp_hair.model.variation import strand_looks, strand_random, tip_profile
 from warp_hair.scene import scene_from_dict
 
 BENCHMARKS = Path(__file__).resolve().parents[1] / "benchmarks"
@@ -52,9 +54,9 @@ def hair_info_probe(output):
     return make
 
 
-def probe(cycles, fibers, output, resolution, spp=64):
-    """Cycles' image of `fibers` (in the z = 0 plane, y from 0 to 1) emitting Hair Info's `output`, seen head-on
-    with PIXEL units per pixel, centred on (0, 0.5)."""
+def probe(cycles, fibers, output, resolution, spp=64, material=None):
+    """Cycles' image of `fibers` (in the z = 0 plane, y from 0 to 1) emitting Hair Info's `output` (or what
+    `material` emits), seen head-on with PIXEL units per pixel, centred on (0, 0.5)."""
     bpy, render_cycles = cycles
     scene = scene_from_dict(
         {
@@ -72,7 +74,7 @@ def probe(cycles, fibers, output, resolution, spp=64):
             "render": {"spp": spp, "max_depth": 2},
         }
     )
-    return render_cycles(bpy, scene, spp, threads=2, fibers=fibers, material=hair_info_probe(output))
+    return render_cycles(bpy, scene, spp, threads=2, fibers=fibers, material=material or hair_info_probe(output))
 
 
 def column(x, width):
@@ -127,3 +129,60 @@ def test_cycles_intercept_is_the_vertices_arc_length_fraction_along_the_curve_pa
         assert np.max(np.abs(seen - along)) < 3e-3, k
         if k < 2:  # uneven segments
             assert np.max(np.abs(seen - parametric)) > 0.05, k
+
+
+def exported_absorption_probe(params, directory):
+    """The look's exported material (warp-hair export --to cycles, run) with the output of its absorption nodes
+    emitted instead of the hair BSDF: Cycles' σ_a where a camera ray meets a strand."""
+
+    def make(bpy):
+        import runpy
+
+        script = Path(directory) / "hair_cycles.py"
+        export(params, "cycles", script)
+        material = runpy.run_path(str(script))["make_material"]()
+        nodes, links = material.node_tree.nodes, material.node_tree.links
+        (hair,) = [n for n in nodes if n.bl_idname == "ShaderNodeBsdfHairPrincipled"]
+        (absorption,) = [k for k in links if k.to_socket == hair.inputs["Absorption Coefficient"]]
+        emission = nodes.new("ShaderNodeEmission")
+        emission.inputs["Strength"].default_value = 1.0
+        links.new(absorption.from_socket, emission.inputs["Color"])
+        (output,) = [n for n in nodes if n.bl_idname == "ShaderNodeOutputMaterial"]
+        links.new(emission.outputs["Emission"], output.inputs["Surface"])
+        return material
+
+    return make
+
+
+@pytest.mark.bpy
+@pytest.mark.parametrize(
+    "params",
+    [
+        HairParams(albedo=(0.55, 0.4, 0.25), beta_n=0.35, color_spread=0.4, roughness_spread=0.25, tip_absorption=0.3),
+        HairParams(eumelanin=1.3, pheomelanin=0.2, color_spread=0.4, tip_absorption=0.3),
+    ],
+    ids=["albedo", "melanin"],
+)
+def test_cycles_renders_the_exported_absorption_as_strand_looks(cycles, tmp_path, params):
+    """Cycles evaluates the exported Math nodes to warp-hair's σ_a of each strand (its Random) along its length
+    (its Intercept, as Cycles gives it: test above), to float32 precision."""
+    strands, heights = 24, np.linspace(0.0, 1.0, 9)
+    xs = (np.arange(strands) - (strands - 1) / 2) * 0.1
+    fibers = FiberAssembly.from_strands([([[x, y, 0.0] for y in heights], 0.03) for x in xs])
+    start, span = fibers.segment_arc_fractions()
+    image = probe(cycles, fibers, "Random", (240, 100), spp=1, material=exported_absorption_probe(params, tmp_path))
+    rows = np.arange(2, 98)
+    intercept = []
+    for row in rows:
+        segment, u = catmull_rom_parameter(heights, 1.0 - (row + 0.5) * PIXEL)
+        intercept.append(start[segment] + span[segment] * u)  # every strand's segments alike
+    looks = strand_looks(params, strand_random(strands))
+    want = (
+        looks.sigma_a[None, :, :]
+        * tip_profile(np.array(intercept), params.tip_absorption, params.tip_length)[:, None, None]
+    )
+    seen = image[rows][:, [column(x, 2.4) for x in xs]]
+    # One sample per pixel: its intercept lies within half a pixel (0.005) of the row's centre.
+    slope = np.abs(np.gradient(want, 0.01, axis=0)).max(axis=0)
+    np.testing.assert_array_less(np.abs(seen - want), 0.005 * slope + 1e-5 * want)
+    assert np.ptp(want[:, :, 0], axis=1).min() > 0.1 * want[:, :, 0].mean()  # strands differ
