@@ -24,7 +24,7 @@ renders (benchmarks/vs_peers.py, which renders the exported script):
 - `IOR` = η. `Offset` = α in radians: `bsdf_hair_chiang_setup` negates it and `hair_alpha_angles` rotates the
   viewer's θ by −2·(−Offset) for R, so positive Offset moves R toward a strand's first point, as ours (common.py).
 - Hair as it grows (model/variation.py), with each strand's Random u and Intercept t as Cycles gives them (Hair
-  Info; tests/test_cycles_variation.py measures both: u is strand_random(S, 0) for curve S of the object, t the
+  Info; tests/test_cycles_variation.py measures both: u of the object's curve k is strand_random(S, 0)[k], t the
   vertices' arc-length fraction interpolated in the curve's parameter):
   - `Random Roughness` = roughness_spread: Cycles multiplies Roughness and Radial Roughness by 1 + 2(u − ½)·r,
     as ours, and a `COLOR` look is inverted at the strand's Radial Roughness, as ours. Its `Random` input is left
