@@ -245,19 +245,21 @@ def _usd_fibers(bpy, path, material):
     return imported
 
 
-def render_cycles(bpy, scene, spp, threads=None, seed=0, fibers=None, usd=None):
+def render_cycles(bpy, scene, spp, threads=None, seed=0, fibers=None, usd=None, material=None):
     """The warp-hair `scene` (its fibers, or `fibers`, or the curves of the USD file `usd` as Blender imports
-    them) rendered by Cycles: float32 (H, W, 3), row 0 on top."""
+    them) rendered by Cycles: float32 (H, W, 3), row 0 on top. `material(bpy)`, when given, makes the fibers'
+    material instead of the look's export (a probe of what Cycles' shader nodes see)."""
     fibers = scene.fibers if fibers is None else fibers
     blender = _reset(bpy)
     _settings(blender, spp, scene.render.max_depth, seed, threads)
     _camera(bpy, blender, scene.camera)
     with tempfile.TemporaryDirectory() as tmp:
         _lights(bpy, blender, scene.lights, tmp)
+        hair = _material(bpy, scene.hair, tmp) if material is None else material(bpy)
         if usd is None:
-            _fibers(bpy, fibers, _material(bpy, scene.hair, tmp))
+            _fibers(bpy, fibers, hair)
         else:
-            _usd_fibers(bpy, usd, _material(bpy, scene.hair, tmp))
+            _usd_fibers(bpy, usd, hair)
         if scene.card is not None:
             _card(bpy, scene, fibers)
         path = Path(tmp) / "cycles.exr"

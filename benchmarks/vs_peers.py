@@ -4,6 +4,7 @@
                                   [--lightings front,back] [--albedo R G B] [--threads N] [--out DIR]
     python benchmarks/vs_peers.py --alpha 5      # the cuticle tilt's sign against Cycles instead
     python benchmarks/vs_peers.py --interpenetrating [--spp 512]   # strands that pass through each other
+    python benchmarks/vs_peers.py --growing [--spp 256]   # hair as it grows, exported to Cycles
 
 The swatch is made here (`warp_hair.geometry.swatch` with `drape`): 4 layers of 38 straight fibers of radius
 0.004, 0.5 long, draped over a cylinder of radius 0.25 (2 radians of drape), spaced so that fibers hardly touch
@@ -50,6 +51,13 @@ continuation and shadow rays inside that tube), and warp-hair as the Catmull-Rom
 `[render] interpenetration` rules, "enter" (the default) and "exit" (as Cycles 4.x on the CPU), against Mitsuba
 (bsplinecurve, corrected sampler) and Cycles, with the same statistics; then the table docs/scenes.md
 ("Interpenetrating strands") shows.
+
+`--growing` checks the export of hair as it grows (model/variation.py) instead: looks with color_spread 0.4,
+roughness_spread 0.25, tip_absorption 0.3, tip_length 0.5 (light-brown albedo as above, and a melanin look,
+eumelanin 0.5, pheomelanin 0.3), warp-hair rendering the Catmull-Rom curve through the vertices, Cycles the
+exported script (Random Roughness, and Math nodes on Hair Info's Random and Intercept). Besides the statistics
+above it prints the block RMSE between warp-hair's renders of the look with and without its variation: how
+much the variation shows, which the export must reproduce.
 
 `--alpha DEG` checks the tilt's sign instead (Cycles only: Mitsuba's curves flip the tangent with the side of the
 fiber hit). The strands run root first from the bottom of the image to the top, so a positive, physical tilt
@@ -265,6 +273,95 @@ def interpenetrating_check(args, threads):
     print(f"images in {args.out}")
 
 
+# Hair as it grows, on the light-brown look and on a melanin one (`--growing`).
+GROWTH = {"color_spread": 0.4, "roughness_spread": 0.25, "tip_absorption": 0.3, "tip_length": 0.5}
+GROWING_LOOKS = {
+    "albedo": {**HAIR, **GROWTH},
+    "melanin": {**{k: v for k, v in HAIR.items() if k != "albedo"}, "eumelanin": 0.5, "pheomelanin": 0.3, **GROWTH},
+}
+
+
+def without_growth(look):
+    """The look without its variation (the controls' defaults)."""
+    return {k: v for k, v in look.items() if k not in GROWTH}
+
+
+def growing_renders(bpy, fibers, look, light_direction, resolution, spp, max_depth=100, threads=None, baseline=True):
+    """{name: image}: warp-hair's renders of `look` on the Catmull-Rom curve through the fibers' vertices (the
+    curve Cycles draws), with seeds 0 ("ours") and 1 ("seed 1"), and of the look without its variation
+    ("uniform"); with bpy, Cycles' of the exported look ("Cycles") and, with `baseline`, of the one without
+    ("Cycles uniform")."""
+    data = scene_data(resolution, light_direction, spp, max_depth=max_depth)
+    curve = catmull_rom(fibers)
+    images = {}
+    for name, hair, seed in (("ours", look, 0), ("seed 1", look, 1), ("uniform", without_growth(look), 0)):
+        scene = scene_from_dict({**data, "hair": hair, "render": {**data["render"], "seed": seed}})
+        scene.fibers = curve
+        images[name] = render(scene, threads=threads)
+    if bpy is not None:
+        peers = {"Cycles": look, "Cycles uniform": without_growth(look)} if baseline else {"Cycles": look}
+        for name, hair in peers.items():
+            scene = scene_from_dict({**data, "hair": hair})
+            images[name] = render_cycles(bpy, scene, spp, threads=threads, fibers=fibers)
+    return images
+
+
+def growing_statistics(images):
+    """The figures `--growing` prints: warp-hair's image means over Cycles' ("ratio", per channel) and their block
+    RMSE ("rmse"), the same without the variation ("ratio uniform", "rmse uniform"), the noise level (two
+    warp-hair seeds) and how much the variation shows (warp-hair with it against without: "variation")."""
+    ours = images["ours"]
+    figures = {"noise": block_rmse(images["seed 1"], ours), "variation": block_rmse(images["uniform"], ours)}
+    for suffix, mine in (("", "ours"), (" uniform", "uniform")):
+        if f"Cycles{suffix}" in images:
+            theirs = images[f"Cycles{suffix}"]
+            figures[f"ratio{suffix}"] = images[mine].mean(axis=(0, 1)) / theirs.mean(axis=(0, 1))
+            figures[f"rmse{suffix}"] = block_rmse(images[mine], theirs)
+    return figures
+
+
+def growing_check(args, fibers, threads):
+    """warp-hair against Cycles rendering the exported look, for looks that vary strand by strand and to the tip."""
+    bpy = import_bpy()
+    rows = []
+    for colour in args.looks.split(","):
+        for lighting in args.lightings.split(","):
+            start = time.perf_counter()
+            images = growing_renders(
+                bpy,
+                fibers,
+                GROWING_LOOKS[colour],
+                LIGHTINGS[lighting],
+                args.resolution,
+                args.spp,
+                args.max_depth,
+                threads,
+            )
+            for name, image in images.items():
+                write_exr(args.out / f"growing_{colour}_{lighting}_{name.replace(' ', '_').lower()}.exr", image)
+            f = growing_statistics(images)
+            tag = f"[{colour}, {lighting}]"
+            print(f"{tag} {time.perf_counter() - start:.1f} s; noise level (two warp-hair seeds): {f['noise']:.2%}")
+            print(f"{tag} the variation (warp-hair with it against without): block RMSE {f['variation']:.2%}")
+            if bpy is None:
+                continue
+            means = f"{fmt(images['ours'].mean(axis=(0, 1)))} / {fmt(images['Cycles'].mean(axis=(0, 1)))}"
+            rmse = f"block RMSE {f['rmse']:.2%}"
+            print(f"{tag} warp-hair / Cycles {bpy.app.version_string}: means {means} = {fmt(f['ratio'])}; {rmse}")
+            print(f"{tag} without the variation: means {fmt(f['ratio uniform'])}; block RMSE {f['rmse uniform']:.2%}")
+            rows.append(
+                f"| {colour} | {lighting} | {fmt(f['ratio'], '.3f')} | {f['rmse']:.1%} | {f['noise']:.1%} | "
+                f"{f['variation']:.1%} | {fmt(f['ratio uniform'], '.3f')}, {f['rmse uniform']:.1%} |"
+            )
+    print(
+        "\n| look | light | mean ratio warp-hair / Cycles (R, G, B) | block RMSE | noise | the variation | "
+        "without the variation: ratio, block RMSE |"
+    )
+    print("| --- | --- | --- | --- | --- | --- | --- |")
+    print("\n".join(rows))
+    print(f"images in {args.out}")
+
+
 def tilt_check(args, fibers, threads):
     bpy = import_bpy()
     for alpha in (args.alpha, -args.alpha):
@@ -299,6 +396,10 @@ def main(argv=None):
         action="store_true",
         help="issue 23's swatch whose strands pass through each other, under both rules",
     )
+    parser.add_argument(
+        "--growing", action="store_true", help="hair as it grows (color and roughness spread, tip) against Cycles"
+    )
+    parser.add_argument("--looks", default="albedo,melanin", help="with --growing, comma-separated: albedo, melanin")
     parser.add_argument("--out", type=Path, default=HERE / "out" / "vs_peers")
     args = parser.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
@@ -312,6 +413,8 @@ def main(argv=None):
     threads = args.threads or default_threads()
     if args.alpha is not None:
         return tilt_check(args, fibers, threads)
+    if args.growing:
+        return growing_check(args, fibers, threads)
     mi = import_mitsuba()
     bpy = import_bpy()
     with tempfile.TemporaryDirectory() as tmp:

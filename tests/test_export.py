@@ -20,9 +20,10 @@ from scipy.special import i0e
 from warp_hair.cli import main
 from warp_hair.controls import CONTROL_NAMES, CONTROLS, controls_of
 from warp_hair.export import RENDERERS, LossyExportWarning, controls_table, export, load_look
-from warp_hair.export.common import Cannot, declared, warn_unwritten
+from warp_hair.export.common import NO_VARIATION, Cannot, declared, warn_unwritten
 from warp_hair.export.cycles import coat_from_r_roughness_scale, node_settings
 from warp_hair.model.params import HairParams, lobe_variances, logistic_scale
+from warp_hair.model.variation import strand_looks, strand_random, tip_profile
 
 LOOKS = {
     "albedo": HairParams(albedo=(0.6, 0.4, 0.2), beta_m=0.25, beta_n=0.4, alpha=2.5, eta=1.6),
@@ -238,6 +239,164 @@ def test_cycles_script_builds_the_node_in_blender(tmp_path):
     assert f"CHIANG ABSORPTION [0.5, 1.0, 2.0] {round(coat, 6)} {round(math.radians(2.0), 6)}" in out
 
 
+# --- Cycles: hair as it grows (svm/closure.h Principled Hair; svm/math_util.h, util/math_base.h for Math nodes) --
+
+# Blender 4.5's node sockets, by position, of the nodes the script makes (the hair's and the output's by name).
+SOCKETS = {
+    "ShaderNodeMath": (["Value"] * 3, ["Value"]),
+    "ShaderNodeVectorMath": (["Vector", "Vector", "Vector", "Scale"], ["Vector", "Value"]),
+    "ShaderNodeHairInfo": ([], ["Is Strand", "Intercept", "Length", "Thickness", "Tangent Normal", "Random"]),
+}
+# Cycles' Math operations (svm/math_util.h svm_math): safe_divide and safe_logf give 0 where undefined.
+MATH = {
+    "SUBTRACT": lambda a, b, c: a - b,
+    "MULTIPLY": lambda a, b, c: a * b,
+    "DIVIDE": lambda a, b, c: np.where(b != 0.0, a / np.where(b != 0.0, b, 1.0), 0.0),
+    "MINIMUM": lambda a, b, c: np.fmin(a, b),
+    "MAXIMUM": lambda a, b, c: np.fmax(a, b),
+    "MULTIPLY_ADD": lambda a, b, c: a * b + c,
+    "LOGARITHM": lambda a, b, c: np.where(
+        (a > 0.0) & (b > 0.0), np.log(np.where(a > 0.0, a, 1.0)) / np.log(np.where(b > 0.0, b, 2.0)), 0.0
+    ),
+}
+
+
+class Socket:
+    def __init__(self, node, name):
+        self.node, self.name, self.default_value, self.link = node, name, 0.0, None
+
+
+class Sockets(list):
+    """A node's sockets: by position, or by name (the first of that name, as bpy), made on first use where the
+    node's sockets are not listed in SOCKETS."""
+
+    def __init__(self, node, names, open_ended):
+        super().__init__(Socket(node, name) for name in names)
+        self.node, self.open_ended = node, open_ended
+
+    def __getitem__(self, key):
+        if isinstance(key, int):
+            return super().__getitem__(key)
+        for socket in self:
+            if socket.name == key:
+                return socket
+        assert self.open_ended, f"{self.node.kind} has no socket {key!r}"
+        self.append(Socket(self.node, key))
+        return self[-1]
+
+
+class Node:
+    def __init__(self, kind):
+        self.kind, self.operation, self.use_clamp = kind, None, False
+        inputs, outputs = SOCKETS.get(kind, ([], []))
+        self.inputs = Sockets(self, inputs, kind not in SOCKETS)
+        self.outputs = Sockets(self, outputs, kind not in SOCKETS)
+
+
+class NodeTree:
+    def __init__(self):
+        self.nodes = type("Nodes", (list,), {"new": lambda nodes, kind: nodes.append(Node(kind)) or nodes[-1]})()
+        self.links = type("Links", (), {"new": lambda links, out, to: setattr(to, "link", out)})()
+
+
+def run_cycles_script(text):
+    """The exported script's make_material run against stand-in bpy node trees: its Principled Hair node."""
+    material = type("Material", (), {"node_tree": NodeTree()})()
+    bpy = type("bpy", (), {"data": type("data", (), {"materials": type("m", (), {"new": lambda name: material})})})
+    namespace = {}
+    exec(text.replace("import bpy", ""), namespace)
+    namespace["bpy"] = bpy
+    namespace["make_material"]()
+    (hair,) = [n for n in material.node_tree.nodes if n.kind == "ShaderNodeBsdfHairPrincipled"]
+    return hair
+
+
+def evaluate(socket, u, t):
+    """A socket's value as Cycles' SVM computes it, at Hair Info's Random u and Intercept t (broadcast)."""
+    if socket.link is None:
+        return np.asarray(socket.default_value, dtype=np.float64)
+    node, name = socket.link.node, socket.link.name
+    if node.kind == "ShaderNodeHairInfo":
+        return {"Random": u, "Intercept": t}[name]
+    a, b, c = (evaluate(s, u, t) for s in list(node.inputs)[:3])
+    if node.kind == "ShaderNodeVectorMath":
+        assert node.operation == "SCALE"
+        return a * evaluate(node.inputs["Scale"], u, t)[..., None]
+    value = MATH[node.operation](a, b, c)
+    return np.clip(value, 0.0, 1.0) if node.use_clamp else value
+
+
+GROWING = {
+    "albedo": HairParams(
+        albedo=(0.55, 0.4, 0.25), beta_n=0.35, color_spread=0.4, roughness_spread=0.25, tip_absorption=0.3
+    ),
+    "albedo, calibrated inversion, roughness spread only": HairParams(
+        albedo=(0.6, 0.4, 0.2), beta_n=0.4, roughness_spread=0.5, albedo_inversion=(5.0, 0.1, 1.0, -4.0, 2.0, 0.3)
+    ),
+    "albedo, strands' β_n beyond 1": HairParams(albedo=(0.6, 0.4, 0.2), beta_n=0.9, roughness_spread=0.3),
+    "albedo, strands' β_n below the floor": HairParams(albedo=(0.6, 0.4, 0.2), beta_n=0.015, roughness_spread=0.6),
+    "sigma_a, short tip": HairParams(sigma_a=(0.5, 1.0, 2.0), color_spread=0.7, tip_absorption=4.0, tip_length=0.2),
+    "melanin": HairParams(eumelanin=1.3, pheomelanin=0.2, color_spread=0.4, tip_absorption=0.5, tip_length=0.7),
+    "melanin at Cycles' clamp": HairParams(eumelanin=8.0, pheomelanin=0.5, color_spread=1.0),
+    "tip only": HairParams(albedo=0.5, beta_n=0.3, tip_absorption=0.1, tip_length=1.0),
+}
+
+
+@pytest.mark.parametrize("name", GROWING)
+def test_cycles_absorption_nodes_are_each_strands_look(name):
+    """The exported Math nodes, evaluated as Cycles does at each strand's Random and along its Intercept, are
+    warp-hair's σ_a there (model/variation.py's strand_looks times tip_profile)."""
+    params = GROWING[name]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", LossyExportWarning)
+        hair = run_cycles_script(export(params, "cycles"))
+    assert hair.parametrization == "ABSORPTION"
+    u = strand_random(200)[:, None].astype(np.float64)
+    t = np.linspace(0.0, 1.0, 101)[None, :]
+    got = evaluate(hair.inputs["Absorption Coefficient"], u, t)
+    want = (
+        strand_looks(params, u[:, 0]).sigma_a[:, None, :]
+        * tip_profile(t, params.tip_absorption, params.tip_length)[..., None]
+    )
+    np.testing.assert_allclose(np.broadcast_to(got, want.shape), want, rtol=1e-12)
+    assert np.ptp(want, axis=(0, 1)).min() > 0.0  # it does vary
+
+
+@pytest.mark.parametrize("beta_n", [0.3, 0.01])
+def test_cycles_random_roughness_and_colour_are_each_strands_look(beta_n):
+    """An albedo look that varies only in roughness stays Cycles' COLOR parametrization: Cycles randomises
+    Roughness and Radial Roughness by Random Roughness and inverts the colour at the strand's Radial Roughness
+    (svm/closure.h), which is strand_looks' β and σ_a."""
+    params = HairParams(albedo=(0.6, 0.4, 0.2), beta_m=0.25, beta_n=beta_n, roughness_spread=0.5)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        settings = node_settings(params)
+    inputs = settings["inputs"]
+    u = strand_random(100).astype(np.float64)
+    factor = 1.0 + 2.0 * (u - 0.5) * inputs["Random Roughness"]
+    looks = strand_looks(params, u)
+    np.testing.assert_allclose(inputs["Roughness"] * factor, looks.beta_m, rtol=1e-12)
+    if beta_n * 0.5 >= 0.01:
+        assert settings["parametrization"] == "COLOR" and "absorption" not in settings
+        sigma = (
+            np.log(inputs["Color"][:3])[None, :] / chiang_denominator(inputs["Radial Roughness"] * factor)[:, None]
+        ) ** 2
+        np.testing.assert_allclose(sigma, looks.sigma_a, rtol=1e-12)
+        assert not caught
+    else:  # Cycles would invert at a Radial Roughness below our floor, and render those strands smoother: warned
+        assert settings["parametrization"] == "ABSORPTION" and "absorption" in settings
+        assert any("below warp-hair's floor 0.01" in str(w.message) and "β_n" in str(w.message) for w in caught)
+
+
+def test_cycles_warns_where_coat_meets_random_roughness():
+    with pytest.warns(LossyExportWarning, match=r"R variance is off by up to \d"):
+        export(HairParams(albedo=0.5, beta_m=0.3, r_roughness_scale=0.5, roughness_spread=0.3), "cycles")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        export(HairParams(albedo=0.5, beta_m=0.3, r_roughness_scale=0.5), "cycles")
+        export(HairParams(albedo=0.5, beta_m=0.3, roughness_spread=0.3), "cycles")
+
+
 # --- MaterialX 1.39 (pbrlib_defs.mtlx, genglsl/mx_chiang_hair_bsdf.glsl) --------------------------------
 
 
@@ -377,7 +536,11 @@ def written(renderer, text):
     if renderer == "cycles":
         namespace = {}
         exec(text.split("def make_material")[0].replace("import bpy", ""), namespace)
-        return namespace["INPUTS"]
+        # Math nodes drive the Absorption Coefficient of a look that varies (ABSORPTION).
+        return {
+            **namespace["INPUTS"],
+            **({"Absorption Coefficient": namespace["ABSORPTION"]} if "ABSORPTION" in namespace else {}),
+        }
     (bsdf,) = ET.fromstring(text).iter("chiang_hair_bsdf")
     return {e.get("name"): e.get("value") for e in bsdf}
 
@@ -422,17 +585,19 @@ def test_each_declaration_is_what_the_export_does(to):
     """A control declared written moves one of its declared parameters; one declared unwritable moves none, and
     the export warns with the declaration's reason. Every parameter declared is one the renderer is given."""
     seen = set()
-    for colour, base in LOOKS.items():
-        base = base.replace(r_roughness_scale=0.5)  # where Cycles' Coat and MaterialX's clamp express it
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", LossyExportWarning)
-            before = written(to, export(base, to))
+    for colour, look in LOOKS.items():
+        look = look.replace(r_roughness_scale=0.5)  # where Cycles' Coat and MaterialX's clamp express it
         for name in controls_of(colour):
+            # The tip's length acts only where the tip's absorption differs from the root's.
+            base = look.replace(tip_absorption=0.5) if name == "tip_length" else look
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", LossyExportWarning)
+                before = written(to, export(base, to))
             what = RENDERERS[to].WRITES[name]
-            look = moved(base, name)
+            look_moved = moved(base, name)
             with warnings.catch_warnings(record=True) as caught:
                 warnings.simplefilter("always")
-                after = written(to, export(look, to))
+                after = written(to, export(look_moved, to))
             seen |= set(after)
             changed = {key for key in after.keys() | before.keys() if after.get(key) != before.get(key)}
             messages = [str(w.message) for w in caught if w.category is LossyExportWarning]
@@ -456,6 +621,14 @@ def test_unwritten_controls_warn_only_when_the_look_sets_them():
         # not given: no albedo, and no melanin (whose default, 0, is for the other pigment's look)
         warn_unwritten(LOOKS["sigma_a"], "x", dict(declaration, eumelanin=Cannot("no melanin", "none")))
         warn_unwritten(LOOKS["albedo"], "x", {"r_roughness_scale": Cannot("no scale", "1")})  # at its default
+        # a control that acts only with another, which the look leaves at its default
+        warn_unwritten(LOOKS["albedo"].replace(tip_length=0.3), "x", {"tip_length": NO_VARIATION["tip_length"]})
+    with pytest.warns(
+        LossyExportWarning, match=r"^x export: it has no root-to-tip change: tip_length = 0.3 is dropped"
+    ):
+        warn_unwritten(
+            LOOKS["albedo"].replace(tip_length=0.3, tip_absorption=0.5), "x", {"tip_length": NO_VARIATION["tip_length"]}
+        )
 
 
 def test_docs_table_is_the_declarations():

@@ -46,10 +46,12 @@ class Writes:
 @dataclass(frozen=True)
 class Cannot:
     """A control the renderer cannot express. A look that moves it off its default is exported without it and
-    warned: "{reason}: {control} = {value} is dropped ({instead})"."""
+    warned: "{reason}: {control} = {value} is dropped ({instead})"; with `only_with`, only when that control is off
+    its default too (without it this one changes nothing)."""
 
     reason: str
     instead: str
+    only_with: str | None = None
 
 
 def writes(*parameters: str, note: str = "") -> Writes:
@@ -63,12 +65,23 @@ NO_R_ROUGHNESS_SCALE = Cannot(
 
 
 # A hair model with one look for every fiber (pbrt-v4's HairBxDF, Mitsuba 3's hair, MaterialX's chiang_bsdf):
-# the variation's controls (model/variation.py) are written as the material's own look.
+# the variation's controls (model/variation.py) are dropped, every strand gets the material's own look, root to tip.
+_KEPT_BY_CYCLES = "the Cycles export keeps it"
 NO_VARIATION = {
-    "color_spread": Cannot("it has one look for every strand", "every strand gets the material's colour"),
-    "roughness_spread": Cannot("it has one look for every strand", "every strand gets the material's roughness"),
-    "tip_absorption": Cannot("it has no root-to-tip change", "the root's absorption runs to the tip"),
-    "tip_length": Cannot("it has no root-to-tip change", "the root's absorption runs to the tip"),
+    "color_spread": Cannot(
+        "it has one look for every strand", f"every strand gets the material's colour; {_KEPT_BY_CYCLES}"
+    ),
+    "roughness_spread": Cannot(
+        "it has one look for every strand", f"every strand gets the material's roughness; {_KEPT_BY_CYCLES}"
+    ),
+    "tip_absorption": Cannot(
+        "it has no root-to-tip change", f"the root's absorption runs to the tip; {_KEPT_BY_CYCLES}"
+    ),
+    "tip_length": Cannot(
+        "it has no root-to-tip change",
+        f"the root's absorption runs to the tip; {_KEPT_BY_CYCLES}",
+        only_with="tip_absorption",
+    ),
 }
 
 
@@ -101,12 +114,18 @@ def _shown(value) -> str:
     return f"{values[0]:g}" if values.size == 1 else "(" + ", ".join(f"{v:g}" for v in values) + ")"
 
 
+def _set(params: HairParams, name: str) -> bool:
+    """Whether the look gives the control a value other than its default."""
+    value = getattr(params, name)
+    return value is not None and bool(np.any(np.asarray(value) != table.CONTROLS[name].default))
+
+
 def warn_unwritten(params: HairParams, renderer: str, declaration: dict) -> None:
-    """Warn for each control the renderer cannot express that the look sets (given, and not its default)."""
+    """Warn for each control the renderer cannot express that the look sets (given, and not its default), unless
+    it only acts with another control (`Cannot.only_with`) the look leaves at its default."""
     for name, what in declaration.items():
-        value = getattr(params, name)
-        if isinstance(what, Cannot) and value is not None and np.any(np.asarray(value) != table.CONTROLS[name].default):
-            lossy(renderer, f"{what.reason}: {name} = {_shown(value)} is dropped ({what.instead})")
+        if isinstance(what, Cannot) and _set(params, name) and (what.only_with is None or _set(params, what.only_with)):
+            lossy(renderer, f"{what.reason}: {name} = {_shown(getattr(params, name))} is dropped ({what.instead})")
 
 
 def roughness(params: HairParams) -> tuple[float, float]:

@@ -15,6 +15,9 @@ libraries/pbrlib/genglsl/mx_chiang_hair_bsdf.glsl):
 - `cuticle_angle` in [0, 1] maps to a tilt of cuticle_angle·π − π/2 radians, rotating R by +2α like ours
   (common.py): cuticle_angle = (α_rad + π/2) / π, 0.5 for no tilt. `curve_direction` must run root to tip.
 - `ior` = η; the tints stay white.
+- One look for every strand, root to tip: a look's variation (color_spread, roughness_spread, tip_absorption,
+  tip_length; model/variation.py) is dropped with a LossyExportWarning (`NO_VARIATION`); the Cycles export
+  keeps it.
 """
 
 from __future__ import annotations

@@ -14,6 +14,9 @@ Conversion (Mitsuba 3.9, src/bsdfs/hair.cpp, class Hair: the constructor's prope
 - `scale_tilt` = −α in degrees: `reframe_with_scales` rotates the R lobe by −2α like pbrt (common.py).
 - `int_ior` = η and `ext_ior` = 1: Mitsuba's η is int_ior / ext_ior and ext_ior defaults to air (1.000277).
 - No R-roughness scale: a scale other than 1 is dropped with a LossyExportWarning (`WRITES`).
+- One look for every strand, root to tip: a look's variation (color_spread, roughness_spread, tip_absorption,
+  tip_length; model/variation.py) is dropped with a LossyExportWarning (`NO_VARIATION`); the Cycles export
+  keeps it.
 
 Render it on `bsplinecurve` with a polyline's vertices as control points: Mitsuba's `linearcurve` hands the
 BSDF a frame whose tangent is not the fiber's (docs/MODEL.md), and both shapes flip the tangent with the side of

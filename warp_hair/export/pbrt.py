@@ -12,6 +12,9 @@ bxdfs.cpp `HairBxDF::HairBxDF`):
 - `"float alpha"` = −α in degrees: HairBxDF rotates the R lobe by −2α (common.py states the sign convention).
 - `"float eta"` = η.
 - No R-roughness scale: a scale other than 1 is dropped with a LossyExportWarning (`WRITES`).
+- One look for every strand, root to tip: a look's variation (color_spread, roughness_spread, tip_absorption,
+  tip_length; model/variation.py) is dropped with a LossyExportWarning (`NO_VARIATION`); the Cycles export
+  keeps it.
 
 pbrt reads the fiber offset h from the curve's v coordinate: use it on `Shape "curve" "string type" "cylinder"`.
 """
