@@ -122,7 +122,7 @@ def record_paths(
         throughput = wp.vec3(1.0)
         depth = int(0)
         while depth < scene.max_depth:
-            hit = intersect_fibers(scene.fibers, o, d, NO_HIT, -1)
+            hit = intersect_fibers(scene.surfaces.fibers, o, d, NO_HIT, -1)
             if hit.t >= NO_HIT:
                 break
             slot = path * scene.max_depth + depth

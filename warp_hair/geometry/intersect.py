@@ -485,6 +485,17 @@ def intersect_fibers_under_rule(
 
 
 @wp.func
+def fibers_occluded_under_rule(
+    g: FiberGeometry, origin: wp.vec3, direction: wp.vec3, t_max: float, exits: int, skip_strand: int, from_tube: int
+):
+    """Whether any fiber blocks the ray before t_max under the interpenetration rule `exits` (0:
+    `fibers_occluded`, skipping `from_tube`; 1: `fibers_occluded_exits`, skipping strand `skip_strand`)."""
+    if exits != 0:
+        return fibers_occluded_exits(g, origin, direction, t_max, skip_strand)
+    return fibers_occluded(g, origin, direction, t_max, from_tube)
+
+
+@wp.func
 def closest_tube(g: FiberGeometry, origin: wp.vec3, direction: wp.vec3, t_max: float, from_tube: int):
     """The preliminary closest hit (Mitsuba's `ray_intersect_preliminary`, Embree's hit): (tube, t, exit) with
     tube the index into `g.tubes` (−1 and t = NO_HIT on a miss), without the hit point or frame of

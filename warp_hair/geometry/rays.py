@@ -13,8 +13,7 @@ from .intersect import (
     FiberGeometry,
     closest_tube,
     closest_tube_exits,
-    fibers_occluded,
-    fibers_occluded_exits,
+    fibers_occluded_under_rule,
     intersect_fibers_under_rule,
     shading_frame,
 )
@@ -93,10 +92,9 @@ def _occluded_kernel(
     blocked: wp.array(dtype=wp.int32),
 ):
     k = wp.tid()
-    if exits != 0:
-        blocked[k] = wp.where(fibers_occluded_exits(g, origins[k], directions[k], t_max[k], skip_strand), 1, 0)
-    else:
-        blocked[k] = wp.where(fibers_occluded(g, origins[k], directions[k], t_max[k], -1), 1, 0)
+    blocked[k] = wp.where(
+        fibers_occluded_under_rule(g, origins[k], directions[k], t_max[k], exits, skip_strand, -1), 1, 0
+    )
 
 
 def _rays(bvh, origins, directions, t_max):

@@ -15,16 +15,10 @@ the same walk in under `wp.static` branches (docs/gradients.md).
 
 import warp as wp
 
-from ..geometry.card import CardData, card_distance
-from ..geometry.intersect import (
-    FiberGeometry,
-    fibers_occluded,
-    fibers_occluded_exits,
-    intersect_fibers_under_rule,
-)
 from ..model.hair_bsdf import HairCoefficients
 from ..model.jacobian import CoefficientDerivatives, LobeEvaluation, value_jacobian_mat
-from ..numerics import FLOAT32_MIN_NORMAL, NO_HIT, power_heuristic, rand2, to_local, to_world
+from ..numerics import FLOAT32_MIN_NORMAL, power_heuristic, rand2, to_local, to_world
+from .aggregate import MISS, Surfaces, intersect_scene, occluded_scene
 from .camera import CameraData
 from .envmap import EnvironmentData, env_pdf, env_radiance, env_sample
 from .material import (
@@ -56,35 +50,21 @@ class DirectionalLightData:
 @wp.struct
 class SceneData:
     camera: CameraData
-    fibers: FiberGeometry
+    surfaces: Surfaces  # the fibers and the card, asked through aggregate.py
     hair: HairCoefficients
     variation: HairVariation  # each strand's look and the root-to-tip ramp (none: the material's everywhere)
     lights: wp.array(dtype=DirectionalLightData)
     num_lights: int
     env: EnvironmentData
     has_env: int
-    card: CardData
     max_depth: int
     rr_depth: int
-    exits: int  # 1: [render] interpenetration = "exit" (geometry.intersect, the "exits" rule)
-
-
-@wp.func
-def intersect(scene: SceneData, origin: wp.vec3, direction: wp.vec3, strand: int, tube: int):
-    """The ray's closest fiber hit under the scene's interpenetration rule; `strand` and `tube` are those the ray
-    leaves (−1 for none)."""
-    return intersect_fibers_under_rule(scene.fibers, origin, direction, NO_HIT, scene.exits, strand, tube)
 
 
 @wp.func
 def occluded(scene: SceneData, origin: wp.vec3, direction: wp.vec3, strand: int, tube: int):
-    """Whether a shadow ray toward a light at infinity is blocked (by a fiber or by the card); `strand` and `tube`
-    are those the ray leaves."""
-    if card_distance(scene.card, origin, direction) < NO_HIT:
-        return True
-    if scene.exits != 0:
-        return fibers_occluded_exits(scene.fibers, origin, direction, NO_HIT, strand)
-    return fibers_occluded(scene.fibers, origin, direction, NO_HIT, tube)
+    """Whether a shadow ray toward a light at infinity is blocked; `strand` and `tube` are those the ray leaves."""
+    return occluded_scene(scene.surfaces, origin, direction, strand, tube)
 
 
 @wp.func
@@ -273,9 +253,8 @@ def make_trace_path(differentiable: bool):
         strand = int(-1)  # the strand the ray leaves (the "exit" rule skips it); −1 for none
         tube = int(-1)  # the tube the ray leaves, which it need not test (`intersect_fibers`); −1 for none
         while True:
-            hit = intersect(scene, o, d, strand, tube)
-            t_card = card_distance(scene.card, o, d)
-            if hit.t >= NO_HIT and t_card >= NO_HIT:
+            met = intersect_scene(scene.surfaces, o, d, strand, tube)
+            if met.kind == MISS:
                 if scene.has_env != 0:
                     contribution = escaped(scene, throughput, d, prev_pdf, select_pdf)
                     radiance += contribution
@@ -287,12 +266,12 @@ def make_trace_path(differentiable: bool):
             if depth >= scene.max_depth:
                 break
 
-            v = scattering_vertex(scene.fibers, scene.hair, scene.variation, scene.card, hit, t_card, o, d)
+            v = scattering_vertex(scene.surfaces, scene.hair, scene.variation, met, o, d)
             if wp.static(differentiable):
                 dv = bsdf_setup_grad(v)
                 k = derivs
                 if depends_on_controls(v):
-                    k = vertex_derivatives(scene.variation, v, hit.strand, derivs)
+                    k = vertex_derivatives(scene.variation, v, v.strand, derivs)
 
             if num_emitters > 0:
                 lit, nee, nee_value, lobes_light, rng = sample_ld(scene, v, throughput, num_emitters, select_pdf, rng)

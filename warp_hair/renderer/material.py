@@ -1,6 +1,6 @@
 """What a path meets at a scattering vertex: a material in its shading frame, behind one interface (pbrt's BSDF).
 
-    v = scattering_vertex(fibers, hair, card, hit, t_card, o, d)   # the nearer surface, its frame, wo (GetBSDF)
+    v = scattering_vertex(surfaces, hair, variation, met, o, d)   # the surface met, its frame, wo (GetBSDF)
     d = local_incident(v, wi)            # a local direction wi with the angles the hair's lobes read of it
     value, pdf, lobes = bsdf_f(v, d)     # cosine-weighted S and solid-angle pdf toward d (f and PDF);
                                          # bsdf_f_grad also evaluates the lobes for ∂S/∂θ
@@ -19,7 +19,6 @@ and h, and `bsdf_value_jacobian` the (3, 8) ∂S/∂θ toward the direction `bsd
 
 import warp as wp
 
-from ..geometry.card import CardData
 from ..geometry.intersect import FiberGeometry, FiberHit, shading_frame
 from ..model.hair_bsdf import (
     HairCoefficients,
@@ -39,12 +38,10 @@ from ..model.jacobian import (
     lobe_setup_grad,
 )
 from ..numerics import INV_PI, TWO_PI, perpendicular, rand2, to_local
+from .aggregate import CARD, HAIR, SurfaceHit, Surfaces
 
 # As the integrator: forward only, -O3.
 wp.set_module_options({"enable_backward": False, "optimization_level": 3})
-
-HAIR = wp.constant(0)
-CARD = wp.constant(1)
 
 
 @wp.struct
@@ -119,34 +116,26 @@ def fiber_coefficients(fibers: FiberGeometry, hair: HairCoefficients, variation:
 
 @wp.func
 def scattering_vertex(
-    fibers: FiberGeometry,
-    hair: HairCoefficients,
-    variation: HairVariation,
-    card: CardData,
-    hit: FiberHit,
-    t_card: float,
-    o: wp.vec3,
-    d: wp.vec3,
+    surfaces: Surfaces, hair: HairCoefficients, variation: HairVariation, met: SurfaceHit, o: wp.vec3, d: wp.vec3
 ):
-    """The vertex where the ray o + t d scatters: at the nearer of the fiber hit and the card (t_card). At a fiber,
-    x along it (turning smoothly along the strand), z its normal and h the offset across it (docs/MODEL.md,
+    """The vertex where the ray o + t d meets the surface `met` (`aggregate.intersect_scene`, not a miss). At a
+    fiber, x along it (turning smoothly along the strand), z its normal and h the offset across it (docs/MODEL.md,
     "Shading frame"); at the card, z its normal turned toward the incoming ray, the position lifted off it."""
     v = Vertex()
-    v.kind = HAIR
-    if t_card < hit.t:
-        v.kind = CARD
+    v.kind = met.kind
+    hit = met.fiber
     x = hit.tangent
     z = hit.normal
     h = hit.h
     if v.kind == HAIR:
-        x, z, h = shading_frame(fibers, hit, d)
+        x, z, h = shading_frame(surfaces.fibers, hit, d)
     position = hit.position
     if v.kind == CARD:
-        z = card.normal
+        z = surfaces.card.normal
         if wp.dot(z, d) > 0.0:
             z = -z
         x = perpendicular(z)
-        position = o + t_card * d + 1.0e-5 * z
+        position = o + met.t * d + 1.0e-5 * z
     y = wp.cross(z, x)
     v.position = position
     v.strand = wp.where(v.kind == HAIR, hit.strand, -1)
@@ -157,11 +146,11 @@ def scattering_vertex(
     v.wo = to_local(-d, x, y, z)
     v.h = h
     if v.kind == HAIR:
-        c, intercept = fiber_coefficients(fibers, hair, variation, hit)
+        c, intercept = fiber_coefficients(surfaces.fibers, hair, variation, hit)
         v.intercept = intercept
         v.hair = lobe_setup(c, v.wo, h)
     else:
-        v.albedo = card.albedo
+        v.albedo = surfaces.card.albedo
     return v
 
 

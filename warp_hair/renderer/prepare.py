@@ -24,6 +24,7 @@ from ..model.jacobian import CoefficientDerivatives, strand_derivatives
 from ..model.params import HairParams
 from ..model.variation import has_variation, strand_looks, strand_random
 from ..scene import DirectionalLight, EnvironmentLight, Scene, check_scene
+from .aggregate import Surfaces
 from .camera import camera_data
 from .envmap import environment_data
 from .integrator import DirectionalLightData, SceneData
@@ -107,17 +108,18 @@ class PreparedScene:
     def _scene_data(self, hair: HairParams) -> SceneData:
         data = SceneData()
         data.camera = self._camera
-        data.fibers = self.bvh.geometry
+        data.surfaces = Surfaces()
+        data.surfaces.fibers = self.bvh.geometry
+        data.surfaces.card = self._card
+        data.surfaces.exits = int(self.scene.render.interpenetration == "exit")
         data.hair = hair_coefficients(hair)
         data.variation = self._variation(hair)
         data.lights = self.lights
         data.num_lights = self._num_lights
         data.env = self.env
         data.has_env = self._has_env
-        data.card = self._card
         data.max_depth = self.scene.render.max_depth
         data.rr_depth = self.scene.render.rr_depth
-        data.exits = int(self.scene.render.interpenetration == "exit")
         return data
 
     def with_hair(self, hair: HairParams) -> PreparedScene:
