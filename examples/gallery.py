@@ -1,7 +1,7 @@
 """Five looks side by side under a sky and a sun: blonde, brown and black swatches draped over a rod, hair as it
 grows, and a fur patch.
 
-    python examples/gallery.py                       # writes docs/gallery.png (about 18 CPU minutes at 384 spp)
+    python examples/gallery.py                       # writes docs/gallery.png (about 7 minutes on 2 cores at 384 spp)
     python examples/gallery.py --spp 16 -o quick.png  # a quick look
 
 The sky is a lat-long image made here (blue zenith, pale horizon, dim ground) and passed to the scene as an
