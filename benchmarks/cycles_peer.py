@@ -10,7 +10,10 @@ packages. What the translation sets, and why (each one measured to matter, or Cy
   Where strands pass through each other, Cycles on the CPU (Embree 4) scatters where a ray leaves another
   strand's tube: warp-hair's `[render] interpenetration = "exit"` (docs/scenes.md, "Interpenetrating strands").
 - The material is the look as `warp-hair export --to cycles` writes it (`warp_hair.export.cycles` documents
-  the conversion), so this also checks the export.
+  the conversion), so this also checks the export; or, given `node`, a Principled Hair BSDF with those inputs set
+  directly (Cycles' own melanin, Random Color and Random Roughness, which the exporter does not write), its
+  Random input unlinked: each curve then draws Cycles' per-curve random value. `melanin_controls` says what
+  warp-hair's controls such a node is.
 - An unbiased estimator: filter glossy 0, no clamping, light threshold 0, no denoising, no adaptive sampling,
   caustics kept, every bounce kind allowed up to the scene's max_depth. Cycles counts the bounces after the
   first hit (0 is direct lighting only), ours the scattering vertices (1 is direct lighting): ours − 1.
@@ -29,7 +32,23 @@ import numpy as np
 
 from warp_hair.export import export
 from warp_hair.io import read_exr
+from warp_hair.model.variation import CYCLES_MELANIN_UNITS, MELANIN_CLAMP
 from warp_hair.scene import DirectionalLight, EnvironmentLight
+
+# The Principled Hair inputs a `node` (render_cycles) may set in the melanin parametrisation, and what they are
+# when not given (Blender 4.5's defaults, but for the randomisations, which default to 0 here).
+MELANIN_INPUTS = {
+    "Melanin": None,
+    "Melanin Redness": None,
+    "Tint": [1.0, 1.0, 1.0, 1.0],
+    "Random Color": 0.0,
+    "Random Roughness": 0.0,
+    "Roughness": None,
+    "Radial Roughness": None,
+    "Coat": 0.0,
+    "IOR": None,
+    "Offset": None,
+}
 
 
 def import_bpy():
@@ -79,6 +98,55 @@ def _material(bpy, hair, workdir):
     script = Path(workdir) / "hair_cycles.py"
     export(hair, "cycles", script)
     return runpy.run_path(str(script))["make_material"]()
+
+
+def _node_material(bpy, node):
+    """A Principled Hair BSDF (Chiang) with `node`'s parametrization and inputs, its Random input left unlinked."""
+    material = bpy.data.materials.new("cycles hair")
+    material.use_nodes = True
+    nodes = material.node_tree.nodes
+    nodes.clear()
+    hair = nodes.new("ShaderNodeBsdfHairPrincipled")
+    hair.model = "CHIANG"
+    hair.parametrization = node["parametrization"]
+    for socket, value in node["inputs"].items():
+        hair.inputs[socket].default_value = value
+    output = nodes.new("ShaderNodeOutputMaterial")
+    output.target = "CYCLES"
+    material.node_tree.links.new(hair.outputs["BSDF"], output.inputs["Surface"])
+    return material
+
+
+def melanin_controls(node) -> dict:
+    """warp-hair's controls (`HairParams.from_dict`) of a MELANIN-parametrised Principled Hair `node`
+    ({"parametrization": "MELANIN", "inputs": {socket: value}}, MELANIN_INPUTS), as Cycles 4.5 renders it
+    (svm/closure.h, the Principled Hair case): its concentration is M = −ln(1 − Melanin), eumelanin M(1 − Redness)
+    and pheomelanin M·Redness in Cycles' coefficients, which are CYCLES_MELANIN_UNITS times d'Eon's (ours, to
+    0.1%); Random Color and Random Roughness are color_spread and roughness_spread; Offset is α in radians.
+    A ValueError for inputs no control of ours expresses (a tint, a coat)."""
+    if node.get("parametrization") != "MELANIN":
+        raise ValueError(f"parametrization {node.get('parametrization')!r}: only MELANIN is mapped")
+    unknown = sorted(set(node["inputs"]) - set(MELANIN_INPUTS))
+    if unknown:
+        raise ValueError(f"input(s) {unknown} are not mapped; the node may set {list(MELANIN_INPUTS)}")
+    missing = sorted(k for k, v in MELANIN_INPUTS.items() if v is None and k not in node["inputs"])
+    if missing:
+        raise ValueError(f"input(s) {missing} must be given")
+    inputs = {**MELANIN_INPUTS, **node["inputs"]}
+    if [float(c) for c in inputs["Tint"][:3]] != [1.0, 1.0, 1.0] or float(inputs["Coat"]) != 0.0:
+        raise ValueError(f"Tint {inputs['Tint']} and Coat {inputs['Coat']}: only white and 0 are mapped")
+    total = -math.log(max(1.0 - float(inputs["Melanin"]), MELANIN_CLAMP))
+    redness = float(inputs["Melanin Redness"])
+    return {
+        "eumelanin": total * (1.0 - redness) * CYCLES_MELANIN_UNITS[0],
+        "pheomelanin": total * redness * CYCLES_MELANIN_UNITS[1],
+        "beta_m": float(inputs["Roughness"]),
+        "beta_n": float(inputs["Radial Roughness"]),
+        "alpha": math.degrees(float(inputs["Offset"])),
+        "eta": float(inputs["IOR"]),
+        "color_spread": float(inputs["Random Color"]),
+        "roughness_spread": float(inputs["Random Roughness"]),
+    }
 
 
 def _lights(bpy, scene, lights, workdir):
@@ -245,17 +313,23 @@ def _usd_fibers(bpy, path, material):
     return imported
 
 
-def render_cycles(bpy, scene, spp, threads=None, seed=0, fibers=None, usd=None, material=None):
+def render_cycles(bpy, scene, spp, threads=None, seed=0, fibers=None, usd=None, material=None, node=None):
     """The warp-hair `scene` (its fibers, or `fibers`, or the curves of the USD file `usd` as Blender imports
-    them) rendered by Cycles: float32 (H, W, 3), row 0 on top. `material(bpy)`, when given, makes the fibers'
-    material instead of the look's export (a probe of what Cycles' shader nodes see)."""
+    them) rendered by Cycles: float32 (H, W, 3), row 0 on top. In place of the scene's look as exported:
+    `node`, Cycles' own Principled Hair inputs ({"parametrization": ..., "inputs": {socket: value}}), or
+    `material(bpy)`, a material of the caller's (a probe of what Cycles' shader nodes see)."""
     fibers = scene.fibers if fibers is None else fibers
     blender = _reset(bpy)
     _settings(blender, spp, scene.render.max_depth, seed, threads)
     _camera(bpy, blender, scene.camera)
     with tempfile.TemporaryDirectory() as tmp:
         _lights(bpy, blender, scene.lights, tmp)
-        hair = _material(bpy, scene.hair, tmp) if material is None else material(bpy)
+        if material is not None:
+            hair = material(bpy)
+        elif node is not None:
+            hair = _node_material(bpy, node)
+        else:
+            hair = _material(bpy, scene.hair, tmp)
         if usd is None:
             _fibers(bpy, fibers, hair)
         else:

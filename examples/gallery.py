@@ -1,6 +1,7 @@
-"""Four looks side by side under a sky and a sun: blonde, brown and black swatches draped over a rod, and a fur patch.
+"""Five looks side by side under a sky and a sun: blonde, brown and black swatches draped over a rod, hair as it
+grows, and a fur patch.
 
-    python examples/gallery.py                       # writes docs/gallery.png (about 14 CPU minutes at 384 spp)
+    python examples/gallery.py                       # writes docs/gallery.png (about 7 minutes on 2 cores at 384 spp)
     python examples/gallery.py --spp 16 -o quick.png  # a quick look
 
 The sky is a lat-long image made here (blue zenith, pale horizon, dim ground) and passed to the scene as an
@@ -11,6 +12,10 @@ the cuticle) and the secondary (TRT, tinted by the fiber's colour: light that en
 off its back), which the cuticle tilt α sets apart. The tilt turns R toward the roots and TRT toward the tips,
 so on a swatch that curves away from the viewer R shows nearer the tips (the top of each panel; the roots are
 at the bottom) and TRT nearer the roots. Black hair absorbs the secondary; on blonde it is a golden band.
+The fourth swatch is hair as it grows (docs/MODEL.md, "Strand-to-strand and root-to-tip variation"): each strand's
+pigment and roughness its own (`color_spread`, `roughness_spread`, as Cycles' Random Color and Random Roughness),
+and the ends lighter than the roots (`tip_absorption`: 6% of the root's absorption at the tip, as sun-bleached
+ends) over the last 70% of each strand (`tip_length`), the strands' upper part in the panel.
 """
 
 import argparse
@@ -76,6 +81,21 @@ PANELS = [  # (name, [fibers], [hair], camera, sun)
     ("blonde", SWATCH, {"eumelanin": 0.25, "pheomelanin": 0.25, **TILT}, SWATCH_CAMERA, SWATCH_SUN),
     ("brown", SWATCH, {"eumelanin": 1.2, "pheomelanin": 0.35, **TILT}, SWATCH_CAMERA, SWATCH_SUN),
     ("black", SWATCH, {"eumelanin": 8.0, **TILT}, SWATCH_CAMERA, SWATCH_SUN),
+    (
+        "grown",
+        SWATCH,
+        {
+            "eumelanin": 1.0,
+            "pheomelanin": 0.45,
+            "color_spread": 0.5,
+            "roughness_spread": 0.3,
+            "tip_absorption": 0.06,
+            "tip_length": 0.7,
+            **TILT,
+        },
+        SWATCH_CAMERA,
+        SWATCH_SUN,
+    ),
     (
         "fur",
         FUR,

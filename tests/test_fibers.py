@@ -460,8 +460,10 @@ def test_draped_swatch_lies_on_its_cylinder():
 # GENERATORS[name](**[fibers]).
 SHIPPED_STRANDS = {
     "auburn_curly": ("1dd03b0a5f2b13960b86ebf3323e50ee", "020207a7f13ddbca6ca085e718b52253"),
+    "auburn_light_tips_varied": ("42ec6caa09e305bc8e21c6c70b9b10c9", "45e88d9e39e135ac64fc7349e2cc29d1"),
     "black_straight": ("05b6762fe1cfca874f2392cf12e455f2", "09ee49cdfa1ff6cd7f4b224e8ed85c23"),
     "blonde_straight": ("a62d5470f0d0a01a4eccd80bb0a65035", "db08acd025f30b291a40846f09e5a0c9"),
+    "brown_light_tips": ("7779424dcc84675fd94401cc7d38bf09", "51b8cef793cd361512c536d945cb7c77"),
     "brown_wavy": ("fc5b9b69f6c5b0473de3b261394049e7", "e84f295415e6e5d6af213cc864bd078e"),
     "chestnut_straight": ("cd266fa8872fa48be3426f86441ffe80", "4aa5d2d3fedfbd59e76f88d415ec25a2"),
     "cycles_blonde_curly": ("c51d3de50848342aa5cb804237432fe8", "3543fe7763dd6749b4a7f7a31d6661c3"),

@@ -501,18 +501,31 @@ def test_fit_command_names_a_missing_target(tmp_path, capsys):
 def test_shipped_targets_are_complete():
     names = [d.name for d in shipped_targets()]
     own = ["auburn_curly", "black_straight", "blonde_straight", "brown_wavy", "chestnut_straight", "fur_patch"]
+    # Hair as it grows (issue 44): lighter tips, one also with strands of their own colour.
+    tips = ["auburn_light_tips_varied", "brown_light_tips"]
     peers = [f"mitsuba_{look}" for look in ("blonde_straight", "brown_straight", "dark_wavy")]
     # Cycles' draped swatches: light, medium and dark hair, straight, wavy and curly (issue 23's acceptance).
     peers += [
         f"cycles_{hair}_{shape}" for hair in ("blonde", "brown", "dark") for shape in ("straight", "wavy", "curly")
     ]
+    # Cycles' own Random Color and Random Roughness on its melanin, dark, medium and light (issue 44).
+    varied = [f"cycles_varied_{look}" for look in ("dark", "medium", "light")]
+    peers += varied
     # The Cycles swatches as a camera saves them (benchmarks/make_photo_targets.py, issue 22).
     photos = [
         f"photo_{look}_{kind}"
         for look in ("blonde_straight", "brown_straight", "dark_wavy")
         for kind in ("jpeg", "png")
     ]
-    assert names == sorted(own + peers + photos)
+    assert names == sorted(own + tips + peers + photos)
+    for name in varied:
+        truth = load_target(SHIPPED_TARGETS / name).truth
+        assert truth.colour_input == "melanin" and truth.tip_absorption == 1.0
+        assert 0.2 <= truth.color_spread <= 0.5 and 0.2 <= truth.roughness_spread <= 0.5
+    for name in tips:
+        truth = load_target(SHIPPED_TARGETS / name).truth
+        assert truth.colour_input == "albedo" and 0.3 <= truth.tip_absorption <= 0.5
+    assert load_target(SHIPPED_TARGETS / "auburn_light_tips_varied").truth.color_spread > 0.0
     for name in photos:
         target = load_target(SHIPPED_TARGETS / name)
         assert (target.renderer, target.gains, target.white_balance) == ("cycles", "per-image", "fit")
@@ -532,6 +545,35 @@ def test_shipped_targets_are_complete():
     # A look-development-sized one, front- and back-lit, for the fit's mini-batches (issue 14).
     large = load_target(SHIPPED_TARGETS / "chestnut_straight")
     assert all(image.image.shape == (128, 128, 3) for image in large.images) and len(large.images) == 2
+
+
+def test_the_varied_cycles_targets_state_the_look_cycles_rendered():
+    """Each cycles_varied_* target was rendered from Cycles' own melanin inputs (its cycles_hair.toml, set in bpy by
+    benchmarks/make_peer_targets.py); its truth is that look in our controls: Cycles' concentration −ln(1 − Melanin)
+    split by Melanin Redness, in d'Eon's units. Cycles' absorption from its own coefficients (kernel/closure/
+    bsdf_util.h, Blender 4.5) must be ours within 0.2% per channel (the two pigments' spectra differ, so that holds
+    the split too), and the spreads are its Random Color and Random Roughness."""
+    import tomllib
+
+    cycles_eumelanin, cycles_pheomelanin = np.array([0.506, 0.841, 1.653]), np.array([0.343, 0.733, 1.924])
+    for name in ("cycles_varied_dark", "cycles_varied_medium", "cycles_varied_light"):
+        node = tomllib.loads((SHIPPED_TARGETS / name / "cycles_hair.toml").read_text(encoding="utf-8"))
+        inputs = node["inputs"]
+        assert node["parametrization"] == "MELANIN" and inputs["Coat"] == 0.0 and inputs["Tint"][:3] == [1.0] * 3
+        target = load_target(SHIPPED_TARGETS / name)
+        truth = target.truth
+        concentration = -math.log(1.0 - inputs["Melanin"])
+        redness = inputs["Melanin Redness"]
+        theirs = concentration * ((1 - redness) * cycles_eumelanin + redness * cycles_pheomelanin)
+        np.testing.assert_allclose(truth.absorption, theirs, rtol=2e-3)
+        assert (truth.color_spread, truth.roughness_spread) == (inputs["Random Color"], inputs["Random Roughness"])
+        assert (truth.beta_m, truth.beta_n, truth.eta) == (
+            inputs["Roughness"],
+            inputs["Radial Roughness"],
+            inputs["IOR"],
+        )
+        assert truth.alpha == pytest.approx(math.degrees(inputs["Offset"]), abs=1e-12)
+        assert target.renderer == "cycles" and truth.to_dict() == target.hair.to_dict()
 
 
 def test_make_target_reproduces_the_committed_files(tmp_path):
