@@ -676,7 +676,15 @@ class FitRun:
             goodness=goodness,
             failures=[]
             if interrupted
-            else failures(values, descent.history.loss, evaluation.loss, refinement, camera_report, goodness),
+            else failures(
+                values,
+                descent.history.loss,
+                evaluation.loss,
+                refinement,
+                camera_report,
+                goodness,
+                () if uncertainty is None else uncertainty.undetermined,
+            ),
         )
 
     def camera_report(self, evaluation: Evaluation, refinement: Refinement | None) -> dict | None:

@@ -128,6 +128,7 @@ class Uncertainty:
     parts: dict
     correlations: dict
     warnings: tuple[str, ...]
+    undetermined: tuple[str, ...] = ()  # the components that do not change the images: their σ says nothing
 
 
 def estimate_uncertainty(
@@ -195,4 +196,4 @@ def estimate_uncertainty(
     # The diagonal of cov + ε² s sᵀ + Cov_real; with ε = 0 and no realisation term the noise's σ as it stands.
     total = np.sqrt(sigma**2 + model**2 + realised**2) if (model_error or realisation_covariance is not None) else sigma
     uncertainties = by_control(names, total)
-    return Uncertainty(uncertainties, parts, correlations, tuple(warnings))
+    return Uncertainty(uncertainties, parts, correlations, tuple(warnings), tuple(np.array(labels)[flat]))

@@ -9,6 +9,7 @@ A fit fails, and `warp-hair fit` exits with FAILED_STATUS, when
   reach a bound, so a control there is one the images pushed as far as the range lets it go, where a
   convergent fit would have stopped: albedo 0 behind a gain of 343 on a bright photo, say (not where the end is
   the control's default, a spread's 0: images without variation take it there);
+- a fitted control does not change the rendered images at the result (its σ would be 0 and mean nothing);
 - a photo's gain or white balance ran to a value its images cannot support: a σ above half its value, or a
   white balance beyond WHITE_BALANCE_RANGE (no camera's channel multipliers do that);
 - the measure of fit (goodness.py) says that the model does not describe the images: χ²/dof above
@@ -40,12 +41,21 @@ WHITE_BALANCE_RANGE = (0.2, 5.0)  # camera white balance multipliers, relative t
 FAILED_CHI2 = 1.5
 
 
-def failures(values: dict, loss_history, final_loss: float, refinement, camera_report, goodness) -> list[str]:
+def failures(
+    values: dict, loss_history, final_loss: float, refinement, camera_report, goodness, undetermined=()
+) -> list[str]:
     """Why the fit failed (module docstring), each reason with what to try; empty when it did not. loss_history:
-    the descent's losses; final_loss: the fit's at its result (the same image loss, of the final renders)."""
+    the descent's losses; final_loss: the fit's at its result (the same image loss, of the final renders);
+    undetermined: the fitted components that do not change the images there (`Uncertainty.undetermined`)."""
     reasons = []
     reasons += _loss_rose(loss_history, final_loss, refinement)
     reasons += _at_bounds(values)
+    if undetermined:
+        reasons.append(
+            f"{', '.join(undetermined)} do{'es' if len(undetermined) == 1 else ''} not change the rendered images at "
+            "the result, so the images cannot say its value (a σ of 0 there would mean nothing): fix it "
+            "(--fix NAME=VALUE), or start the fit where it acts (--init)"
+        )
     reasons += _camera(camera_report)
     if goodness is not None and goodness.significant and goodness.ratio > FAILED_CHI2:
         worst = goodness.worst_view()
@@ -93,12 +103,16 @@ def _loss_rose(loss_history, final_loss: float, refinement) -> list[str]:
 
 
 def _variation_hint(values: dict) -> str:
-    """The --fit that adds the strands' spread, where the fit held it fixed."""
-    spreads = [name for name in ("color_spread", "roughness_spread") if name not in values]
-    if not spreads:
-        return ""
+    """The --fit that adds the strands' spread or the tips' change, where the fit held them fixed."""
     fitted = [name for name in values if name in CONTROLS]
-    return f"; if the strands vary from one to the next, fit their spread: --fit {','.join(fitted + spreads)}"
+    hints = []
+    spreads = [name for name in ("color_spread", "roughness_spread") if name not in values]
+    if spreads:
+        hints.append(f"if the strands vary from one to the next, fit their spread: --fit {','.join(fitted + spreads)}")
+    tips = [name for name in ("tip_absorption", "tip_length") if name not in values]
+    if tips:
+        hints.append(f"if the tips are lighter or darker than the roots: --fit {','.join(fitted + tips)}")
+    return "".join(f"; {hint}" for hint in hints)
 
 
 def _at_bounds(values: dict) -> list[str]:

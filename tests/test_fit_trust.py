@@ -186,6 +186,12 @@ def test_verdict_names_each_failure_and_passes_a_good_fit():
     refinement = types.SimpleNamespace(start_misfit=(0.041, 0.001), end_misfit=(0.089, 0.001))
     [reason] = failures(good, falling, end, refinement, None, None)
     assert "ended worse than it started" in reason
+    [reason] = failures({**good, "tip_length": 0.5}, falling, end, None, None, None, ("tip_length",))
+    assert "tip_length does not change the rendered images" in reason and "--fix" in reason
+    # A spread's 0 is the end of its range and its default: no variation, a value like any other.
+    assert failures({**good, "color_spread": 1e-5}, falling, end, None, None, None) == []
+    [reason] = failures(good, falling, end, None, None, _goodness(6.0))
+    assert "--fit albedo,beta_m,beta_n,color_spread,roughness_spread" in reason and "tip_absorption" in reason
 
 
 def _swapped_target(tmp_path):

@@ -79,9 +79,35 @@ def test_every_column_matches_central_differences_pixel_by_pixel(colour_input):
             assert abs(analytic.sum() - difference.sum()) <= 0.01 * np.abs(difference).sum() + 1e-6, name
 
 
+@pytest.mark.parametrize("colour_input", list(COLOURS))
+def test_the_variation_has_its_gradient_at_no_variation(colour_input):
+    """At the defaults (spreads 0, tip factor 1), where a fit of lighter tips starts, each strand's first-order
+    change is there: one-sided differences for the spreads (they cannot go below 0), central for the tip."""
+    scene = _scene(COLOURS[colour_input])
+    prepared = prepare(scene)
+    jacobian, _, _ = render_jacobian(prepared, spp=4, seed=5)
+    base = render(prepared, spp=4, seed=5)
+    for name, step, central in (
+        ("color_spread", 1e-3, False),
+        ("roughness_spread", 1e-3, False),
+        ("tip_absorption", 1e-3, True),
+    ):
+        plus = render(prepared.with_hair(_moved(scene.hair, name, 0, step)), spp=4, seed=5)
+        if central:
+            minus = render(prepared.with_hair(_moved(scene.hair, name, 0, -step)), spp=4, seed=5)
+            difference = (plus - minus) / (2.0 * step)
+        else:
+            difference = (plus - base) / step
+        analytic = jacobian[..., CONTROLS[name].columns[0]]
+        scale = np.abs(difference).max()
+        assert scale > 1e-3, name  # not 0: each strand's image moves, though their mean hardly does
+        close = np.abs(analytic - difference) <= 0.02 * scale
+        assert close.mean() > 0.97, (name, close.mean())
+
+
 def test_a_look_without_variation_has_no_per_strand_data():
     """The default of every variation control is no variation: the kernels then read the material's coefficients
-    as before (renders and gradients bit for bit as without the controls)."""
+    as before (renders, and the other controls' gradients, bit for bit as without the variation's controls)."""
     hair = _scene(COLOURS["albedo"]).hair
     assert not has_variation(hair)
     variation = prepare(_scene(COLOURS["albedo"])).data.variation

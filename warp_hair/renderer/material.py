@@ -47,12 +47,15 @@ wp.set_module_options({"enable_backward": False, "optimization_level": 3})
 @wp.struct
 class HairVariation:
     """Each strand's own look and the change from root to tip (model/variation.py); with `strands` and `tip` 0
-    every fiber renders with the material's coefficients, exactly as without variation."""
+    every fiber renders with the material's coefficients, exactly as without variation. The derivatives in the
+    variation's controls are there at every look, no variation included (a spread's at 0, the tip's at 1)."""
 
     strands: int  # 1: each strand's coefficients from `hair` (indexed by strand)
     hair: wp.array(dtype=HairCoefficients)
     derivs: wp.array(dtype=CoefficientDerivatives)  # each strand's, for the gradient tracer
+    spread_columns: int  # 1: `derivs` holds each strand's spread columns (the rest too where `strands` is 1)
     tip: int  # 1: the absorption ramps toward the tip
+    arcs: int  # 1: where a hit lies along its strand is known (segment_start, segment_span)
     tip_absorption: float
     tip_length: float
     segment_start: wp.array(dtype=float)  # arc-length fraction of the strand at each segment's start
@@ -107,9 +110,10 @@ def fiber_coefficients(fibers: FiberGeometry, hair: HairCoefficients, variation:
     t = float(0.0)
     if variation.strands != 0:
         c = variation.hair[hit.strand]
-    if variation.tip != 0:
+    if variation.arcs != 0:
         along = wp.clamp(wp.dot(hit.position - fibers.start[hit.segment], fibers.step[hit.segment]), 0.0, 1.0)
         t = variation.segment_start[hit.segment] + variation.segment_span[hit.segment] * along
+    if variation.tip != 0:
         c.sigma_a = c.sigma_a * (1.0 + (variation.tip_absorption - 1.0) * tip_ramp(t, variation.tip_length))
     return c, t
 
@@ -234,21 +238,30 @@ def bsdf_value_jacobian(v: Vertex, dv: LobeSetupGrad, derivs: CoefficientDerivat
 
 @wp.func
 def vertex_derivatives(variation: HairVariation, v: Vertex, strand: int, derivs: CoefficientDerivatives):
-    """The CoefficientDerivatives at a fiber vertex: the material's `derivs`, or its strand's, and with a tip
-    ramp every ∂σ_a/∂θ times the vertex's factor g(t) = σ_a(t)/σ_a, plus the tip controls' own columns."""
+    """The CoefficientDerivatives at a fiber vertex: the material's `derivs`, or its strand's; its strand's spread
+    columns; with a tip ramp every ∂σ_a/∂θ times the vertex's factor g(t) = σ_a(t)/σ_a; the tip's own columns."""
     k = derivs
     if variation.strands != 0:
         k = variation.derivs[strand]
-    if variation.tip != 0:
+    elif variation.spread_columns != 0:
+        # No spread yet: the material's coefficients, and each strand's first-order change with the spreads.
+        own = variation.derivs[strand]
+        k.d_sigma_d_color_spread = own.d_sigma_d_color_spread
+        k.d_sigma_d_roughness_spread = own.d_sigma_d_roughness_spread
+        k.d_log_v_d_roughness_spread = own.d_log_v_d_roughness_spread
+        k.d_log_s_d_roughness_spread = own.d_log_s_d_roughness_spread
+    if variation.arcs != 0:
         a = variation.tip_absorption
         length = variation.tip_length
         ramp = tip_ramp(v.intercept, length)
         g = 1.0 + (a - 1.0) * ramp
-        sigma = v.hair.c.sigma_a / g  # the strand's, before the ramp
-        k.d_sigma_d_colour = k.d_sigma_d_colour * g
-        k.d_sigma_d_beta_n = k.d_sigma_d_beta_n * g
-        k.d_sigma_d_color_spread = k.d_sigma_d_color_spread * g
-        k.d_sigma_d_roughness_spread = k.d_sigma_d_roughness_spread * g
+        sigma = v.hair.c.sigma_a
+        if variation.tip != 0:
+            sigma = sigma / g  # the strand's, before the ramp
+            k.d_sigma_d_colour = k.d_sigma_d_colour * g
+            k.d_sigma_d_beta_n = k.d_sigma_d_beta_n * g
+            k.d_sigma_d_color_spread = k.d_sigma_d_color_spread * g
+            k.d_sigma_d_roughness_spread = k.d_sigma_d_roughness_spread * g
         k.d_sigma_d_tip_absorption = sigma * ramp
         d_ramp = float(0.0)  # ∂ramp/∂L = (1 − t)/L² inside the ramp
         if ramp > 0.0 and ramp < 1.0:

@@ -22,7 +22,7 @@ from ..geometry.tubes import FiberBVH
 from ..model.hair_bsdf import HairCoefficients, hair_coefficients, strand_coefficients
 from ..model.jacobian import CoefficientDerivatives, strand_derivatives
 from ..model.params import HairParams
-from ..model.variation import has_variation, strand_looks, strand_random
+from ..model.variation import strand_looks, strand_random
 from ..scene import DirectionalLight, EnvironmentLight, Scene, check_scene
 from .aggregate import Surfaces
 from .camera import camera_data
@@ -64,46 +64,48 @@ class PreparedScene:
         self._has_env = int(env is not None)
         self._camera = camera_data(scene.camera)
         self._card = card_data(scene.card, scene.camera, self.bvh.bounds)
-        # What a varying look needs of the strands, made when one first does and shared by `with_hair`'s copies:
-        # each strand's random value, the segments' arc-length fractions.
+        # What the variation's controls need of the strands, made once and shared by `with_hair`'s copies: each
+        # strand's random value, the segments' arc-length fractions.
         self._strand_data = {}
         self.data = self._scene_data(scene.hair)
         self.resolution = scene.camera.resolution
 
     def _variation(self, hair: HairParams) -> HairVariation:
-        """The kernels' HairVariation of a look: empty arrays where it does not vary."""
+        """The kernels' HairVariation of a look. Each strand's derivatives in the variation's controls and the
+        segments' arc-length fractions are there for every look (the gradient at no variation is not 0); each
+        strand's own coefficients and the tip's ramp only where the look varies."""
         variation = HairVariation()
-        variation.strands = 0
-        variation.tip = 0
-        empty = wp.zeros(0, dtype=float, device=self.device)
-        variation.segment_start = variation.segment_span = empty
-        variation.hair = wp.zeros(0, dtype=HairCoefficients, device=self.device)
-        variation.derivs = wp.zeros(0, dtype=CoefficientDerivatives, device=self.device)
+        looks = strand_looks(hair, self._strand_random())
+        variation.derivs = wp.array(strand_derivatives(hair, looks), dtype=CoefficientDerivatives, device=self.device)
+        variation.spread_columns = 1
+        variation.strands = int(hair.color_spread > 0.0 or hair.roughness_spread > 0.0)
+        coefficients = (
+            strand_coefficients(hair, looks) if variation.strands else np.zeros(0, HairCoefficients.numpy_dtype())
+        )
+        variation.hair = wp.array(coefficients, dtype=HairCoefficients, device=self.device)
+        variation.segment_start, variation.segment_span = self._arcs()
+        variation.arcs = 1
+        variation.tip = int(hair.tip_absorption != 1.0)
         variation.tip_absorption = float(hair.tip_absorption)
         variation.tip_length = float(hair.tip_length)
-        if not has_variation(hair):
-            return variation
-        if hair.color_spread > 0.0 or hair.roughness_spread > 0.0:
-            if "random" not in self._strand_data:
-                fibers = self.scene.fibers
-                given = fibers.strand_random
-                self._strand_data["random"] = strand_random(fibers.num_strands) if given is None else given
-            looks = strand_looks(hair, self._strand_data["random"])
-            variation.strands = 1
-            variation.hair = wp.array(strand_coefficients(hair, looks), dtype=HairCoefficients, device=self.device)
-            variation.derivs = wp.array(
-                strand_derivatives(hair, looks), dtype=CoefficientDerivatives, device=self.device
-            )
-        if hair.tip_absorption != 1.0:
-            if "arc" not in self._strand_data:
-                start, span = self.scene.fibers.segment_arc_fractions()
-                self._strand_data["arc"] = (
-                    wp.array(start.astype(np.float32), dtype=float, device=self.device),
-                    wp.array(span.astype(np.float32), dtype=float, device=self.device),
-                )
-            variation.tip = 1
-            variation.segment_start, variation.segment_span = self._strand_data["arc"]
         return variation
+
+    def _strand_random(self) -> np.ndarray:
+        """Each strand's random value: the fibers' own, else drawn from its index as Cycles draws it."""
+        if "random" not in self._strand_data:
+            fibers = self.scene.fibers
+            given = fibers.strand_random
+            self._strand_data["random"] = strand_random(fibers.num_strands) if given is None else given
+        return self._strand_data["random"]
+
+    def _arcs(self) -> tuple:
+        """The segments' arc-length fractions (start, span) on the device, made once."""
+        if "arc" not in self._strand_data:
+            start, span = self.scene.fibers.segment_arc_fractions()
+            self._strand_data["arc"] = tuple(
+                wp.array(x.astype(np.float32), dtype=float, device=self.device) for x in (start, span)
+            )
+        return self._strand_data["arc"]
 
     def _scene_data(self, hair: HairParams) -> SceneData:
         data = SceneData()
