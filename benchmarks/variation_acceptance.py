@@ -13,8 +13,7 @@ from its neutral start, at the default settings:
 - "variation": the default controls (the colour and β_m, β_n) plus the variation's controls the target's truth
   sets (color_spread, roughness_spread; tip_absorption with tip_length);
 - "uniform": the default controls, the variation left out of the scenes (`--fix color_spread=0 ...`): the [hair]
-  a user who ignored the variation would write;
-- "variation-init" (targets with a tip): the variation fit with `--init tip_absorption=0.7` (TIP_START says why).
+  a user who ignored the variation would write.
 
 Each fit's params.json and the command's exit status and wall time are kept under --out/<target>/<kind>/; a fit
 already there is not run again (remove it to rerun); --table only tabulates. The Markdown table gives per fit and
@@ -59,12 +58,7 @@ TARGETS = (
     "brown_light_tips",
     "auburn_light_tips_varied",
 )
-KINDS = ("variation", "uniform", "variation-init")
-# The "variation-init" fit (targets with a tip only): the variation fit started from tip_absorption = 0.7 instead of
-# its default 1. At exactly 1 the renderer leaves the tip out (warp_hair/renderer/prepare.py renders the tip only
-# where tip_absorption != 1), so its Jacobian column for tip_absorption and tip_length is 0 there although the
-# images do change with it; a fit from the default start never moves them (docs/acceptance.md, issue 44).
-TIP_START = 0.7
+KINDS = ("variation", "uniform")
 RECORD = "run.json"  # the command, its exit status and wall time, beside the fit's params.json
 
 
@@ -83,8 +77,6 @@ def fit_arguments(target, kind: str) -> list:
     defaults = list(COLOUR_CONTROLS[truth.colour_input]) + [name for name in DEFAULT_FIT if name != "albedo"]
     if kind == "variation":
         return ["--fit", ",".join(defaults + varied(truth))]
-    if kind == "variation-init":
-        return ["--fit", ",".join(defaults + varied(truth)), "--init", f"tip_absorption={TIP_START:g}"]
     # No variation: the controls at their defaults (a tip's length does nothing without its absorption).
     fixes = [f"{name}={CONTROLS[name].default:g}" for name in varied(truth) if name != "tip_length"]
     return ["--fit", ",".join(defaults), "--fix", *fixes]
@@ -238,8 +230,6 @@ def main() -> None:
     for directory in directories:
         for kind in KINDS:
             folder = args.out / directory.name / kind
-            if kind == "variation-init" and load_target(directory).truth.tip_absorption == 1.0:
-                continue
             if not args.table and not (folder / RECORD).is_file():
                 folder.mkdir(parents=True, exist_ok=True)
                 record = run_fit(directory, kind, folder, args.threads)
