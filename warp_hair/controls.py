@@ -301,6 +301,10 @@ CONTROLS = {
             unit="factor",
             doc="the tip's absorption over the root's (< 1: lighter tips), reached at the tip",
             fit_hi=math.inf,
+            # From 1, where a tip's factor trades off against the colour with the ramp over most of the strand,
+            # the descent wandered off along that valley (docs/acceptance.md, issue 44); lighter tips are the
+            # common case.
+            fit_start=0.7,
             gradcheck_move=("scale", 0.8),
             gradcheck_step=0.1,
         ),
