@@ -311,3 +311,21 @@ def test_a_fit_over_random_realisations_reports_the_realisation_term(tmp_path):
     # A fixed fit of the same target has no realisation term.
     fixed = fit(target, progress=False, iters=2, spp=2, refine=0, batch=None)
     assert fixed.uncertainty_parts["realisation"] is None
+
+
+@pytest.mark.parametrize("extra", [{"curve": "catmull-rom"}, {"random_seed": 3}])
+def test_a_wavy_recipe_drawn_as_a_curve_or_with_a_random_seed_has_realisations(extra):
+    """The [fibers] keys that are not the generator's (how the strands are drawn, their random values) stay out
+    of the shared wave phase's generator run (a TypeError deep in realisation.py before)."""
+    scene = scene_from_dict(
+        {
+            "camera": front_camera(0.3, (8, 8)),
+            "lights": LIGHTS,
+            "fibers": {"generator": "wavy", "count": 20, "layers": 2, **extra},
+            "hair": HAIR,
+        }
+    )
+    other = realisation(scene, 2)
+    assert other.fibers.num_strands == scene.fibers.num_strands
+    assert not np.array_equal(other.fibers.points, scene.fibers.points)
+    assert (other.fibers.strand_random is not None) == ("random_seed" in extra)

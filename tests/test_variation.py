@@ -218,3 +218,16 @@ def test_random_values_outside_the_unit_interval_are_refused():
         FiberAssembly(fibers.points, fibers.radii, fibers.strand_offsets, strand_random=[0.2, 1.5])
     with pytest.raises(ValueError, match="one value per strand"):
         FiberAssembly(fibers.points, fibers.radii, fibers.strand_offsets, strand_random=[0.2])
+
+
+def test_a_random_seed_redraws_the_strands_values():
+    hair = {**COLOURS["albedo"], "color_spread": 0.5}
+    fibers = {"generator": "swatch", "count": 60, "layers": 2, "length": 0.6, "seed": 3}
+    default, seeded = _scene(hair), _scene(hair, fibers={**fibers, "random_seed": 7})
+    np.testing.assert_array_equal(seeded.fibers.strand_random, strand_random(60, 7))
+    assert np.abs(render(seeded, spp=4, seed=1) - render(default, spp=4, seed=1)).max() > 1e-3
+    np.testing.assert_array_equal(
+        render(_scene(hair, fibers={**fibers, "random_seed": 0}), spp=4, seed=1), render(default, spp=4, seed=1)
+    )
+    with pytest.raises(ValueError, match="random_seed"):
+        _scene(hair, fibers={**fibers, "random_seed": -1})

@@ -23,6 +23,7 @@ Realisation k of a scene is always the same, and k = 0 is the scene itself.
 from __future__ import annotations
 
 import copy
+import inspect
 
 import numpy as np
 
@@ -61,8 +62,11 @@ def realisation_draw(scene: Scene, index: int) -> dict:
     if fibers["generator"] in SHIFTED_GENERATORS:
         draw["shift"] = float(state[1]) / 2**32
     if fibers["generator"] in WAVED_GENERATORS and "phase" not in fibers:
-        arguments = {key: value for key, value in fibers.items() if key != "generator"}
-        draw["phase"] = shared_phase(GENERATORS[fibers["generator"]], **arguments)
+        generator = GENERATORS[fibers["generator"]]
+        # The generator's own arguments: not how the strands are drawn (curve, tolerance) or their random values.
+        accepted = inspect.signature(generator).parameters
+        arguments = {key: value for key, value in fibers.items() if key in accepted}
+        draw["phase"] = shared_phase(generator, **arguments)
     return draw
 
 

@@ -30,6 +30,7 @@ from .geometry.interpenetration import warn_interpenetration
 from .geometry.usd import SUFFIXES as USD_SUFFIXES
 from .io import read_exr, read_toml
 from .model.params import ALBEDO_INVERSION_KEY, HairParams
+from .model.variation import strand_random
 
 CAMERA_TYPES = ("orthographic", "perspective")
 TABLES = ("camera", "lights", "fibers", "hair", "render", "card")
@@ -40,6 +41,9 @@ USD_FIBER_OPTIONS = ("prim", "radius", "tolerance", "segments")
 # segments, or the Catmull-Rom curve through them (warp_hair.geometry.curves), within `tolerance` radii.
 CURVE_KINDS = ("polyline", "catmull-rom")
 CURVE_OPTIONS = ("curve", "tolerance")
+# Each strand's random value for the variation's controls (model/variation.py): lookup3 of (index, random_seed);
+# 0, the default, is what Cycles draws for a Blender hair curve.
+RANDOM_SEED = "random_seed"
 # Generator arguments that must be integers; `patch` takes one number or two; every other argument one number.
 INTEGER_GENERATOR_ARGS = frozenset({"count", "layers", "segments", "seed", "clumps", "strays"})
 PAIR_GENERATOR_ARGS = frozenset({"patch"})
@@ -418,7 +422,8 @@ def _fibers(table, prefix, base_dir, source):
         raise ValueError(f"{prefix} needs exactly one of file (a .txt, .hair or USD file) and generator")
     usd = "file" in table and Path(str(table["file"])).suffix.lower() in USD_SUFFIXES
     curve = {} if usd else {key: table[key] for key in CURVE_OPTIONS if key in table}
-    table = {key: value for key, value in table.items() if key not in curve}
+    seed = table.get(RANDOM_SEED)
+    table = {key: value for key, value in table.items() if key not in curve and key != RANDOM_SEED}
     if "file" in table:
         path = _path(table["file"], base_dir, f"{prefix} file")
         usd_options = USD_FIBER_OPTIONS if usd else []
@@ -432,7 +437,19 @@ def _fibers(table, prefix, base_dir, source):
         fibers = _generate(table, prefix)
     if fibers.num_strands == 0:
         raise ValueError(f"{prefix} holds no strands")
-    return _as_curve(fibers, curve, prefix)
+    return _as_curve(_with_random_seed(fibers, seed, prefix), curve, prefix)
+
+
+def _with_random_seed(fibers, seed, prefix):
+    """The strands with their random values drawn from `random_seed` (None: left as they are)."""
+    if seed is None:
+        return fibers
+    seed = validate.seed(f"{prefix} {RANDOM_SEED}", seed)
+    if fibers.strand_random is not None:
+        raise ValueError(f"{prefix} {RANDOM_SEED}: the file gives each strand its own random value; leave it out")
+    return FiberAssembly(
+        fibers.points, fibers.radii, fibers.strand_offsets, strand_random=strand_random(fibers.num_strands, seed)
+    )
 
 
 def _as_curve(fibers, options, prefix):
