@@ -486,6 +486,16 @@ SHIPPED_STRANDS = {
     "photo_dark_wavy_jpeg": ("51df500b8a9da8fba0e99c4be6fcb3d1", "93cda2f0fd90226a0ed6094bf0c7e78b"),
     "photo_dark_wavy_png": ("51df500b8a9da8fba0e99c4be6fcb3d1", "93cda2f0fd90226a0ed6094bf0c7e78b"),
     "examples/swatch.toml": ("dd24eb52c82c4a12db21f79508dacfdb", "6e5eac57201981556d9693cb131264b4"),
+    # The recipes of the swatches Blender made (benchmarks/blender_swatch_acceptance.py), recorded when shipped
+    # (2026-12-05); a photo target states the same recipe as its EXR one.
+    "blender_straight": ("3f36409fa522269fe0574275c2139cea", "166bada77f7667206ae8faf354f9f900"),
+    "blender_straight_png": ("3f36409fa522269fe0574275c2139cea", "166bada77f7667206ae8faf354f9f900"),
+    "blender_wavy": ("3118c7bcf9f1c043029081c981c0a9bb", "c1ed5aa999be17716d1f9d03b90a1c33"),
+    "blender_wavy_jpeg": ("3118c7bcf9f1c043029081c981c0a9bb", "c1ed5aa999be17716d1f9d03b90a1c33"),
+    "blender_clumped": ("525bc24d289ffb425ebd96e7e8eb2aaa", "58701895dece5ed5e1e259caddb520ab"),
+    "blender_clumped_png": ("525bc24d289ffb425ebd96e7e8eb2aaa", "58701895dece5ed5e1e259caddb520ab"),
+    "blender_thick": ("9cfc773eeb196041edd1349d6226003f", "39442312060e29956bb1e6a4104095cd"),
+    "blender_thick_jpeg": ("9cfc773eeb196041edd1349d6226003f", "39442312060e29956bb1e6a4104095cd"),
 }
 
 
