@@ -55,17 +55,22 @@ def import_mitsuba():
 
 
 SAMPLERS = ("stock", "corrected")
+# Mitsuba's pixel sample generators (its `sampler` plugins) that render with any power-of-four spp unrounded.
+SENSOR_SAMPLERS = ("independent", "multijitter", "ldsampler")
 
 
-def mitsuba_scene(mi, scene, spp, shape="linearcurve", fibers_file=None, sampler="stock"):
+def mitsuba_scene(mi, scene, spp, shape="linearcurve", fibers_file=None, sampler="stock", sensor_sampler="independent"):
     """The warp-hair `scene` as a Mitsuba 3 scene. Only what the comparison needs is translated: an
     orthographic or perspective camera, directional lights, a constant environment, the backing card, fibers
     from a file (`fibers_file`, default the scene's) as `shape`, the hair as warp_hair.export.mitsuba writes it, sampled
-    by Mitsuba's own `hair` (`sampler="stock"`) or with its residual lobe corrected (`"corrected"`)."""
+    by Mitsuba's own `hair` (`sampler="stock"`) or with its residual lobe corrected (`"corrected"`). The
+    sensor draws its samples with `sensor_sampler` (one of SENSOR_SAMPLERS)."""
     from warp_hair.export.mitsuba import bsdf_dict
 
     if sampler not in SAMPLERS:
         raise ValueError(f"sampler must be one of {SAMPLERS}, not {sampler!r}")
+    if sensor_sampler not in SENSOR_SAMPLERS:
+        raise ValueError(f"sensor_sampler must be one of {SENSOR_SAMPLERS}, not {sensor_sampler!r}")
 
     cam = scene.camera
     width, height = cam.resolution
@@ -83,7 +88,7 @@ def mitsuba_scene(mi, scene, spp, shape="linearcurve", fibers_file=None, sampler
         "rfilter": {"type": "box"},
         "pixel_format": "rgb",
     }
-    sensor["sampler"] = {"type": "independent", "sample_count": spp}
+    sensor["sampler"] = {"type": sensor_sampler, "sample_count": spp}
 
     fibers_file = fibers_file or scene.source["fibers"].get("file")  # absolute: the loader resolved it
     if fibers_file is None:
