@@ -57,10 +57,16 @@ class ViewFit:
     dof: float
     region: str
     region_ratio: float  # that region's χ²/dof
+    spread: float = 0.0  # the standard deviation of this view's χ²/dof under noise alone
 
     @property
     def ratio(self) -> float:
         return self.chi2 / max(self.dof, 1e-300)
+
+    @property
+    def significant(self) -> bool:
+        """Whether this view's χ²/dof is above 1 by more than noise would put it (as `Goodness.significant`)."""
+        return self.ratio > 1.0 + SIGNIFICANCE * self.spread
 
 
 @dataclass(frozen=True)
@@ -211,7 +217,8 @@ def _view(image, r2: np.ndarray, expected: np.ndarray, fitted: float, pool: int)
             best, best_excess = label, excess
             best_ratio = _ratio(r2[members], expected[members], fitted * members.sum() / len(r2))
     dof = len(r2) - fitted
-    return ViewFit(image.name, dof * _ratio(r2, expected, fitted), float(dof), best, float(best_ratio))
+    spread = float(np.sqrt(2.0 * CHANNELS * (expected**2).sum()) / max(expected.sum(), 1e-300))
+    return ViewFit(image.name, dof * _ratio(r2, expected, fitted), float(dof), best, float(best_ratio), spread)
 
 
 def quantisation_variances(target, settings) -> np.ndarray | None:

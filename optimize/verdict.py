@@ -13,8 +13,9 @@ A fit fails, and `warp-hair fit` exits with FAILED_STATUS, when
 - a photo's gain or white balance ran to a value its images cannot support: a σ above half its value, or a
   white balance beyond WHITE_BALANCE_RANGE (no camera's channel multipliers do that);
 - the measure of fit (goodness.py) says that the model does not describe the images: χ²/dof above
-  FAILED_CHI2 and significantly above 1. A photo's own noise (sensor, JPEG) is not in the noise model, so a
-  heavily compressed photo can fail so at its truth: the message says to try a lossless one.
+  FAILED_CHI2 and significantly above 1, in total or in one view. A photo's own noise (sensor, JPEG) is not in
+  the noise model, so a heavily compressed photo can fail so at its truth: the message says to try a lossless
+  one.
 
 Each reason says what happened and what to try. The numbers stay in params.json, marked failed, for whoever
 wants to look at them; they are not a result.
@@ -57,7 +58,10 @@ def failures(
             "(--fix NAME=VALUE), or start the fit where it acts (--init)"
         )
     reasons += _camera(camera_report)
-    if goodness is not None and goodness.significant and goodness.ratio > FAILED_CHI2:
+    # In total, or in one view: a view the look does not describe can hide behind another that fits within its
+    # noise (a swatch's back-lit view behind a front-lit one whose strands' draw is large noise).
+    misfit = [view for view in goodness.views if view.significant and view.ratio > FAILED_CHI2] if goodness else []
+    if goodness is not None and ((goodness.significant and goodness.ratio > FAILED_CHI2) or misfit):
         worst = goodness.worst_view()
         reasons.append(
             f"the fitted look does not describe the images: chi2/dof {goodness.ratio:.1f} (1 is noise alone), worst "

@@ -157,9 +157,17 @@ def test_goodness_of_fit_is_one_for_noise_and_names_the_region_that_does_not_fit
     assert bad.views[0].region == "the frame's top left" and bad.views[0].region_ratio > bad.ratio
 
 
-def _goodness(ratio, significant=True, photo=False):
-    view = types.SimpleNamespace(name="back", ratio=ratio, region="its brightest third (the highlight)", region_ratio=9)
-    return types.SimpleNamespace(ratio=ratio, significant=significant, worst_view=lambda: view, photo=photo)
+def _goodness(ratio, significant=True, photo=False, view_ratio=None, view_significant=None):
+    view = types.SimpleNamespace(
+        name="back",
+        ratio=ratio if view_ratio is None else view_ratio,
+        significant=significant if view_significant is None else view_significant,
+        region="its brightest third (the highlight)",
+        region_ratio=9,
+    )
+    return types.SimpleNamespace(
+        ratio=ratio, significant=significant, worst_view=lambda: view, views=(view,), photo=photo
+    )
 
 
 def test_verdict_names_each_failure_and_passes_a_good_fit():
@@ -183,6 +191,10 @@ def test_verdict_names_each_failure_and_passes_a_good_fit():
     assert "does not describe the images" in reason and "view back" in reason and "brightest third" in reason
     assert "JPEG" not in reason and "JPEG" in failures(good, falling, end, None, None, _goodness(6.0, photo=True))[0]
     assert failures(good, falling, end, None, None, _goodness(1.3)) == []  # above noise, below FAILED_CHI2: σ scaled
+    # One view the look does not describe fails the fit though the total, with a view that fits, stays below.
+    [reason] = failures(good, falling, end, None, None, _goodness(0.8, False, view_ratio=1.7, view_significant=True))
+    assert "does not describe the images" in reason and "view back (1.7)" in reason
+    assert failures(good, falling, end, None, None, _goodness(0.8, False, view_ratio=1.7, view_significant=False)) == []
     refinement = types.SimpleNamespace(start_misfit=(0.041, 0.001), end_misfit=(0.089, 0.001))
     [reason] = failures(good, falling, end, refinement, None, None)
     assert "ended worse than it started" in reason
