@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..controls import BETA_FLOOR, VARIATION_CONTROLS  # noqa: F401 (re-exported: the controls this module maps)
+from ..controls import BETA_FLOOR
 from .params import (
     EUMELANIN_SIGMA_A,
     PHEOMELANIN_SIGMA_A,
@@ -89,9 +89,19 @@ def spread_factor(u, spread):
     return 1.0 + 2.0 * (np.asarray(u, dtype=np.float64) - 0.5) * spread
 
 
+def strands_vary(params: HairParams) -> bool:
+    """Whether the strands' looks differ from one to the next."""
+    return params.color_spread > 0.0 or params.roughness_spread > 0.0
+
+
+def tip_varies(params: HairParams) -> bool:
+    """Whether the tip's absorption differs from the root's (tip_length alone changes nothing)."""
+    return params.tip_absorption != 1.0
+
+
 def has_variation(params: HairParams) -> bool:
     """Whether any strand's look differs from the material's, or the tip's from the root's."""
-    return params.color_spread > 0.0 or params.roughness_spread > 0.0 or params.tip_absorption != 1.0
+    return strands_vary(params) or tip_varies(params)
 
 
 def tip_profile(t, tip_absorption, tip_length):
@@ -154,8 +164,8 @@ def strand_looks(params: HairParams, u) -> StrandLooks:
     """Each strand's σ_a, β_m, β_n for random values u (S,), with their derivatives (float64)."""
     u = np.asarray(u, dtype=np.float64)
     w = 2.0 * (u - 0.5)  # ∂f/∂spread
-    f_rough = 1.0 + w * params.roughness_spread
-    f_colour = 1.0 + w * params.color_spread
+    f_rough = spread_factor(u, params.roughness_spread)
+    f_colour = spread_factor(u, params.color_spread)
     beta_m, dbm, dbm_spread = _strand_beta(params.beta_m, f_rough, w)
     beta_n, dbn, dbn_spread = _strand_beta(params.beta_n, f_rough, w)
     strands = len(u)

@@ -271,7 +271,7 @@ def make_trace_path(differentiable: bool):
                 dv = bsdf_setup_grad(v)
                 k = derivs
                 if depends_on_controls(v):
-                    k = vertex_derivatives(scene.variation, v, v.strand, derivs)
+                    k = vertex_derivatives(scene.variation, scene.surfaces.fibers, met.fiber, v, derivs)
 
             if num_emitters > 0:
                 lit, nee, nee_value, lobes_light, rng = sample_ld(scene, v, throughput, num_emitters, select_pdf, rng)

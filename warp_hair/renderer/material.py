@@ -52,10 +52,9 @@ class HairVariation:
 
     strands: int  # 1: each strand's coefficients from `hair` (indexed by strand)
     hair: wp.array(dtype=HairCoefficients)
-    derivs: wp.array(dtype=CoefficientDerivatives)  # each strand's, for the gradient tracer
-    spread_columns: int  # 1: `derivs` holds each strand's spread columns (the rest too where `strands` is 1)
+    # Each strand's, for the gradient tracer: its spread columns always, the rest too where `strands` is 1.
+    derivs: wp.array(dtype=CoefficientDerivatives)
     tip: int  # 1: the absorption ramps toward the tip
-    arcs: int  # 1: where a hit lies along its strand is known (segment_start, segment_span)
     tip_absorption: float
     tip_length: float
     segment_start: wp.array(dtype=float)  # arc-length fraction of the strand at each segment's start
@@ -77,7 +76,6 @@ class Vertex:
     h: float  # the offset across the fiber (hair only)
     hair: LobeSetup  # what of the hair BSDF depends on wo and h (hair only)
     albedo: wp.vec3  # the card's (card only)
-    intercept: float  # arc-length fraction from the root (hair with a tip ramp only)
 
 
 @wp.func
@@ -104,18 +102,22 @@ def tip_ramp(t: float, tip_length: float):
 
 
 @wp.func
+def strand_intercept(fibers: FiberGeometry, variation: HairVariation, hit: FiberHit):
+    """The hit's arc-length fraction along its strand, from the root (linear within its segment)."""
+    along = wp.clamp(wp.dot(hit.position - fibers.start[hit.segment], fibers.step[hit.segment]), 0.0, 1.0)
+    return variation.segment_start[hit.segment] + variation.segment_span[hit.segment] * along
+
+
+@wp.func
 def fiber_coefficients(fibers: FiberGeometry, hair: HairCoefficients, variation: HairVariation, hit: FiberHit):
-    """(coefficients, intercept) at a fiber hit: the material's, or its strand's, with the tip's absorption."""
+    """The coefficients at a fiber hit: the material's, or its strand's, with the tip's absorption."""
     c = hair
-    t = float(0.0)
     if variation.strands != 0:
         c = variation.hair[hit.strand]
-    if variation.arcs != 0:
-        along = wp.clamp(wp.dot(hit.position - fibers.start[hit.segment], fibers.step[hit.segment]), 0.0, 1.0)
-        t = variation.segment_start[hit.segment] + variation.segment_span[hit.segment] * along
     if variation.tip != 0:
+        t = strand_intercept(fibers, variation, hit)
         c.sigma_a = c.sigma_a * (1.0 + (variation.tip_absorption - 1.0) * tip_ramp(t, variation.tip_length))
-    return c, t
+    return c
 
 
 @wp.func
@@ -150,9 +152,7 @@ def scattering_vertex(
     v.wo = to_local(-d, x, y, z)
     v.h = h
     if v.kind == HAIR:
-        c, intercept = fiber_coefficients(surfaces.fibers, hair, variation, hit)
-        v.intercept = intercept
-        v.hair = lobe_setup(c, v.wo, h)
+        v.hair = lobe_setup(fiber_coefficients(surfaces.fibers, hair, variation, hit), v.wo, h)
     else:
         v.albedo = surfaces.card.albedo
     return v
@@ -237,34 +237,38 @@ def bsdf_value_jacobian(v: Vertex, dv: LobeSetupGrad, derivs: CoefficientDerivat
 
 
 @wp.func
-def vertex_derivatives(variation: HairVariation, v: Vertex, strand: int, derivs: CoefficientDerivatives):
-    """The CoefficientDerivatives at a fiber vertex: the material's `derivs`, or its strand's; its strand's spread
-    columns; with a tip ramp every ∂σ_a/∂θ times the vertex's factor g(t) = σ_a(t)/σ_a; the tip's own columns."""
+def vertex_derivatives(
+    variation: HairVariation, fibers: FiberGeometry, hit: FiberHit, v: Vertex, derivs: CoefficientDerivatives
+):
+    """The CoefficientDerivatives at the fiber vertex v of `hit`: the material's `derivs`, or its strand's; its
+    strand's spread columns; with a tip ramp every ∂σ_a/∂θ times the vertex's factor g(t) = σ_a(t)/σ_a; the tip's
+    own columns (at every look: the gradient at no variation is not 0). The gradient tracer's only: the forward
+    one needs no intercept where the tip does not ramp."""
     k = derivs
     if variation.strands != 0:
-        k = variation.derivs[strand]
-    elif variation.spread_columns != 0:
+        k = variation.derivs[hit.strand]
+    else:
         # No spread yet: the material's coefficients, and each strand's first-order change with the spreads.
-        own = variation.derivs[strand]
+        own = variation.derivs[hit.strand]
         k.d_sigma_d_color_spread = own.d_sigma_d_color_spread
         k.d_sigma_d_roughness_spread = own.d_sigma_d_roughness_spread
         k.d_log_v_d_roughness_spread = own.d_log_v_d_roughness_spread
         k.d_log_s_d_roughness_spread = own.d_log_s_d_roughness_spread
-    if variation.arcs != 0:
-        a = variation.tip_absorption
-        length = variation.tip_length
-        ramp = tip_ramp(v.intercept, length)
-        g = 1.0 + (a - 1.0) * ramp
-        sigma = v.hair.c.sigma_a
-        if variation.tip != 0:
-            sigma = sigma / g  # the strand's, before the ramp
-            k.d_sigma_d_colour = k.d_sigma_d_colour * g
-            k.d_sigma_d_beta_n = k.d_sigma_d_beta_n * g
-            k.d_sigma_d_color_spread = k.d_sigma_d_color_spread * g
-            k.d_sigma_d_roughness_spread = k.d_sigma_d_roughness_spread * g
-        k.d_sigma_d_tip_absorption = sigma * ramp
-        d_ramp = float(0.0)  # ∂ramp/∂L = (1 − t)/L² inside the ramp
-        if ramp > 0.0 and ramp < 1.0:
-            d_ramp = (1.0 - v.intercept) / (length * length)
-        k.d_sigma_d_tip_length = sigma * ((a - 1.0) * d_ramp)
+    t = strand_intercept(fibers, variation, hit)
+    a = variation.tip_absorption
+    length = variation.tip_length
+    ramp = tip_ramp(t, length)
+    g = 1.0 + (a - 1.0) * ramp
+    sigma = v.hair.c.sigma_a
+    if variation.tip != 0:
+        sigma = sigma / g  # the strand's, before the ramp
+        k.d_sigma_d_colour = k.d_sigma_d_colour * g
+        k.d_sigma_d_beta_n = k.d_sigma_d_beta_n * g
+        k.d_sigma_d_color_spread = k.d_sigma_d_color_spread * g
+        k.d_sigma_d_roughness_spread = k.d_sigma_d_roughness_spread * g
+    k.d_sigma_d_tip_absorption = sigma * ramp
+    d_ramp = float(0.0)  # ∂ramp/∂L = (1 − t)/L² inside the ramp
+    if ramp > 0.0 and ramp < 1.0:
+        d_ramp = (1.0 - t) / (length * length)
+    k.d_sigma_d_tip_length = sigma * ((a - 1.0) * d_ramp)
     return k

@@ -22,7 +22,7 @@ from ..geometry.tubes import FiberBVH
 from ..model.hair_bsdf import HairCoefficients, hair_coefficients, strand_coefficients
 from ..model.jacobian import CoefficientDerivatives, strand_derivatives
 from ..model.params import HairParams
-from ..model.variation import strand_looks, strand_random
+from ..model.variation import strand_looks, strand_random, strands_vary, tip_varies
 from ..scene import DirectionalLight, EnvironmentLight, Scene, check_scene
 from .aggregate import Surfaces
 from .camera import camera_data
@@ -77,15 +77,13 @@ class PreparedScene:
         variation = HairVariation()
         looks = strand_looks(hair, self._strand_random())
         variation.derivs = wp.array(strand_derivatives(hair, looks), dtype=CoefficientDerivatives, device=self.device)
-        variation.spread_columns = 1
-        variation.strands = int(hair.color_spread > 0.0 or hair.roughness_spread > 0.0)
+        variation.strands = int(strands_vary(hair))
         coefficients = (
             strand_coefficients(hair, looks) if variation.strands else np.zeros(0, HairCoefficients.numpy_dtype())
         )
         variation.hair = wp.array(coefficients, dtype=HairCoefficients, device=self.device)
         variation.segment_start, variation.segment_span = self._arcs()
-        variation.arcs = 1
-        variation.tip = int(hair.tip_absorption != 1.0)
+        variation.tip = int(tip_varies(hair))
         variation.tip_absorption = float(hair.tip_absorption)
         variation.tip_length = float(hair.tip_length)
         return variation
