@@ -168,7 +168,10 @@ def main(argv=None):
         p.name for p in SHIPPED_TARGETS.iterdir() if (p / "target.toml").is_file() and target_renderer(p) != "warp-hair"
     )
     for name in names:
-        make_peer_target(SHIPPED_TARGETS / name, args.threads or default_threads(), args.mitsuba_sampler)
+        try:
+            make_peer_target(SHIPPED_TARGETS / name, args.threads or default_threads(), args.mitsuba_sampler)
+        except ValueError as error:  # a scene that disagrees with its files: the message says what to write
+            parser.exit(2, f"make_peer_targets: {name}: {error}\n")
 
 
 if __name__ == "__main__":
