@@ -52,7 +52,7 @@ import warp as wp
 from warp_hair.cli import exit_on_interrupt
 from warp_hair.geometry.interpenetration import InterpenetrationWarning
 from warp_hair.model.jacobian import CoefficientDerivatives, coefficient_derivatives, value_jacobian_mat
-from warp_hair.parallel import launch_ranges
+from warp_hair.parallel import default_threads, launch_ranges
 from warp_hair.realisation import realisation
 from warp_hair.renderer.gradients import render_jacobian
 from warp_hair.renderer.prepare import prepare
@@ -119,10 +119,9 @@ def steps(prepared, differentiable, threads, repeat) -> dict:
     image, stderr, indices, *rest = buffers()
     jacobian = rest[0] if rest else None
     inputs = [prepared.data, derivs, 0, 1, image, stderr, jacobian, indices]
-    # spp = 0: the same kernel over the same ranges, no path traced; tile_pixels at the fit's spp (≤ 64: 256).
-    out["launch, 0 samples"] = best(
-        lambda: launch_ranges(kernel, n, inputs, threads=threads, chunk=tile_pixels(16)), repeat
-    )
+    # spp = 0: the same kernel over the same ranges, no path traced; tile_pixels at the fit's spp.
+    chunk = tile_pixels(16, n, max(1, min(threads or default_threads(), n)))
+    out["launch, 0 samples"] = best(lambda: launch_ranges(kernel, n, inputs, threads=threads, chunk=chunk), repeat)
 
     def read_back():
         image.numpy().reshape(height, width, 3)

@@ -125,6 +125,21 @@ def test_threads_do_not_change_the_image():
     assert not np.array_equal(one, render(scene, seed=10))
 
 
+def test_a_small_image_gives_each_thread_several_ranges():
+    """A fit's 48×48 image on two threads: in ranges of 256 pixels it was 9, which two threads split 5 to 4 (one
+    idle for a ninth of the render); now at least 8 a thread, and the image is the one thread's."""
+    scene = swatch_scene(
+        {"albedo": [0.6, 0.4, 0.2]},
+        [{"type": "directional", "direction": [0.3, -0.4, -1.0], "irradiance": [3.0, 3.0, 3.0]}],
+        resolution=(48, 48),
+        render_table={"spp": 1, "max_depth": 4, "seed": 9},
+    )
+    calls = []
+    two = render(scene, threads=2, progress=lambda done, total: calls.append((done, total)))
+    assert len(calls) >= 16 and calls[-1] == (48 * 48, 48 * 48), calls
+    np.testing.assert_array_equal(two, render(scene, threads=1))
+
+
 def test_a_subset_of_pixels_renders_as_in_the_whole_image():
     """A fit's mini-batch renders some pixels only: each must come out as in the whole image (its own random
     stream), image, standard error and Jacobian alike, and the others 0."""

@@ -18,22 +18,31 @@ import warp as wp
 
 from ..model.jacobian import CoefficientDerivatives, coefficient_derivatives, value_jacobian_mat
 from ..numerics import rand2
-from ..parallel import launch_ranges
+from ..parallel import default_threads, launch_ranges
 from ..scene import Scene
 from .camera import generate_ray
 from .integrator import SceneData, trace_path, trace_path_grad
 from .prepare import PreparedScene, prepare, sampling
 
 # Pixels per range handed to a thread: fiber pixels cost far more than background ones, and small ranges
-# balance the threads at a negligible cost per launch (a fit's 48×48 targets are 9 ranges, not one core's work).
+# balance the threads at a negligible cost per launch.
 TILE_PIXELS = 256
 # Above this spp a range holds proportionally fewer pixels, so that one range stays a fraction of a second and
 # Ctrl-C, which lets the running ranges finish, stops a render at any spp within about a second.
 TILE_SPP = 64
+# Ranges each thread gets at least, where ranges of TILE_PIXELS would leave few to share: a 48×48 image was 9 ranges,
+# which two threads split 5 to 4, a tenth of the render's wall time with one thread idle (docs/benchmarks.md, issue
+# 45); but no range under MIN_TILE_PIXELS, whose launch would cost more than its pixels.
+RANGES_PER_THREAD = 8
+MIN_TILE_PIXELS = 64
 
 
-def tile_pixels(spp: int) -> int:
-    return max(1, TILE_PIXELS * TILE_SPP // max(spp, TILE_SPP))
+def tile_pixels(spp: int, count: int | None = None, threads: int = 1) -> int:
+    """Pixels per range of a render of `count` pixels (None: unknown, only the spp limit) on `threads`."""
+    tile = max(1, TILE_PIXELS * TILE_SPP // max(spp, TILE_SPP))
+    if count is not None:
+        tile = min(tile, max(MIN_TILE_PIXELS, -(-count // (RANGES_PER_THREAD * threads))))
+    return tile
 
 
 @wp.func
@@ -155,7 +164,7 @@ def launch_pixels(
         [prepared.data, derivs, spp, seed, image, stderr, jacobian, wp.array(indices, dtype=wp.int32, device=device)],
         threads=threads,
         device=device,
-        chunk=tile_pixels(spp),
+        chunk=tile_pixels(spp, count, max(1, min(threads or default_threads(), count))),
         progress=progress,
     )
     return prepared, image, stderr, jacobian
