@@ -49,6 +49,9 @@ from warp_hair.renderer.prepare import prepare
 from warp_hair.renderer.render import render
 from warp_hair.torch import render_torch_pair, scene_with_controls
 
+from .arrangement import columns as arrangement_columns
+from .arrangement import estimate as estimate_arrangement
+from .arrangement import record as arrangement_record
 from .goodness import Goodness, goodness_of_fit, quantisation_variances
 from .latents import SPECS, as_values, hair_and_gain, parse_control_names
 from .linearize import Linearization, linearize
@@ -112,6 +115,7 @@ class FitResult:
     camera: dict | None = None  # a photo target's fitted gains and white balance with their σ (camera.report)
     goodness: Goodness | None = None  # the measure of fit at the result (goodness.py); None when not estimated
     failures: list = field(default_factory=list)  # why the fit failed (verdict.py); empty when it did not
+    arrangement: dict | None = None  # how the strands lie, estimated at the fit's end (arrangement.py `record`)
 
     @property
     def failed(self) -> bool:
@@ -631,10 +635,53 @@ class FitRun:
         descent = self.descend()
         refinement = self.refine(descent)
         evaluation = self.evaluate(descent, refinement)
-        uncertainty = goodness = None
+        uncertainty = goodness = arrangement = None
         if self.settings.uncertainty and not evaluation.interrupted:
             uncertainty, goodness = self.uncertainty(evaluation, refinement)
-        return self.result(descent, refinement, evaluation, uncertainty, goodness)
+            arrangement = self.arrangement(evaluation, uncertainty)
+        return self.result(descent, refinement, evaluation, uncertainty, goodness, arrangement)
+
+    def arrangement(self, evaluation: Evaluation, uncertainty: Uncertainty) -> dict | None:
+        """How the strands lie, estimated with the look at the fit's end (arrangement.py), where the target states
+        a prior over it with continuous keys; None elsewhere."""
+        prior = self.target.arrangement if self.random else None
+        if prior is None or not prior.continuous or uncertainty is None:
+            return None
+        lin = evaluation.linearization
+        keys = prior.continuous
+        count = self.settings.realisation_samples
+        bar = tqdm(total=count, desc="arrangement", unit="real", disable=not self.progress)
+        try:
+            middles, crn = [], []
+            for k in range(count):  # one at a time, for the bar
+                m, c = arrangement_columns(
+                    self.target,
+                    prior,
+                    lin.values,
+                    keys,
+                    1,
+                    self.final_spp,
+                    iteration_seed(self.settings.seed, 2**31 + 1000 + k, 0),
+                    self.settings,
+                    threads=self.settings.threads,
+                    gains=None if lin.camera is None else lin.camera.gains.per_channel.astype(np.float32),
+                    rows=lin.residuals.shape[1],
+                    card_rows=lin.card_rows,
+                    first=k,
+                )
+                middles.append(m[0])
+                crn.append(c[0])
+                bar.update()
+        finally:
+            bar.close()
+        middles, crn = np.array(middles), np.array(crn)
+        if lin.camera is not None:  # the loss minimised over a photo's gains: their columns projected out
+            middles = np.stack([lin.camera.apply(m) for m in middles])
+            crn = np.stack([lin.camera.apply(c) for c in crn])
+        names = list(lin.values)
+        variance = np.concatenate([np.atleast_1d(uncertainty.uncertainties[name]) for name in names]) ** 2
+        found = estimate_arrangement(prior, keys, lin.mean_jacobian, lin.loss_weights, middles, crn, variance)
+        return arrangement_record(prior, found, names, lin.values, variance, count, self.final_spp)
 
     def result(
         self,
@@ -643,6 +690,7 @@ class FitRun:
         evaluation: Evaluation,
         uncertainty: Uncertainty | None,
         goodness: Goodness | None = None,
+        arrangement: dict | None = None,
     ) -> FitResult:
         warnings = [] if refinement is None else list(refinement.warnings)
         note = interpenetration_note(self.target)
@@ -684,7 +732,9 @@ class FitRun:
                 camera_report,
                 goodness,
                 () if uncertainty is None else uncertainty.undetermined,
-            ),
+            )
+            + ([] if arrangement is None else arrangement["failures"]),
+            arrangement=arrangement,
         )
 
     def camera_report(self, evaluation: Evaluation, refinement: Refinement | None) -> dict | None:

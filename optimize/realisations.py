@@ -42,6 +42,10 @@ our render noise, independent between the passes, drops out of it in expectation
 covariance per residual, v, is how much a realisation's image varies: the target differs from any realisation
 we render by about 2v, which the noise term's scatter s² would otherwise count as the target's noise
 (uncertainty.py), so it is taken out of s² there.
+
+With a prior over how the strands lie (target.toml [arrangement], arrangement.py), every realisation here also
+draws those recipe parameters from it: Ī above is then the image averaged over the prior too, and the realisation
+term counts the arrangement's spread with the seed's.
 """
 
 from __future__ import annotations
@@ -52,6 +56,8 @@ import numpy as np
 
 from warp_hair.realisation import check_realisable, realisation
 from warp_hair.renderer.prepare import prepare
+
+from .arrangement import fiber_seed
 
 REALISATION_MODES = ("fixed", "random")
 # Realisations the fit draws its pairs from. Each costs a generator run and a BVH per image (0.2 s each for the
@@ -78,8 +84,11 @@ class Realisations:
     def scenes(self, index: int) -> list:
         """Realisation `index` of every image's scene, prepared (the images show the same strands)."""
         if index not in self._prepared:
+            prior = getattr(self.target, "arrangement", None)
+            # One draw for all images: they show the same strands (their scenes' [fibers] agree: target.py).
+            recipe = None if prior is None else prior.draw(fiber_seed(self.target.images[0].scene), index)
             self._prepared[index] = [
-                prepare(realisation(image.scene, index), self.device) for image in self.target.images
+                prepare(realisation(image.scene, index, recipe), self.device) for image in self.target.images
             ]
         return self._prepared[index]
 
