@@ -361,7 +361,7 @@ def record(arrangement: Arrangement, found: Estimate, names, values: dict, look_
             label: float(np.sqrt(max(total - part, 0.0)))
             for label, total, part in zip(labels, look_variance, found.arrangement_variance)
         },
-        "look_sigma_arrangement_estimated": {label: float(v) for label, v in zip(labels, found.look_sigma_joint)},
+        "look_sigma_joint_step_spread": {label: float(v) for label, v in zip(labels, found.look_sigma_joint)},
         "samples": samples,
         "spp": spp,
         "method": "one linearised joint step at the fit's end from the prior's middle; CRN central differences "
