@@ -51,8 +51,9 @@ the paths' random numbers, so their difference holds the motion's effect and lit
 Reported (params.json "arrangement", the printed table): per continuous key its estimate ± σ (σ from the spread of
 the joint step over the K realisations, each's deviation from their mean: the seed's spread and our render noise),
 its prior; per look component the arrangement's share of its variance, diag(G B Σ_θ Bᵀ Gᵀ) / σ² with G = H⁻¹AᵀW
-the look's gain and Σ_θ the prior's covariance (first order), and its σ were θ known (the realisation term without
-the arrangement's share) and were θ estimated (the joint step's).
+the look's gain and Σ_θ the prior's covariance (first order: the part of the realisation term that these columns
+count exactly, realisations.py `realisation_spread`), and its σ were θ known (the realisation term without the
+arrangement's share) and were θ estimated (the joint step's).
 """
 
 from __future__ import annotations
@@ -283,10 +284,20 @@ class Estimate:
         return np.sqrt(np.diag(self.covariance))
 
 
-def estimate(arrangement: Arrangement, keys, look_jacobian, weights, middles, crn_columns, look_variance) -> Estimate:
+def estimate(
+    arrangement: Arrangement,
+    keys,
+    look_jacobian,
+    weights,
+    middles,
+    crn_columns,
+    look_variance,
+    arrangement_variance=None,
+) -> Estimate:
     """The joint linearised step from (x̂, θ̄) (module docstring). look_jacobian (N, p): the fit's A at x̂;
     weights (N,); middles (K, N) and crn_columns (K, N, q) from `columns`; look_variance (p,): the fit's σ² of the
-    look (for the share)."""
+    look (for the share); arrangement_variance (p,): the arrangement's part of it, as the fit's realisation term
+    counts it (realisations.py `realisation_spread`); default: first order through the look's own gain."""
     b = crn_columns.mean(axis=0)
     k = len(middles)
     joint = np.concatenate([look_jacobian, b], axis=1)
@@ -298,11 +309,10 @@ def estimate(arrangement: Arrangement, keys, look_jacobian, weights, middles, cr
     spread = (gain @ deviations.T).T  # (K, p + q)
     covariance = spread.T @ spread / max(k - 1, 1)
     p = look_jacobian.shape[1]
-    look_gain = (
-        np.linalg.pinv(look_jacobian.T @ (weights[:, None] * look_jacobian)) @ (look_jacobian * weights[:, None]).T
-    )
-    moved = look_gain @ b  # (p, q): how the look follows θ
-    arrangement_variance = np.einsum("pq,qr,pr->p", moved, arrangement.covariance(keys), moved)
+    if arrangement_variance is None:
+        normal_look = look_jacobian.T @ (weights[:, None] * look_jacobian)
+        moved = np.linalg.pinv(normal_look) @ (look_jacobian * weights[:, None]).T @ b  # (p, q): how the look follows θ
+        arrangement_variance = np.einsum("pq,qr,pr->p", moved, arrangement.covariance(keys), moved)
     value = np.array([arrangement.middle[key] for key in keys]) + step[p:]
     return Estimate(
         list(keys),

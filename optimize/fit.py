@@ -326,6 +326,9 @@ class FitRun:
 
     def __init__(self, target: Target, settings: FitSettings, progress: bool = True):
         self.target, self.settings, self.progress = target, settings, progress
+        # (the arrangement's CRN middles and columns, the realisation term, the Birge factor) `uncertainty` made
+        # for `arrangement`; no columns where the target states no prior over how the strands lie.
+        self.spread = None, None, 1.0
         self.names = check_settings(target, settings)
         self.start = start_values(self.names, settings)
         # Renders, targets, losses and the Adam state on one device: per iteration only the controls (a few
@@ -588,7 +591,8 @@ class FitRun:
             return estimate_uncertainty(lin, mc, model_error, birge=goodness.birge), goodness
         # The noise term from one realisation's linearisation; the curvature, and the shift per unit brightness
         # (which that linearisation's own two Jacobians alone make noisy), from the pooled one.
-        term = self.realisation_term(lin)
+        columns = self.arrangement_columns(lin)
+        term = self.realisation_term(lin, columns)
         goodness = self.goodness(lin, term.variance)
         uncertainty = estimate_uncertainty(
             dataclasses.replace(term.linearization, curvature=term.pooled.curvature),
@@ -598,6 +602,7 @@ class FitRun:
             brightness_from=term.pooled,
             birge=goodness.birge,
         )
+        self.spread = columns, term, goodness.birge
         return uncertainty, goodness
 
     def goodness(self, lin: Linearization, draw=None) -> Goodness:
@@ -606,9 +611,11 @@ class FitRun:
             lin, self.target, self.settings, self.final_spp, quantisation_variances(self.target, self.settings), draw
         )
 
-    def realisation_term(self, lin: Linearization) -> RealisationTerm:
+    def realisation_term(self, lin: Linearization, arrangement=None) -> RealisationTerm:
         """K further realisations (after the pool's), each linearised at the fitted controls with both passes on
-        it: the spread of the estimate they would give (realisations.py)."""
+        it: the spread of the estimate they would give (realisations.py). `arrangement`: (middles, CRN columns) of
+        `arrangement_columns`, where the target states a prior over how the strands lie: the part of the spread
+        each realisation's draw of it makes is then counted from the prior (`realisation_spread`)."""
         count = self.settings.realisation_samples
         bar = tqdm(total=count, desc="realisations", unit="real", disable=not self.progress)
         linearizations = []
@@ -628,7 +635,12 @@ class FitRun:
                 bar.update()
         finally:
             bar.close()
-        return realisation_term(lin, linearizations)
+        control = None
+        if arrangement is not None:
+            prior, keys = self.target.arrangement, self.target.arrangement.continuous
+            draws = np.array([[self.realisations.term_drawn(k)[key] for key in keys] for k in range(count)])
+            control = (draws, arrangement[1].mean(axis=0), prior.covariance(keys))
+        return realisation_term(lin, linearizations, control)
 
     def run(self) -> FitResult:
         """Every stage in order (see the module docstring), and the FitResult of them."""
@@ -641,14 +653,13 @@ class FitRun:
             arrangement = self.arrangement(evaluation, uncertainty)
         return self.result(descent, refinement, evaluation, uncertainty, goodness, arrangement)
 
-    def arrangement(self, evaluation: Evaluation, uncertainty: Uncertainty) -> dict | None:
-        """How the strands lie, estimated with the look at the fit's end (arrangement.py), where the target states
-        a prior over it with continuous keys; None elsewhere."""
+    def arrangement_columns(self, lin: Linearization):
+        """(middles (K, N), CRN columns (K, N, q)) of the arrangement's continuous keys at the fitted look
+        (arrangement.py `columns`), in the linearisation's residuals (a photo's gains projected out), where the
+        target states a prior over how the strands lie; None elsewhere."""
         prior = self.target.arrangement if self.random else None
-        if prior is None or not prior.continuous or uncertainty is None:
+        if prior is None or not prior.continuous:
             return None
-        lin = evaluation.linearization
-        keys = prior.continuous
         count = self.settings.realisation_samples
         bar = tqdm(total=count, desc="arrangement", unit="real", disable=not self.progress)
         try:
@@ -658,7 +669,7 @@ class FitRun:
                     self.target,
                     prior,
                     lin.values,
-                    keys,
+                    prior.continuous,
                     1,
                     self.final_spp,
                     iteration_seed(self.settings.seed, 2**31 + 1000 + k, 0),
@@ -678,10 +689,23 @@ class FitRun:
         if lin.camera is not None:  # the loss minimised over a photo's gains: their columns projected out
             middles = np.stack([lin.camera.apply(m) for m in middles])
             crn = np.stack([lin.camera.apply(c) for c in crn])
-        names = list(lin.values)
+        return middles, crn
+
+    def arrangement(self, evaluation: Evaluation, uncertainty: Uncertainty) -> dict | None:
+        """How the strands lie, estimated with the look at the fit's end (arrangement.py), where the target states
+        a prior over it with continuous keys; None elsewhere. Takes the columns and the realisation term that
+        `uncertainty` made (`spread`)."""
+        columns, term, birge = self.spread
+        if columns is None or uncertainty is None:
+            return None
+        lin = evaluation.linearization
+        prior, names = self.target.arrangement, list(lin.values)
         variance = np.concatenate([np.atleast_1d(uncertainty.uncertainties[name]) for name in names]) ** 2
-        found = estimate_arrangement(prior, keys, lin.mean_jacobian, lin.loss_weights, middles, crn, variance)
-        return arrangement_record(prior, found, names, lin.values, variance, count, self.final_spp)
+        part = birge**2 * np.diag(term.arrangement)  # the arrangement's part of σ², as estimate_uncertainty scales it
+        found = estimate_arrangement(
+            prior, prior.continuous, lin.mean_jacobian, lin.loss_weights, *columns, variance, part
+        )
+        return arrangement_record(prior, found, names, lin.values, variance, len(columns[0]), self.final_spp)
 
     def result(
         self,
