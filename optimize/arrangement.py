@@ -13,9 +13,11 @@ target says which of those it does not know, and over what range (opt-in: withou
     layers = [3, 5]                 # how many layers the count spreads over: integers, 1 to the count
     phase_jitter = [0.0, 0.3]       # wavy and curly only, within [0, 1]: how independent the strands' waves are
     layer_phase_jitter = [0.0, 1.0] # wavy and curly only, within [0, 1]: how independent the layers' waves are
+    clump_strength = [0.4, 0.8]     # with clumps, within [0, 1]: how far a clump's strands are pulled together
 
 Each range is a uniform prior, independent of the others (layers uniform over its integers); a range [a, a]
-fixes the key at a. `targets photo` writes jitter and layer gap (`photo_defaults`, below).
+fixes the key at a. `targets photo` writes jitter and layer gap, and with clumps their strength
+(`photo_defaults`, below).
 
 Marginalisation. Every realisation the fit renders (its pool's and the realisation term's: realisations.py)
 draws these keys from the prior along with its seed and shift, deterministically from (the scene's seed, k)
@@ -36,17 +38,18 @@ shift and the renderer with the same seed, and (I_k⁺ − I_k⁻)/(2δ) is aver
 at the end of the fit, not a key stepped inside the Gauss–Newton refinement: the look the fit reports stays the
 marginal one, and the step's look (x̂ + δx) is reported beside it as what the look would be at the estimated θ.
 
-Where the gradient is unbiased. Expectation is linear, so whatever numbers the two renders share,
-E_k[(I_k(θ + δ) − I_k(θ − δ))/(2δ)] = (Ī(θ + δ) − Ī(θ − δ))/(2δ): the quotient is unbiased for the difference
-quotient of the realisation average, always. That is ∂Ī/∂θ up to O(δ²) where Ī is smooth in θ, which holds where
-each strand moves continuously with θ and none is added, removed or redrawn: jitter and layer_gap (the strands'
-axes are affine in both, generators._swatch_axes; the default spacing and gap follow jitter smoothly) and
-phase_jitter and layer_phase_jitter (the phases are affine in them) with the number of layers held; a pixel's
-expected radiance, an integral over its footprint and over the paths, then changes smoothly even while single
-strands' edges cross it. It does not hold for `layers`: another number of layers redraws which strand lies where,
-so layers is marginalised only. What the common numbers buy is variance: the two renders share the strands' and
-the paths' random numbers, so their difference holds the motion's effect and little of the draws'
-(tests/test_arrangement.py measures both against independently estimated realisation means).
+Where the gradient is unbiased. Expectation is linear, so whatever numbers the two renders share, E_k[(I_k(θ + δ) −
+I_k(θ − δ))/(2δ)] = (Ī(θ + δ) − Ī(θ − δ))/(2δ): the quotient is unbiased for the difference quotient of the
+realisation average, always. That is ∂Ī/∂θ up to O(δ²) where Ī is smooth in θ, which holds where each strand moves
+continuously with θ and none is added, removed or redrawn: jitter and layer_gap (the strands' axes are affine in
+both, generators._swatch_axes; the default spacing and gap follow jitter smoothly) and phase_jitter and
+layer_phase_jitter (the phases are affine in them), and clump_strength (a strand's pull toward its guide is affine
+in it, generators._clump; the guides are drawn apart from it) with the number of layers held; a pixel's expected
+radiance, an integral over its footprint and over the paths, then changes smoothly even while single strands' edges
+cross it. It does not hold for `layers`: another number of layers redraws which strand lies where, so layers is
+marginalised only. What the common numbers buy is variance: the two renders share the strands' and the paths'
+random numbers, so their difference holds the motion's effect and little of the draws' (tests/test_arrangement.py
+measures both against independently estimated realisation means).
 
 Reported (params.json "arrangement", the printed table): per continuous key its estimate ± σ (σ from the spread of
 the joint step over the K realisations, each's deviation from their mean: the seed's spread and our render noise),
@@ -78,6 +81,7 @@ KEYS = {
     "layers": (("swatch", "wavy", "curly"), "integers from 1 to the count", lambda v: v >= 1),
     "phase_jitter": (("wavy", "curly"), "within [0, 1]", lambda v: 0 <= v <= 1),
     "layer_phase_jitter": (("wavy", "curly"), "within [0, 1]", lambda v: 0 <= v <= 1),
+    "clump_strength": (("swatch", "wavy", "curly"), "within [0, 1], with clumps", lambda v: 0 <= v <= 1),
 }
 DISCRETE = ("layers",)  # marginalised only: another value redraws the strands (module docstring)
 # The central difference's half step, of each key's prior width.
@@ -88,6 +92,9 @@ OUTSIDE_Z = 3.0
 # the generator's most) and the gap between layers from touching (2 radii) to 1.75 radii of air between them.
 PHOTO_JITTER = (0.05, 0.4)
 PHOTO_GAP_RADII = (2.0, 3.75)
+# And for clumps, how far their strands are pulled together (clump_strength): read off a photo by how far the
+# tips close, to about this either side of what the recipe says, within [0, 1].
+PHOTO_CLUMP_STRENGTH = 0.2
 
 
 @dataclasses.dataclass(frozen=True)
@@ -181,7 +188,14 @@ def photo_defaults(fibers: dict) -> dict:
     if fibers.get("generator") not in KEYS["jitter"][0]:
         return {}
     radius = float(fibers["radius"])
-    return {"jitter": list(PHOTO_JITTER), "layer_gap": [round(r * radius, 6) for r in PHOTO_GAP_RADII]}
+    prior = {"jitter": list(PHOTO_JITTER), "layer_gap": [round(r * radius, 6) for r in PHOTO_GAP_RADII]}
+    if fibers.get("clumps"):
+        strength = float(fibers.get("clump_strength", 0.5))  # the generator's default
+        prior["clump_strength"] = [
+            round(max(0.0, strength - PHOTO_CLUMP_STRENGTH), 6),
+            round(min(1.0, strength + PHOTO_CLUMP_STRENGTH), 6),
+        ]
+    return prior
 
 
 # --- estimation at the fit's end --------------------------------------------------------------------------------

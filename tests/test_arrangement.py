@@ -58,6 +58,9 @@ def _target(tmp_path, table: str, realisations='realisations = "random"\n', gene
         ("[arrangement]\nlayers = [1, 40]\n", r"layers = \[1, 40\]: at most the count \(30\)"),
         ("[arrangement]\nlayers = [1.0, 3.0]\n", r"layers must be a range of integers"),
         ("[arrangement]\nphase_jitter = [0, 1]\n", r"generator 'swatch' does not take phase_jitter"),
+        ("[arrangement]\nclump_strength = [0.2, 1.2]\n", r"clump_strength = \[0.2, 1.2\]: outside .*within \[0, 1\]"),
+        # A swatch without clumps has no strength to vary: the generator's rule, at a corner.
+        ("[arrangement]\nclump_strength = [0.2, 0.6]\n", r"the generator says: clump_strength needs clumps"),
         # Twelve layers 0.02 apart are deeper than the drape's radius (0.2): the generator's rule, at a corner.
         ("[arrangement]\nlayers = [2, 12]\nlayer_gap = [0.01, 0.02]\n", r"at \{.*\}: the generator says: drape"),
     ],
@@ -168,5 +171,10 @@ def test_photo_defaults_state_what_a_photographer_cannot_measure():
         "jitter": [0.05, 0.4],
         "layer_gap": [0.008, 0.015],
     }
+    # With clumps, how far they close, as read off the tips: the recipe's strength ± 0.2 within [0, 1].
+    clumped = {"generator": "wavy", "radius": 0.004, "clumps": 10, "clump_strength": 0.9}
+    assert photo_defaults(clumped)["clump_strength"] == [0.7, 1.0]
+    assert photo_defaults({**clumped, "clump_strength": 0.6})["clump_strength"] == [0.4, 0.8]
+    assert "clump_strength" not in photo_defaults({"generator": "swatch", "radius": 0.004, "clumps": 0})
     assert photo_defaults({"generator": "fur", "root_radius": 0.001}) == {}
     assert Arrangement({"jitter": (0.1, 0.1)}).continuous == []  # a point is fixed, not estimated
