@@ -380,6 +380,9 @@ def record(arrangement: Arrangement, found: Estimate, names, values: dict, look_
             for key, v, s in zip(found.keys, found.value, found.sigma())
         },
         "look_at_estimate": look,
+        # Components the linear step takes outside their control's range (an albedo below 0, say): there one
+        # step from the prior's middle is no look, only the direction the arrangement pulls it.
+        "look_at_estimate_outside": _outside_ranges(look, labels),
         "look_share_of_variance": {label: float(v) for label, v in zip(labels, found.share)},
         "look_sigma_arrangement_known": {
             label: float(np.sqrt(max(total - part, 0.0)))
@@ -392,3 +395,17 @@ def record(arrangement: Arrangement, found: Estimate, names, values: dict, look_
         "(optimize/arrangement.py); the fitted values stay those averaged over the prior",
         "failures": outside_prior(arrangement, found),
     }
+
+
+def _outside_ranges(look: dict, labels) -> list[str]:
+    """The labels of `look`'s components outside their control's allowed range (warp_hair.controls)."""
+    from warp_hair.controls import CONTROLS
+
+    flat = [
+        (name, value) for name, values in look.items() for value in (values if isinstance(values, list) else [values])
+    ]
+    return [
+        label
+        for label, (name, value) in zip(labels, flat)
+        if (name in CONTROLS and not CONTROLS[name].contains(value)) or (name not in CONTROLS and value <= 0)
+    ]

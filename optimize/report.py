@@ -503,7 +503,14 @@ def arrangement_table(result: FitResult) -> str:
     lines.append(
         "  its share of the look's variance: " + ", ".join(f"{label} {100 * v:.0f}%" for label, v in shares.items())
     )
-    lines.append("  the look at that arrangement: " + _describe_look(found["look_at_estimate"]))
+    outside = found.get("look_at_estimate_outside") or []
+    if outside:
+        lines.append(
+            f"  the look at that arrangement: beyond one linear step ({', '.join(outside)} outside the controls' "
+            "ranges; params.json has the step)"
+        )
+    else:
+        lines.append("  the look at that arrangement: " + _describe_look(found["look_at_estimate"]))
     return "\n".join(lines)
 
 

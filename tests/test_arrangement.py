@@ -163,7 +163,21 @@ def test_columns_follow_the_prior_and_a_fit_reports_the_arrangement(tmp_path):
     assert np.isfinite(entry["value"]) and entry["sigma"] > 0 and entry["prior"] == [0.05, 0.35]
     assert set(found["look_share_of_variance"]) == {"albedo[r]", "albedo[g]", "albedo[b]", "beta_m", "beta_n"}
     assert all(v >= 0 for v in found["look_share_of_variance"].values())
+    assert isinstance(found["look_at_estimate_outside"], list)
     json.dumps(found)  # params.json can hold it
+
+
+def test_a_look_the_linear_step_takes_outside_the_controls_ranges_is_named():
+    """One linear step from the prior's middle can land on an albedo below 0 (a photo of Blender's straight
+    swatch did): the record names those components, and the report prints no look there."""
+    from optimize.arrangement import _outside_ranges
+
+    labels = ["albedo[r]", "albedo[g]", "albedo[b]", "beta_m", "beta_n"]
+    assert _outside_ranges({"albedo": [-0.04, 0.01, 1.2], "beta_m": 0.3, "beta_n": 0.4}, labels) == [
+        "albedo[r]",
+        "albedo[b]",
+    ]
+    assert _outside_ranges({"albedo": [0.3, 0.2, 0.1], "beta_m": 0.3, "beta_n": 0.4}, labels) == []
 
 
 def test_photo_defaults_state_what_a_photographer_cannot_measure():
