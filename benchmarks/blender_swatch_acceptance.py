@@ -411,6 +411,7 @@ def make(name, spp, threads, out, root):
     ]
     for view in LIGHTS:
         target += ["", "[[images]]", f'scene = "scene_{view}.toml"', f'image = "{view}.exr"']
+    target += ["", *arrangement_lines(fibers)]
     (directory / "target.toml").write_text("\n".join(target) + "\n", encoding="utf-8")
     (directory / "truth.json").write_text(json.dumps(truth(name), indent=2) + "\n", encoding="utf-8")
     (directory / "blender.json").write_text(json.dumps(record, indent=2) + "\n", encoding="utf-8")
@@ -458,9 +459,22 @@ def make_photo(name, root, out):
     return directory
 
 
-def target_names(names) -> list[str]:
-    """The targets of swatches `names`: the EXR one and the photo one of each."""
-    return [t for name in names for t in (f"blender_{name}", f"blender_{name}_{SWATCHES[name]['photo']}")]
+def arrangement_lines(fibers) -> list[str]:
+    """The EXR targets' [arrangement]: what `targets photo` writes for the same recipe (issue 43, item 1)."""
+    from optimize.arrangement import photo_defaults
+
+    return [
+        "# How the strands lie, which the recipe cannot say: the prior `targets photo` writes",
+        "# (optimize/arrangement.py).",
+        "[arrangement]",
+        *(f"{key} = [{low}, {high}]" for key, (low, high) in photo_defaults(fibers).items()),
+    ]
+
+
+def target_names(names, exr_only=False) -> list[str]:
+    """The targets of swatches `names`: the EXR one and (unless `exr_only`) the photo one of each."""
+    kinds = ("",) if exr_only else ("", "_{photo}")
+    return [f"blender_{name}" + kind.format(photo=SWATCHES[name]["photo"]) for name in names for kind in kinds]
 
 
 def run_fit(target, root, out, threads):
@@ -487,7 +501,7 @@ def _flat(values: dict) -> np.ndarray:
     return np.concatenate([np.atleast_1d(np.asarray(values[name], dtype=np.float64)) for name in CONTROLS])
 
 
-def table(names, root, out) -> str:
+def table(names, root, out, exr_only=False) -> str:
     from optimize.settings import BOUNDS
 
     bounds = np.array([BOUNDS["albedo"]] * 3 + [BOUNDS["beta_m"], BOUNDS["beta_n"]])
@@ -497,7 +511,7 @@ def table(names, root, out) -> str:
         "| --- | --- | --- | --- | --- | --- | --- | --- | --- |",
     ]
     ratios, kept = [], []
-    for target in target_names(names):
+    for target in target_names(names, exr_only):
         fit_dir = out / "fits" / target
         if not (fit_dir / "run.json").is_file():
             continue
@@ -583,6 +597,7 @@ def main(argv=None) -> None:
     parser.add_argument("--targets", type=Path, default=ROOT / "targets", help="where the targets go")
     parser.add_argument("--spp", type=int, default=None, help="make: Cycles' samples (1024); compare: ours (256)")
     parser.add_argument("--threads", type=int, help="make: Cycles' (2); fit: warp-hair's (its default: all cores)")
+    parser.add_argument("--exr-only", action="store_true", help="fit, table: the linear-EXR targets only")
     args = parser.parse_args(argv)
     names = args.names or list(SWATCHES)
     unknown = sorted(set(names) - set(SWATCHES))
@@ -596,10 +611,10 @@ def main(argv=None) -> None:
         for name in names:
             print(make_photo(name, args.targets, args.out), flush=True)
     elif args.action == "fit":
-        for target in target_names(names):
+        for target in target_names(names, args.exr_only):
             run_fit(target, args.targets, args.out, args.threads)
     elif args.action == "table":
-        print(table(names, args.targets, args.out))
+        print(table(names, args.targets, args.out, args.exr_only))
     else:
         for name in names:
             compare(name, args.spp or 256, args.threads or 2, args.out, args.targets)

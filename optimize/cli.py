@@ -188,7 +188,7 @@ def run_fit(args: argparse.Namespace) -> int:
     from .camera import fitted as fitted_camera
     from .card_region import summary as card_summary
     from .fit import fit
-    from .report import camera_table, describe_run, format_table, photo_summary, write_outputs
+    from .report import arrangement_table, camera_table, describe_run, format_table, photo_summary, write_outputs
     from .target import load_target, true_values
 
     render_cli.check_sampling_args(args)
@@ -243,6 +243,8 @@ def run_fit(args: argparse.Namespace) -> int:
     print(format_table(result, true_values(target, result.values), target.origin))
     if result.camera is not None:
         print(camera_table(result))
+    if result.arrangement is not None:
+        print(arrangement_table(result))
     run = describe_run(result.iterations, result.stop_reason, result.history.refine)
     print(f"{run}, {result.seconds:.0f} s, final loss {result.loss:.4g}")
     if result.goodness is not None:

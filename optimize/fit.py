@@ -49,6 +49,9 @@ from warp_hair.renderer.prepare import prepare
 from warp_hair.renderer.render import render
 from warp_hair.torch import render_torch_pair, scene_with_controls
 
+from .arrangement import columns as arrangement_columns
+from .arrangement import estimate as estimate_arrangement
+from .arrangement import record as arrangement_record
 from .goodness import Goodness, goodness_of_fit, quantisation_variances
 from .latents import SPECS, as_values, hair_and_gain, parse_control_names
 from .linearize import Linearization, linearize
@@ -112,6 +115,7 @@ class FitResult:
     camera: dict | None = None  # a photo target's fitted gains and white balance with their σ (camera.report)
     goodness: Goodness | None = None  # the measure of fit at the result (goodness.py); None when not estimated
     failures: list = field(default_factory=list)  # why the fit failed (verdict.py); empty when it did not
+    arrangement: dict | None = None  # how the strands lie, estimated at the fit's end (arrangement.py `record`)
 
     @property
     def failed(self) -> bool:
@@ -322,6 +326,9 @@ class FitRun:
 
     def __init__(self, target: Target, settings: FitSettings, progress: bool = True):
         self.target, self.settings, self.progress = target, settings, progress
+        # (the arrangement's CRN middles and columns, the realisation term, the Birge factor) `uncertainty` made
+        # for `arrangement`; no columns where the target states no prior over how the strands lie.
+        self.spread = None, None, 1.0
         self.names = check_settings(target, settings)
         self.start = start_values(self.names, settings)
         # Renders, targets, losses and the Adam state on one device: per iteration only the controls (a few
@@ -584,7 +591,8 @@ class FitRun:
             return estimate_uncertainty(lin, mc, model_error, birge=goodness.birge), goodness
         # The noise term from one realisation's linearisation; the curvature, and the shift per unit brightness
         # (which that linearisation's own two Jacobians alone make noisy), from the pooled one.
-        term = self.realisation_term(lin)
+        columns = self.arrangement_columns(lin)
+        term = self.realisation_term(lin, columns)
         goodness = self.goodness(lin, term.variance)
         uncertainty = estimate_uncertainty(
             dataclasses.replace(term.linearization, curvature=term.pooled.curvature),
@@ -594,6 +602,7 @@ class FitRun:
             brightness_from=term.pooled,
             birge=goodness.birge,
         )
+        self.spread = columns, term, goodness.birge
         return uncertainty, goodness
 
     def goodness(self, lin: Linearization, draw=None) -> Goodness:
@@ -602,9 +611,11 @@ class FitRun:
             lin, self.target, self.settings, self.final_spp, quantisation_variances(self.target, self.settings), draw
         )
 
-    def realisation_term(self, lin: Linearization) -> RealisationTerm:
+    def realisation_term(self, lin: Linearization, arrangement=None) -> RealisationTerm:
         """K further realisations (after the pool's), each linearised at the fitted controls with both passes on
-        it: the spread of the estimate they would give (realisations.py)."""
+        it: the spread of the estimate they would give (realisations.py). `arrangement`: (middles, CRN columns) of
+        `arrangement_columns`, where the target states a prior over how the strands lie: the part of the spread
+        each realisation's draw of it makes is then counted from the prior (`realisation_spread`)."""
         count = self.settings.realisation_samples
         bar = tqdm(total=count, desc="realisations", unit="real", disable=not self.progress)
         linearizations = []
@@ -624,17 +635,77 @@ class FitRun:
                 bar.update()
         finally:
             bar.close()
-        return realisation_term(lin, linearizations)
+        control = None
+        if arrangement is not None:
+            prior, keys = self.target.arrangement, self.target.arrangement.continuous
+            draws = np.array([[self.realisations.term_drawn(k)[key] for key in keys] for k in range(count)])
+            control = (draws, arrangement[1].mean(axis=0), prior.covariance(keys))
+        return realisation_term(lin, linearizations, control)
 
     def run(self) -> FitResult:
         """Every stage in order (see the module docstring), and the FitResult of them."""
         descent = self.descend()
         refinement = self.refine(descent)
         evaluation = self.evaluate(descent, refinement)
-        uncertainty = goodness = None
+        uncertainty = goodness = arrangement = None
         if self.settings.uncertainty and not evaluation.interrupted:
             uncertainty, goodness = self.uncertainty(evaluation, refinement)
-        return self.result(descent, refinement, evaluation, uncertainty, goodness)
+            arrangement = self.arrangement(evaluation, uncertainty)
+        return self.result(descent, refinement, evaluation, uncertainty, goodness, arrangement)
+
+    def arrangement_columns(self, lin: Linearization):
+        """(middles (K, N), CRN columns (K, N, q)) of the arrangement's continuous keys at the fitted look
+        (arrangement.py `columns`), in the linearisation's residuals (a photo's gains projected out), where the
+        target states a prior over how the strands lie; None elsewhere."""
+        prior = self.target.arrangement if self.random else None
+        if prior is None or not prior.continuous:
+            return None
+        count = self.settings.realisation_samples
+        bar = tqdm(total=count, desc="arrangement", unit="real", disable=not self.progress)
+        try:
+            middles, crn = [], []
+            for k in range(count):  # one at a time, for the bar
+                m, c = arrangement_columns(
+                    self.target,
+                    prior,
+                    lin.values,
+                    prior.continuous,
+                    1,
+                    self.final_spp,
+                    iteration_seed(self.settings.seed, 2**31 + 1000 + k, 0),
+                    self.settings,
+                    threads=self.settings.threads,
+                    gains=None if lin.camera is None else lin.camera.gains.per_channel.astype(np.float32),
+                    rows=lin.residuals.shape[1],
+                    card_rows=lin.card_rows,
+                    first=k,
+                )
+                middles.append(m[0])
+                crn.append(c[0])
+                bar.update()
+        finally:
+            bar.close()
+        middles, crn = np.array(middles), np.array(crn)
+        if lin.camera is not None:  # the loss minimised over a photo's gains: their columns projected out
+            middles = np.stack([lin.camera.apply(m) for m in middles])
+            crn = np.stack([lin.camera.apply(c) for c in crn])
+        return middles, crn
+
+    def arrangement(self, evaluation: Evaluation, uncertainty: Uncertainty) -> dict | None:
+        """How the strands lie, estimated with the look at the fit's end (arrangement.py), where the target states
+        a prior over it with continuous keys; None elsewhere. Takes the columns and the realisation term that
+        `uncertainty` made (`spread`)."""
+        columns, term, birge = self.spread
+        if columns is None or uncertainty is None:
+            return None
+        lin = evaluation.linearization
+        prior, names = self.target.arrangement, list(lin.values)
+        variance = np.concatenate([np.atleast_1d(uncertainty.uncertainties[name]) for name in names]) ** 2
+        part = birge**2 * np.diag(term.arrangement)  # the arrangement's part of σ², as estimate_uncertainty scales it
+        found = estimate_arrangement(
+            prior, prior.continuous, lin.mean_jacobian, lin.loss_weights, *columns, variance, part
+        )
+        return arrangement_record(prior, found, names, lin.values, variance, len(columns[0]), self.final_spp)
 
     def result(
         self,
@@ -643,6 +714,7 @@ class FitRun:
         evaluation: Evaluation,
         uncertainty: Uncertainty | None,
         goodness: Goodness | None = None,
+        arrangement: dict | None = None,
     ) -> FitResult:
         warnings = [] if refinement is None else list(refinement.warnings)
         note = interpenetration_note(self.target)
@@ -684,7 +756,9 @@ class FitRun:
                 camera_report,
                 goodness,
                 () if uncertainty is None else uncertainty.undetermined,
-            ),
+            )
+            + ([] if arrangement is None else arrangement["failures"]),
+            arrangement=arrangement,
         )
 
     def camera_report(self, evaluation: Evaluation, refinement: Refinement | None) -> dict | None:

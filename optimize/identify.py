@@ -309,7 +309,7 @@ def check_target(
             correlation[i] = (labels[j], float(rho[i, j]))
     realisation, realisation_samples, draw = None, 0, None
     if random:
-        covariance, draw = realisation_spread(h_inv @ ((total / n) * w[:, None]).T, others)
+        covariance, draw, _ = realisation_spread(h_inv @ ((total / n) * w[:, None]).T, others)
         realisation, realisation_samples = np.sqrt(np.maximum(np.diag(covariance), 0.0)), len(others)
     fit_noise, fit_points, fit_spp, cov_fit = None, 0, 0, None
     steps = refine_steps(settings, target, max(target_spp))

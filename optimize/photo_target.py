@@ -24,7 +24,10 @@ on a card, `fur` a patch of fur (`--patch`, `--fur-length`, `--count`). A swatch
 `--phase-jitter` and `--layer-phase-jitter`), and may gather into `--clumps N` (`--clump-strength`) and have
 `--strays N` (`--stray-lift`) leave the front surface; a thick swatch is more `--layers` (and `--count`).
 The rig's strands are a recipe, never the photographed ones, so target.toml says `realisations = "random"`: the
-fit renders other realisations of it (optimize/realisations.py). The camera: orthographic (`--ortho-width`,
+fit renders other realisations of it (optimize/realisations.py). How a swatch's strands lie, which no photographer
+measures (jitter, the gap between layers), is written as a prior the fit averages over and estimates,
+target.toml's [arrangement] (optimize/arrangement.py, `photo_defaults`: jitter 0.05 to 0.4, a gap of 2 to 3.75
+fiber radii); edit or delete it there. The camera: orthographic (`--ortho-width`,
 the view's width in scene units), or perspective at `--distance` with `--fov`, or EXIF's focal length with
 `--sensor-width` (mm; the 35 mm equivalent focal length's 36 mm when EXIF gives that). A grey card behind the
 swatch (`--card REFLECTANCE`) is rendered as the scenes' [card]: its pixels pin the gains and white balance. A
@@ -56,6 +59,8 @@ from warp_hair.geometry.generators import CURL_SEGMENTS, WAVE_SEGMENTS
 from warp_hair.io import write_exr
 from warp_hair.photo import read_photo
 from warp_hair.scene import GENERATORS, EnvironmentLight
+
+from .arrangement import photo_defaults
 
 RIGS = ("draped", "flat", "fur")
 FOV_TOLERANCE = 0.02
@@ -438,11 +443,19 @@ def make_photo_target(out_dir, args, log=None) -> list[Path]:
     ]
     if any(mask is not None for mask in card_masks):
         lines += ["", _table("card", {"reflectance": args.card_reflectance, "normal": args.card_normal})]
+    prior = photo_defaults(fibers)
+    if prior:
+        lines += [
+            "",
+            "# How the strands lie, which a photo does not say: a prior the fit averages over and estimates",
+            "# (optimize/arrangement.py); narrow it where you know better.",
+            _table("arrangement", prior),
+        ]
     for entry in entries:
         lines += ["", "[[images]]"] + [f"{key} = {_toml(value)}" for key, value in entry.items()]
     (out_dir / "target.toml").write_text("\n".join(lines) + "\n", encoding="utf-8")
     written.append(out_dir / "target.toml")
-    if any(mask is not None for mask in card_masks):
+    if any(mask is not None for mask in card_masks) or prior:
         from .target import load_target
 
         load_target(out_dir)  # the card checked as a fit will read it: its normal against the camera, its light

@@ -42,6 +42,10 @@ our render noise, independent between the passes, drops out of it in expectation
 covariance per residual, v, is how much a realisation's image varies: the target differs from any realisation
 we render by about 2v, which the noise term's scatter s² would otherwise count as the target's noise
 (uncertainty.py), so it is taken out of s² there.
+
+With a prior over how the strands lie (target.toml [arrangement], arrangement.py), every realisation here also
+draws those recipe parameters from it: Ī above is then the image averaged over the prior too, and the realisation
+term counts the arrangement's spread with the seed's.
 """
 
 from __future__ import annotations
@@ -52,6 +56,8 @@ import numpy as np
 
 from warp_hair.realisation import check_realisable, realisation
 from warp_hair.renderer.prepare import prepare
+
+from .arrangement import fiber_seed
 
 REALISATION_MODES = ("fixed", "random")
 # Realisations the fit draws its pairs from. Each costs a generator run and a BVH per image (0.2 s each for the
@@ -78,10 +84,21 @@ class Realisations:
     def scenes(self, index: int) -> list:
         """Realisation `index` of every image's scene, prepared (the images show the same strands)."""
         if index not in self._prepared:
+            recipe = self.drawn(index)
             self._prepared[index] = [
-                prepare(realisation(image.scene, index), self.device) for image in self.target.images
+                prepare(realisation(image.scene, index, recipe), self.device) for image in self.target.images
             ]
         return self._prepared[index]
+
+    def drawn(self, index: int) -> dict | None:
+        """How realisation `index`'s strands lie, drawn from the target's [arrangement] prior (arrangement.py); None
+        without one. One draw for all images: they show the same strands (their scenes' [fibers] agree: target.py)."""
+        prior = getattr(self.target, "arrangement", None)
+        return None if prior is None else prior.draw(fiber_seed(self.target.images[0].scene), index)
+
+    def term_drawn(self, k: int) -> dict | None:
+        """`drawn` for the k-th realisation of the realisation term (`term_scenes`)."""
+        return self.drawn(self.pool + 1 + k)
 
     def term_scenes(self, k: int) -> list:
         """The k-th realisation (k = 0, 1, …) the realisation term renders: after the pool's, so never one the fit
@@ -102,6 +119,7 @@ class RealisationTerm:
     samples: int
     pooled: object  # the fit's linearisation with the K linearisations' Jacobians pooled in (`pooled_jacobians`)
     variance: np.ndarray | None = None  # (N,) one realisation's variance per residual (goodness.py's σ²_draw)
+    arrangement: np.ndarray | None = None  # (p, p) the part of `covariance` how the strands lie makes (M Σ Mᵀ)
 
 
 def pooled_jacobians(lin, linearizations):
@@ -125,35 +143,59 @@ def estimate_gain(lin) -> np.ndarray:
     return np.linalg.pinv(lin.curvature) @ (lin.mean_jacobian * lin.loss_weights[:, None]).T
 
 
-def realisation_term(lin, linearizations) -> RealisationTerm:
+def realisation_term(lin, linearizations, arrangement=None) -> RealisationTerm:
     """The realisation covariance from K ≥ 2 linearisations at the fitted controls, each with both passes on one
     further realisation (see the module docstring); `lin` gives the Jacobian and curvature, with the K
-    linearisations' Jacobians pooled in."""
+    linearisations' Jacobians pooled in. `arrangement`: where the realisations also draw how the strands lie,
+    (their draws (K, q), the arrangement's columns (N, q), the prior's covariance (q, q)) for
+    `realisation_spread`'s control variate."""
     pooled = pooled_jacobians(lin, linearizations)
     w = pooled.loss_weights
-    covariance, variance = realisation_spread(estimate_gain(pooled), linearizations)
+    covariance, variance, part = realisation_spread(estimate_gain(pooled), linearizations, arrangement)
     first = linearizations[0]
     hair = first.hair_rows  # as scatter_estimate counts them (a grey card's rows left out)
     n, p = len(w[hair]), first.jacobians.shape[2]
     scatter = first.scatter_estimate - 2.0 * float(w[hair] @ variance[hair]) / max(n - p, 1)
     return RealisationTerm(
-        covariance, scatter, dataclasses.replace(first, scatter=scatter), len(linearizations), pooled, variance
+        covariance,
+        scatter,
+        dataclasses.replace(first, scatter=scatter),
+        len(linearizations),
+        pooled,
+        variance,
+        part,
     )
 
 
-def realisation_spread(gain: np.ndarray, linearizations) -> tuple:
-    """The cross-pass covariance (p, p) of u_k = gain · r_k over K ≥ 2 linearisations, each with both passes on
-    one realisation k (positive semi-definite), and the cross-pass variance (N,) of each residual over them.
-    `gain` (p, N) maps weighted residuals to the estimate's move, H⁻¹ Aᵀ W (the fit's, or `targets check`'s)."""
+def realisation_spread(gain: np.ndarray, linearizations, arrangement=None) -> tuple:
+    """(the cross-pass covariance (p, p) of u_k = gain · r_k over K ≥ 2 linearisations, each with both passes on
+    one realisation k (positive semi-definite); the cross-pass variance (N,) of each residual over them; the
+    arrangement's part of the covariance, or None). `gain` (p, N) maps weighted residuals to the estimate's
+    move, H⁻¹ Aᵀ W (the fit's, or `targets check`'s).
+
+    `arrangement` = (draws (K, q), columns (N, q), prior covariance Σ (q, q)): each realisation k also drew how
+    the strands lie, ψ_k, from a stated prior (arrangement.py), and `columns` are ∂r/∂ψ. From K = 8 draws the
+    part of the spread that ψ makes is as noisy as any 8-sample variance (its relative error about √(2/7), half),
+    yet that part is known to first order: M (ψ_k − ψ̄), M = gain · columns, whose covariance over the prior is
+    M Σ Mᵀ exactly. So it is taken out of each u_k and counted exactly instead (a control variate): the
+    covariance is that of the rest (the seed's part, and what is not linear in ψ) plus M Σ Mᵀ, which is the
+    third value."""
     k = len(linearizations)
     if k < 2:
         raise ValueError(f"the realisation term needs at least 2 realisations, got {k}")
     residuals = np.stack([other.residuals for other in linearizations])  # (K, 2, N)
     deviations = residuals - residuals.mean(axis=0)
     u = np.einsum("pn,khn->khp", gain, deviations)
+    part = None
+    if arrangement is not None:
+        draws, columns, prior = arrangement
+        moved = gain @ columns  # (p, q): the estimate's move per unit of each key
+        u = u - ((draws - draws.mean(axis=0)) @ moved.T)[:, None, :]
+        part = moved @ prior @ moved.T
     crossed = np.einsum("ki,kj->ij", u[:, 0], u[:, 1]) / (k - 1)
     variance = (deviations[:, 0] * deviations[:, 1]).sum(axis=0) / (k - 1)
-    return _nearest_psd(0.5 * (crossed + crossed.T)), variance
+    covariance = _nearest_psd(0.5 * (crossed + crossed.T))
+    return (covariance if part is None else covariance + part), variance, part
 
 
 def _nearest_psd(matrix: np.ndarray) -> np.ndarray:

@@ -416,6 +416,8 @@ def write_outputs(
     extra = {"picture": {picture.name: picture.record() for picture in pictures}}
     if result.camera is not None:
         extra["camera"] = result.camera
+    if result.arrangement is not None:
+        extra["arrangement"] = result.arrangement
     if any(image.photo is not None for image in target.images):
         extra["photos"] = photo_records(target)
     write_params(paths[0], result, truth, fitted_look(result, target), extra)
@@ -486,3 +488,31 @@ def camera_table(result: FitResult, truth: dict | None = None) -> str:
         + ("" if true is None else "  true " + _fmt(true, 4))
     )
     return "\n".join(lines)
+
+
+def arrangement_table(result: FitResult) -> str:
+    """How the strands lie, estimated at the fit's end ± 1σ, and its share of the look's σ (arrangement.py)."""
+    found = result.arrangement
+    if found is None:
+        return ""
+    lines = ["arrangement (target.toml [arrangement]; the look above is averaged over its prior):"]
+    for key, entry in found["estimate"].items():
+        low, high = entry["prior"]
+        lines.append(f"  {key}  {entry['value']:.4g} ± {entry['sigma']:.2g}  (prior [{low:g}, {high:g}])")
+    shares = found["look_share_of_variance"]
+    lines.append(
+        "  its share of the look's variance: " + ", ".join(f"{label} {100 * v:.0f}%" for label, v in shares.items())
+    )
+    outside = found.get("look_at_estimate_outside") or []
+    if outside:
+        lines.append(
+            f"  the look at that arrangement: beyond one linear step ({', '.join(outside)} outside the controls' "
+            "ranges; params.json has the step)"
+        )
+    else:
+        lines.append("  the look at that arrangement: " + _describe_look(found["look_at_estimate"]))
+    return "\n".join(lines)
+
+
+def _describe_look(values: dict) -> str:
+    return " ".join(f"{name}={_fmt(value)}" for name, value in values.items())

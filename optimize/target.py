@@ -62,7 +62,13 @@ photographed swatch's never are), target.toml says
     realisations = "random"    # default "fixed": render the scenes' own strands
 
 and the fit renders other realisations of the recipe and counts the target's being one of them in its
-uncertainty (optimize/realisations.py; `warp-hair fit --realisations` overrides).
+uncertainty (optimize/realisations.py; `warp-hair fit --realisations` overrides). How those strands lie, where
+the recipe cannot say (jitter, layer gap, layers, how waves share their phase), may be stated as a prior the fit
+averages over and estimates at its end (optimize/arrangement.py):
+
+    [arrangement]
+    jitter = [0.05, 0.4]
+    layer_gap = [0.008, 0.015]
 """
 
 from __future__ import annotations
@@ -85,6 +91,8 @@ from warp_hair.renderer.render import render, render_metadata
 from warp_hair.scene import Scene, load_scene
 
 from . import card_region
+from .arrangement import Arrangement
+from .arrangement import parse as arrangement_prior
 from .camera import GAIN_MODES, WHITE_BALANCE_MODES
 from .latents import EXPOSURE, SPECS
 from .realisations import REALISATION_MODES
@@ -92,7 +100,7 @@ from .realisations import REALISATION_MODES
 TARGET_FILE = shipped.TARGET_FILE
 TRUTH_FILE = "truth.json"
 IMAGE_KEYS = {"scene", "image", "mask", "transfer", "card_mask", "card"}
-SPEC_KEYS = {"images", "renderer", "gains", "white_balance", "realisations", "card"}
+SPEC_KEYS = {"images", "renderer", "gains", "white_balance", "realisations", "card", "arrangement"}
 # Who rendered a target's images: warp-hair itself, or a peer renderer (benchmarks/make_peer_targets.py).
 RENDERERS = ("warp-hair", "mitsuba", "cycles")
 # The shipped targets: the `targets` package's data, in a source checkout or an installed package.
@@ -121,6 +129,7 @@ class Target:
     gains: str = "none"  # the images' exposures the fit solves for (optimize/camera.py): per-image, exif, shared
     white_balance: str = "none"  # "fit": a gain per channel, green's pinned
     realisations: str = "fixed"  # "random": the scenes' fibers are a recipe; fit other realisations of it
+    arrangement: Arrangement | None = None  # a prior over how the recipe's strands lie (arrangement.py)
 
     @property
     def hair(self) -> HairParams:
@@ -192,7 +201,7 @@ def _read_spec(directory) -> dict:
     if unknown:
         raise ValueError(
             f"{spec_path}: unknown key(s) {unknown}; a target file has [[images]] tables, renderer, "
-            "gains, white_balance, realisations and [card]"
+            "gains, white_balance, realisations, [card] and [arrangement]"
         )
     for key, allowed in (
         ("gains", GAIN_MODES),
@@ -276,6 +285,14 @@ def load_target(directory) -> Target:
     if spec.get("realisations") == "random":
         for image in images:
             check_realisable(image.scene, f'{directory / TARGET_FILE}: realisations = "random"')
+    arrangement = None
+    if "arrangement" in spec:
+        if spec.get("realisations") != "random":
+            raise ValueError(
+                f"{directory / TARGET_FILE}: [arrangement] is a prior over the realisations of a recipe; it needs "
+                'realisations = "random"'
+            )
+        arrangement = arrangement_prior(spec["arrangement"], [image.scene for image in images], directory / TARGET_FILE)
     truth = read_truth(directory / TRUTH_FILE)
     gains, white_balance = _camera_unknowns(directory / TARGET_FILE, spec, images)
     return Target(
@@ -287,6 +304,7 @@ def load_target(directory) -> Target:
         gains,
         white_balance,
         spec.get("realisations", "fixed"),
+        arrangement,
     )
 
 

@@ -18,6 +18,11 @@ the clump guides (`clumps`), which fibers stray and how (`strays`) are drawn fro
 while the recipe's numbers (how many clumps and how strongly they pull, how many strays and how far they
 lift, how independent the layers' waves are) stay as stated.
 Realisation k of a scene is always the same, and k = 0 is the scene itself.
+
+`realisation(scene, k, recipe)` first replaces generator arguments of the recipe (`recipe`, e.g. {"jitter": 0.3}):
+the fit's draw of how the strands lie from a stated prior (optimize/arrangement.py). The seed, shift and phase are
+drawn as without it, so two such realisations with the same k differ only by what `recipe` changes: the same
+strands moved (common random numbers), except where it changes how many strands a layer holds.
 """
 
 from __future__ import annotations
@@ -53,9 +58,9 @@ def check_realisable(scene: Scene, where: str) -> None:
         )
 
 
-def realisation_draw(scene: Scene, index: int) -> dict:
+def realisation_draw(scene: Scene, index: int, recipe: dict | None = None) -> dict:
     """The generator arguments that realisation `index` changes: its seed (and shift, for a swatch)."""
-    fibers = scene.source["fibers"]
+    fibers = {**scene.source["fibers"], **(recipe or {})}
     base_seed = int(fibers.get("seed", 0))
     state = np.random.SeedSequence([base_seed, int(index)]).generate_state(2)
     draw = {"seed": int(state[0])}
@@ -70,13 +75,16 @@ def realisation_draw(scene: Scene, index: int) -> dict:
     return draw
 
 
-def realisation(scene: Scene, index: int) -> Scene:
-    """The scene with realisation `index` of its fibers' recipe (see the module docstring); index 0 is the scene."""
+def realisation(scene: Scene, index: int, recipe: dict | None = None) -> Scene:
+    """The scene with realisation `index` of its fibers' recipe (see the module docstring); index 0 is the scene.
+    `recipe`: generator arguments that replace the scene's first (index 0 then draws nothing else)."""
     check_realisable(scene, str(scene.path or "scene"))
-    if index == 0:
+    if index == 0 and not recipe:
         return scene
     source = copy.deepcopy(scene.source)
-    source["fibers"].update(realisation_draw(scene, index))
+    source["fibers"].update(recipe or {})
+    if index:
+        source["fibers"].update(realisation_draw(scene, index, recipe))
     other = scene_from_dict(source, where=f"{scene.path or 'scene'} (realisation {index})")
     other.path = scene.path
     return other
