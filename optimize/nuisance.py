@@ -9,7 +9,9 @@ The unknowns today are the gains every render is multiplied by before it meets t
 - the `exposure` control, one gain on every image, a fitted control like the look's (latents.py), whose gradient
   flows through the loss; 1 where it is not fitted.
 
-A target has one or the other, never both (`check`). The strands' arrangement (issue 43) is the next to join.
+A target has one or the other, never both (`check`). How the strands lie, the other nuisance of a photographed
+swatch, is not a gain: the fit averages over its stated prior through the realisations it renders and estimates it
+at its end (arrangement.py).
 
     nuisance = Nuisance(target)
     gains, solved = nuisance.gains(gain, pairs, references, masks, loss, pool, scales)   # per image, (3,) or scalar
