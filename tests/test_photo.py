@@ -557,8 +557,13 @@ def test_a_wavy_clumpy_swatch_with_strays_is_a_recipe_the_fit_redraws(tmp_path, 
     target = load_target(tmp_path / "made")
     assert target.realisations == "random"
     assert "never the photographed strands" in (tmp_path / "made" / "target.toml").read_text()
-    # How the strands lie, which a photo does not say: a prior over jitter and the layers' gap (arrangement.py).
-    assert target.arrangement.ranges == {"jitter": (0.05, 0.4), "layer_gap": (0.008, 0.015)}
+    # How the strands lie, which a photo does not say: a prior over jitter, the layers' gap and how far the clumps
+    # close, the recipe's strength ± 0.2 (arrangement.py).
+    assert target.arrangement.ranges == {
+        "jitter": (0.05, 0.4),
+        "layer_gap": (0.008, 0.015),
+        "clump_strength": (0.4, 0.8),
+    }
     scene = target.images[0].scene
     fibers = scene.source["fibers"]
     assert {key: fibers[key] for key in ("generator", "amplitude", "wavelength", "phase_jitter")} == {
