@@ -67,8 +67,8 @@ import inspect
 import numpy as np
 
 from warp_hair.geometry.generators import _MAX_JITTER
-from warp_hair.realisation import can_realise, realisation
-from warp_hair.renderer.prepare import prepare
+from warp_hair.realisation import can_realise, realisation_views
+from warp_hair.renderer.prepare import prepare_views
 from warp_hair.renderer.render import render
 from warp_hair.scene import GENERATORS
 from warp_hair.torch import scene_with_controls
@@ -261,17 +261,16 @@ def columns(
             pair = []
             for sign in (1, -1):
                 at = {**middle, key: middle[key] + sign * step}
+                scenes = [image.scene for image in target.images]
+                views = prepare_views(realisation_views(scenes, index, _recipe(arrangement, scenes[0], index, at)))
                 images = [
                     render(
-                        scene_with_controls(
-                            prepare(realisation(image.scene, index, _recipe(arrangement, image.scene, index, at))),
-                            hair,
-                        ),
+                        scene_with_controls(view, hair),
                         spp=spp,
                         seed=seed + 7919 * k + j,  # the same for + and −: common random numbers
                         threads=threads,
                     )
-                    for j, image in enumerate(target.images)
+                    for j, view in enumerate(views)
                 ]
                 pair.append(_residual_vector(target, images, gains, settings, rows, card_rows))
             ups.append(pair[0])

@@ -54,14 +54,15 @@ import dataclasses
 
 import numpy as np
 
-from warp_hair.realisation import check_realisable, realisation
-from warp_hair.renderer.prepare import prepare
+from warp_hair.realisation import check_realisable, realisation_views
+from warp_hair.renderer.prepare import prepare_views
 
 from .arrangement import fiber_seed
 
 REALISATION_MODES = ("fixed", "random")
-# Realisations the fit draws its pairs from. Each costs a generator run and a BVH per image (0.2 s each for the
-# Cycles swatches' 152 strands of 128 segments); the pool's own draw adds ~1/√POOL of the realisation term.
+# Realisations the fit draws its pairs from. Each costs a generator run, the strands' check and a BVH, once for all
+# the target's views (`realisation_views`): 40–90 ms for the Cycles swatches' 152 strands (docs/benchmarks.md,
+# issue 45); the pool's own draw adds ~1/√POOL of the realisation term.
 POOL = 16
 DEFAULT_SAMPLES = 8  # K: realisations rendered at the fitted look for the realisation term
 
@@ -84,10 +85,8 @@ class Realisations:
     def scenes(self, index: int) -> list:
         """Realisation `index` of every image's scene, prepared (the images show the same strands)."""
         if index not in self._prepared:
-            recipe = self.drawn(index)
-            self._prepared[index] = [
-                prepare(realisation(image.scene, index, recipe), self.device) for image in self.target.images
-            ]
+            views = realisation_views([image.scene for image in self.target.images], index, self.drawn(index))
+            self._prepared[index] = prepare_views(views, self.device)
         return self._prepared[index]
 
     def drawn(self, index: int) -> dict | None:

@@ -15,8 +15,9 @@ from optimize.realisations import Realisations, pooled_jacobians, realisation_sp
 from optimize.report import format_table
 from optimize.target import load_target, make_target
 from warp_hair.geometry.generators import curly, swatch, wavy
-from warp_hair.realisation import realisation, realisation_draw
+from warp_hair.realisation import realisation, realisation_draw, realisation_views
 from warp_hair.renderer.gradients import render_grad
+from warp_hair.renderer.prepare import prepare_views
 from warp_hair.renderer.render import render
 from warp_hair.scene import scene_from_dict
 from warp_hair.torch import default_grad_seed, render_torch_pair
@@ -188,6 +189,23 @@ def test_pool_pairs_are_two_different_realisations(tmp_path):
     # Both images of a pass show the same strands.
     first = realisations.scenes(1)
     np.testing.assert_array_equal(first[0].scene.fibers.points, first[1].scene.fibers.points)
+
+
+def test_the_views_of_a_realisation_share_its_strands_and_their_bvh_and_render_as_alone():
+    """A target's views of one realisation hold one assembly, drawn once, and one BVH (realisation_views,
+    prepare_views); each renders bit for bit as that view realised and prepared alone."""
+    target = load_target("targets/cycles_brown_straight")
+    scenes = [image.scene for image in target.images]
+    views = realisation_views(scenes, 3)
+    assert views[1].fibers is views[0].fibers and views[1].camera == scenes[1].camera
+    prepared = prepare_views(views)
+    assert prepared[1].bvh is prepared[0].bvh
+    for scene, view in zip(scenes, prepared):
+        alone = realisation(scene, 3)
+        np.testing.assert_array_equal(view.scene.fibers.points, alone.fibers.points)
+        assert view.scene.source == alone.source
+        np.testing.assert_array_equal(render(view, spp=1, seed=4), render(alone, spp=1, seed=4))
+    assert realisation_views(scenes, 0) == scenes  # realisation 0 is the scenes themselves
 
 
 def test_target_realisations_key(tmp_path):

@@ -28,12 +28,13 @@ strands moved (common random numbers), except where it changes how many strands 
 from __future__ import annotations
 
 import copy
+import dataclasses
 import inspect
 
 import numpy as np
 
 from .geometry.generators import shared_phase
-from .scene import GENERATORS, Scene, scene_from_dict
+from .scene import GENERATORS, Scene, check_scene, scene_from_dict
 
 # The generators whose strands lie on a lattice across the swatch, which `shift` moves (generators.py).
 SHIFTED_GENERATORS = frozenset({"swatch", "wavy", "curly"})
@@ -88,3 +89,25 @@ def realisation(scene: Scene, index: int, recipe: dict | None = None) -> Scene:
     other = scene_from_dict(source, where=f"{scene.path or 'scene'} (realisation {index})")
     other.path = scene.path
     return other
+
+
+def realisation_views(scenes, index: int, recipe: dict | None = None) -> list:
+    """Realisation `index` of several views of the same strands (a target's scenes, whose [fibers] agree): the
+    generator runs once and every view holds that one assembly, each with its own camera, lights and render
+    settings, so the strands are checked once and `prepare_views` builds one BVH for them. A view whose [fibers]
+    differs gets its own realisation."""
+    scenes = list(scenes)
+    if index == 0 and not recipe:
+        return scenes
+    first = realisation(scenes[0], index, recipe)
+    views = [first]
+    for scene in scenes[1:]:
+        if scene.source.get("fibers") != scenes[0].source.get("fibers"):
+            views.append(realisation(scene, index, recipe))
+            continue
+        source = copy.deepcopy(scene.source)
+        source["fibers"] = copy.deepcopy(first.source["fibers"])
+        view = dataclasses.replace(scene, fibers=first.fibers, source=source)
+        check_scene(view)  # its camera's scale and buffers; the strands' interpenetration is checked once an assembly
+        views.append(view)
+    return views

@@ -40,11 +40,13 @@ class PreparedScene:
     uploaded once (geometry/tubes.py says why), and the hair coefficients travel as a launch argument.
     """
 
-    def __init__(self, scene: Scene, device: str = "cpu"):
+    def __init__(self, scene: Scene, device: str = "cpu", bvh: FiberBVH | None = None):
         check_scene(scene)  # a scene built in Python, not loaded, is checked here
         self.scene = scene
         self.device = device = check_device(device)
-        self.bvh = FiberBVH(scene.fibers, device=device, smooth_tangents=scene.render.tangents == "smooth")
+        # `bvh`: another view's of these very strands (`prepare_views`), else built here.
+        smooth = scene.render.tangents == "smooth"
+        self.bvh = FiberBVH(scene.fibers, device=device, smooth_tangents=smooth) if bvh is None else bvh
         directional = [light for light in scene.lights if isinstance(light, DirectionalLight)]
         environments = [light for light in scene.lights if isinstance(light, EnvironmentLight)]
         if len(environments) > 1:
@@ -145,6 +147,25 @@ def prepare(scene: Scene | PreparedScene, device: str | None = None) -> Prepared
     if not isinstance(scene, Scene):
         raise TypeError(f"expected a Scene or a PreparedScene, got {type(scene).__name__}")
     return PreparedScene(scene, device=check_device(device))
+
+
+def prepare_views(scenes, device: str | None = None) -> list:
+    """`prepare` for several views of the same strands: a view holding the very assembly of an earlier one
+    (`realisation.realisation_views`) with the same tangents shares its BVH, which is built once."""
+    prepared = []
+    for scene in scenes:
+        shared = next(
+            (
+                other.bvh
+                for other in prepared
+                if other.scene.fibers is scene.fibers and other.scene.render.tangents == scene.render.tangents
+            ),
+            None,
+        )
+        prepared.append(
+            prepare(scene, device) if shared is None else PreparedScene(scene, prepared[0].device, bvh=shared)
+        )
+    return prepared
 
 
 def _directional_data(light: DirectionalLight | None) -> DirectionalLightData:
