@@ -239,6 +239,7 @@ def columns(
     rows=None,
     card_rows=None,
     first=0,
+    views=None,
 ):
     """Common-random-number central differences at the prior's middle, per realisation (module docstring).
 
@@ -246,7 +247,9 @@ def columns(
     columns (K, N, q): each realisation's (r⁺ − r⁻)/(2δ) per key). `values`: the look (and exposure); `gains`: per
     image the factor the renders are multiplied by (default: the exposure's); rows, card_rows: the linearisation's
     number of residuals and its grey card's rows (linearize.py), where it has a card. Realisations are the fit's
-    realisation-term ones' successors (indices 1000 + first + k), never those the fit drew."""
+    realisation-term ones' successors (indices 1000 + first + k), never those the fit drew. `views(index, recipe)`:
+    how they are drawn (default `realisation_views`; the fit's `Realisations.views`, which says once for the fit
+    whether strands pass through each other)."""
     from .latents import hair_and_gain
 
     hair, gain = hair_and_gain(values)
@@ -262,7 +265,8 @@ def columns(
             for sign in (1, -1):
                 at = {**middle, key: middle[key] + sign * step}
                 scenes = [image.scene for image in target.images]
-                views = prepare_views(realisation_views(scenes, index, _recipe(arrangement, scenes[0], index, at)))
+                recipe = _recipe(arrangement, scenes[0], index, at)
+                drawn = realisation_views(scenes, index, recipe) if views is None else views(index, recipe)
                 images = [
                     render(
                         scene_with_controls(view, hair),
@@ -270,7 +274,7 @@ def columns(
                         seed=seed + 7919 * k + j,  # the same for + and −: common random numbers
                         threads=threads,
                     )
-                    for j, view in enumerate(views)
+                    for j, view in enumerate(prepare_views(drawn))
                 ]
                 pair.append(_residual_vector(target, images, gains, settings, rows, card_rows))
             ups.append(pair[0])

@@ -679,6 +679,7 @@ class FitRun:
                     rows=lin.residuals.shape[1],
                     card_rows=lin.card_rows,
                     first=k,
+                    views=self.realisations.views,
                 )
                 middles.append(m[0])
                 crn.append(c[0])

@@ -51,9 +51,11 @@ term counts the arrangement's spread with the seed's.
 from __future__ import annotations
 
 import dataclasses
+import warnings
 
 import numpy as np
 
+from warp_hair.geometry.interpenetration import InterpenetrationWarning
 from warp_hair.realisation import check_realisable, realisation_views
 from warp_hair.renderer.prepare import prepare_views
 
@@ -81,13 +83,31 @@ class Realisations:
             check_realisable(image.scene, f'{target.name}: realisations = "random", {image.scene.path or image.name}')
         self.target, self.pool, self.device = target, pool, device
         self._prepared = {}
+        self._warned = False
 
     def scenes(self, index: int) -> list:
         """Realisation `index` of every image's scene, prepared (the images show the same strands)."""
         if index not in self._prepared:
-            views = realisation_views([image.scene for image in self.target.images], index, self.drawn(index))
-            self._prepared[index] = prepare_views(views, self.device)
+            self._prepared[index] = prepare_views(self.views(index, self.drawn(index)), self.device)
         return self._prepared[index]
+
+    def views(self, index: int, recipe: dict | None) -> list:
+        """`realisation_views` of the target's scenes, whose strands' passing through each other is said once for
+        all of the fit's realisations (the first that does; it is the recipe's, not one set of strands', and a
+        fit draws dozens), where each new assembly would say it again."""
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            views = realisation_views([image.scene for image in self.target.images], index, recipe)
+        for warning in caught:
+            if issubclass(warning.category, InterpenetrationWarning):
+                if self._warned:
+                    continue
+                self._warned = True
+                message = f"{warning.message} (in realisation {index} of the recipe; later ones are not reported)"
+                warnings.warn(message, InterpenetrationWarning, stacklevel=2)
+            else:
+                warnings.warn_explicit(warning.message, warning.category, warning.filename, warning.lineno)
+        return views
 
     def drawn(self, index: int) -> dict | None:
         """How realisation `index`'s strands lie, drawn from the target's [arrangement] prior (arrangement.py); None

@@ -2,6 +2,7 @@
 
 import dataclasses
 import shutil
+import warnings
 
 import numpy as np
 import pytest
@@ -15,6 +16,7 @@ from optimize.realisations import Realisations, pooled_jacobians, realisation_sp
 from optimize.report import format_table
 from optimize.target import load_target, make_target
 from warp_hair.geometry.generators import curly, swatch, wavy
+from warp_hair.geometry.interpenetration import InterpenetrationWarning
 from warp_hair.realisation import realisation, realisation_draw, realisation_views
 from warp_hair.renderer.gradients import render_grad
 from warp_hair.renderer.prepare import prepare_views
@@ -206,6 +208,21 @@ def test_the_views_of_a_realisation_share_its_strands_and_their_bvh_and_render_a
         assert view.scene.source == alone.source
         np.testing.assert_array_equal(render(view, spp=1, seed=4), render(alone, spp=1, seed=4))
     assert realisation_views(scenes, 0) == scenes  # realisation 0 is the scenes themselves
+
+
+def test_a_recipes_strands_passing_through_each_other_are_said_once_for_all_its_realisations():
+    """Clumps pull a recipe's strands through each other in every realisation; a fit draws dozens, and each new
+    assembly would warn again: the fit's realisations say it once, naming the first."""
+    target = load_target("targets/blender_clumped")
+    realisations = Realisations(target, pool=3)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        for index in (1, 2, 3):
+            realisations.scenes(index)
+            realisations.views(1000 + index, realisations.drawn(index))  # as the arrangement's columns draw them
+    said = [str(w.message) for w in caught if issubclass(w.category, InterpenetrationWarning)]
+    assert len(said) == 1 and "pairs of strands interpenetrate" in said[0], said
+    assert "in realisation 1 of the recipe; later ones are not reported" in said[0]
 
 
 def test_target_realisations_key(tmp_path):
