@@ -265,7 +265,9 @@ def realisation_table(scenes, targets, calls, spps, count) -> None:
             + " | ".join(f"{v * 1e3:.1f}" for v in mean.values())
             + f" | {total * 1e3:.1f} | "
             + " / ".join(f"{total / c:.1f}" for c in calls[name, True])
-            + f" | {total * (POOL + DEFAULT_SAMPLES) * images:.2f} |"
+            # The images share a realisation's strands and BVH (realisation_views, prepare_views): all but the
+            # first prepare only the rest.
+            + f" | {(total + (images - 1) * mean['prepare: the rest']) * (POOL + DEFAULT_SAMPLES):.2f} |"
         )
     print(
         f"\n## Random realisations: what drawing and preparing one costs (wall ms, the mean of {count})\n\n"
@@ -273,7 +275,7 @@ def realisation_table(scenes, targets, calls, spps, count) -> None:
         + " | ".join(mean)
         + " | sum | the sum in gradient calls at "
         + " / ".join(str(s) for s in spps)
-        + f" spp | per fit ({POOL} + {DEFAULT_SAMPLES} realisations × images), s |\n| --- | "
+        + f" spp | per fit ({POOL} + {DEFAULT_SAMPLES} realisations, their images sharing the strands), s |\n| --- | "
         + " | ".join("---:" for _ in range(len(mean) + 4))
         + " |"
     )
@@ -314,8 +316,8 @@ def fit_table(fits, threads) -> None:
     from optimize.target import SHIPPED_TARGETS
 
     # By import_module: the package `optimize` exports functions under some of its modules' names (fit).
-    fit_module, linearize, realisations, report = (
-        import_module(f"optimize.{name}") for name in ("fit", "linearize", "realisations", "report")
+    fit_module, linearize, realisations, report, arrangement = (
+        import_module(f"optimize.{name}") for name in ("fit", "linearize", "realisations", "report", "arrangement")
     )
     render_module, torch_module = import_module("warp_hair.renderer.render"), import_module("warp_hair.torch")
 
@@ -330,9 +332,11 @@ def fit_table(fits, threads) -> None:
         calls.wrap(render_module, "launch_pixels")
         calls.wrap(torch_module, "launch_pixels")
         kernels.wrap(render_module, "launch_ranges")
-        for module in (fit_module, linearize, realisations, report):
+        for module in (fit_module, linearize, report):
             scenes.wrap(module, "prepare")
-        scenes.wrap(realisations, "realisation")
+        for module in (realisations, arrangement):  # a realisation's views drawn and prepared together
+            scenes.wrap(module, "realisation_views")
+            scenes.wrap(module, "prepare_views")
         try:
             target = load_target(SHIPPED_TARGETS / name)
             start = time.perf_counter()
