@@ -293,28 +293,14 @@ class Estimate:
     covariance: np.ndarray  # (q, q)
     look_step: np.ndarray  # (p,) δx of the joint step: the look at θ̂ is x̂ + δx
     look_sigma_joint: np.ndarray  # (p,) the look's σ from the joint step's spread
-    share: np.ndarray  # (p,) the arrangement's share of the look's variance (first order, the prior's spread)
-    arrangement_variance: np.ndarray  # (p,) diag(G B Σ_θ Bᵀ Gᵀ)
-    column_sigma: np.ndarray  # (N, q) the CRN columns' standard error, for the record's size
 
     def sigma(self) -> np.ndarray:
         return np.sqrt(np.diag(self.covariance))
 
 
-def estimate(
-    arrangement: Arrangement,
-    keys,
-    look_jacobian,
-    weights,
-    middles,
-    crn_columns,
-    look_variance,
-    arrangement_variance=None,
-) -> Estimate:
+def estimate(arrangement: Arrangement, keys, look_jacobian, weights, middles, crn_columns) -> Estimate:
     """The joint linearised step from (x̂, θ̄) (module docstring). look_jacobian (N, p): the fit's A at x̂;
-    weights (N,); middles (K, N) and crn_columns (K, N, q) from `columns`; look_variance (p,): the fit's σ² of the
-    look (for the share); arrangement_variance (p,): the arrangement's part of it, as the fit's realisation term
-    counts it (realisations.py `realisation_spread`); default: first order through the look's own gain."""
+    weights (N,); middles (K, N) and crn_columns (K, N, q) from `columns`."""
     b = crn_columns.mean(axis=0)
     k = len(middles)
     joint = np.concatenate([look_jacobian, b], axis=1)
@@ -326,10 +312,6 @@ def estimate(
     spread = (gain @ deviations.T).T  # (K, p + q)
     covariance = spread.T @ spread / max(k - 1, 1)
     p = look_jacobian.shape[1]
-    if arrangement_variance is None:
-        normal_look = look_jacobian.T @ (weights[:, None] * look_jacobian)
-        moved = np.linalg.pinv(normal_look) @ (look_jacobian * weights[:, None]).T @ b  # (p, q): how the look follows θ
-        arrangement_variance = np.einsum("pq,qr,pr->p", moved, arrangement.covariance(keys), moved)
     value = np.array([arrangement.middle[key] for key in keys]) + step[p:]
     return Estimate(
         list(keys),
@@ -337,9 +319,6 @@ def estimate(
         covariance[p:, p:],
         step[:p],
         np.sqrt(np.diag(covariance[:p, :p])),
-        arrangement_variance / np.maximum(look_variance, 1e-300),
-        arrangement_variance,
-        crn_columns.std(axis=0, ddof=1) / np.sqrt(k) if k > 1 else np.zeros_like(b),
     )
 
 
@@ -361,10 +340,21 @@ def outside_prior(arrangement: Arrangement, result: Estimate) -> list[str]:
     return reasons
 
 
-def record(arrangement: Arrangement, found: Estimate, names, values: dict, look_variance, samples: int, spp: int):
+def record(
+    arrangement: Arrangement,
+    found: Estimate,
+    names,
+    values: dict,
+    look_variance,
+    arrangement_variance,
+    samples: int,
+    spp: int,
+):
     """params.json's "arrangement": the prior, each key's estimate ± σ, the look at the estimate, the arrangement's
     share of the look's variance, the look's σ were θ known and were it estimated (module docstring); and the
-    failures where the images put a key outside its prior (`outside_prior`)."""
+    failures where the images put a key outside its prior (`outside_prior`). look_variance (p,): the fit's σ² of
+    the look; arrangement_variance (p,): its part the arrangement makes, as the realisation term counts it
+    (realisations.py `realisation_spread`)."""
     from .latents import SPECS
     from .uncertainty import component_labels
 
@@ -386,10 +376,13 @@ def record(arrangement: Arrangement, found: Estimate, names, values: dict, look_
         # Components the linear step takes outside their control's range (an albedo below 0, say): there one
         # step from the prior's middle is no look, only the direction the arrangement pulls it.
         "look_at_estimate_outside": _outside_ranges(look, labels),
-        "look_share_of_variance": {label: float(v) for label, v in zip(labels, found.share)},
+        "look_share_of_variance": {
+            label: float(part / max(total, 1e-300))
+            for label, total, part in zip(labels, look_variance, arrangement_variance)
+        },
         "look_sigma_arrangement_known": {
             label: float(np.sqrt(max(total - part, 0.0)))
-            for label, total, part in zip(labels, look_variance, found.arrangement_variance)
+            for label, total, part in zip(labels, look_variance, arrangement_variance)
         },
         "look_sigma_joint_step_spread": {label: float(v) for label, v in zip(labels, found.look_sigma_joint)},
         "samples": samples,

@@ -320,15 +320,12 @@ class FitRun:
         descent = run.descend()                 # step() until the iterations, a plateau or Ctrl-C
         refinement = run.refine(descent)        # Gauss–Newton steps (refine.py); None when there are none
         evaluation = run.evaluate(descent, refinement)   # the final images and loss, the loss linearised there
-        uncertainty, goodness = run.uncertainty(evaluation, refinement)   # uncertainty.py, goodness.py
-        result = run.result(descent, refinement, evaluation, uncertainty, goodness)   # or all of it: run.run()
+        uncertainty, goodness, arrangement = run.uncertainty(evaluation, refinement)   # σ, χ², the strands' lie
+        result = run.result(descent, refinement, evaluation, uncertainty, goodness, arrangement)   # or: run.run()
     """
 
     def __init__(self, target: Target, settings: FitSettings, progress: bool = True):
         self.target, self.settings, self.progress = target, settings, progress
-        # (the arrangement's CRN middles and columns, the realisation term, the Birge factor) `uncertainty` made
-        # for `arrangement`; no columns where the target states no prior over how the strands lie.
-        self.spread = None, None, 1.0
         self.names = check_settings(target, settings)
         self.start = start_values(self.names, settings)
         # Renders, targets, losses and the Adam state on one device: per iteration only the controls (a few
@@ -579,16 +576,17 @@ class FitRun:
         ]
         return Evaluation(images, float(np.mean([float(v) for v in losses])), lin, interrupted)
 
-    def uncertainty(self, evaluation: Evaluation, refinement: Refinement | None) -> tuple[Uncertainty, Goodness]:
-        """The uncertainties from the loss linearised at the result, with the refinement's Monte Carlo error;
-        over random realisations, with the realisation term (realisations.py) and the noise term from a
-        linearisation on one realisation. And the measure of fit there (goodness.py), whose Birge factor
-        scales them where the images differ from the fitted look by more than noise."""
+    def uncertainty(self, evaluation: Evaluation, refinement: Refinement | None) -> tuple:
+        """(Uncertainty, Goodness, the arrangement's record or None): the uncertainties from the loss linearised at
+        the result, with the refinement's Monte Carlo error; over random realisations, with the realisation term
+        (realisations.py) and the noise term from a linearisation on one realisation. And the measure of fit
+        there (goodness.py), whose Birge factor scales them where the images differ from the fitted look by more
+        than noise; and where the target states a prior over how the strands lie, its estimate (`arrangement`)."""
         lin, mc = evaluation.linearization, None if refinement is None else refinement.mc_covariance
         model_error = target_model_error(self.target, self.settings.model_error)
         if not self.random:
             goodness = self.goodness(lin)
-            return estimate_uncertainty(lin, mc, model_error, birge=goodness.birge), goodness
+            return estimate_uncertainty(lin, mc, model_error, birge=goodness.birge), goodness, None
         # The noise term from one realisation's linearisation; the curvature, and the shift per unit brightness
         # (which that linearisation's own two Jacobians alone make noisy), from the pooled one.
         columns = self.arrangement_columns(lin)
@@ -602,8 +600,7 @@ class FitRun:
             brightness_from=term.pooled,
             birge=goodness.birge,
         )
-        self.spread = columns, term, goodness.birge
-        return uncertainty, goodness
+        return uncertainty, goodness, self.arrangement(lin, uncertainty, columns, term, goodness.birge)
 
     def goodness(self, lin: Linearization, draw=None) -> Goodness:
         """χ² of the final linearisation's residuals against the noise the fit expects there (goodness.py)."""
@@ -649,8 +646,7 @@ class FitRun:
         evaluation = self.evaluate(descent, refinement)
         uncertainty = goodness = arrangement = None
         if self.settings.uncertainty and not evaluation.interrupted:
-            uncertainty, goodness = self.uncertainty(evaluation, refinement)
-            arrangement = self.arrangement(evaluation, uncertainty)
+            uncertainty, goodness, arrangement = self.uncertainty(evaluation, refinement)
         return self.result(descent, refinement, evaluation, uncertainty, goodness, arrangement)
 
     def arrangement_columns(self, lin: Linearization):
@@ -692,21 +688,17 @@ class FitRun:
             crn = np.stack([lin.camera.apply(c) for c in crn])
         return middles, crn
 
-    def arrangement(self, evaluation: Evaluation, uncertainty: Uncertainty) -> dict | None:
-        """How the strands lie, estimated with the look at the fit's end (arrangement.py), where the target states
-        a prior over it with continuous keys; None elsewhere. Takes the columns and the realisation term that
-        `uncertainty` made (`spread`)."""
-        columns, term, birge = self.spread
-        if columns is None or uncertainty is None:
+    def arrangement(self, lin, uncertainty: Uncertainty, columns, term: RealisationTerm, birge: float) -> dict | None:
+        """How the strands lie, estimated with the look at the fit's end (arrangement.py) from `arrangement_columns`
+        (None where the target states no prior with continuous keys: then None) and the realisation term whose
+        part it is; `birge` scales that part as `estimate_uncertainty` did."""
+        if columns is None:
             return None
-        lin = evaluation.linearization
         prior, names = self.target.arrangement, list(lin.values)
         variance = np.concatenate([np.atleast_1d(uncertainty.uncertainties[name]) for name in names]) ** 2
         part = birge**2 * np.diag(term.arrangement)  # the arrangement's part of σ², as estimate_uncertainty scales it
-        found = estimate_arrangement(
-            prior, prior.continuous, lin.mean_jacobian, lin.loss_weights, *columns, variance, part
-        )
-        return arrangement_record(prior, found, names, lin.values, variance, len(columns[0]), self.final_spp)
+        found = estimate_arrangement(prior, prior.continuous, lin.mean_jacobian, lin.loss_weights, *columns)
+        return arrangement_record(prior, found, names, lin.values, variance, part, len(columns[0]), self.final_spp)
 
     def result(
         self,
