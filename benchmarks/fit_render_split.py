@@ -102,7 +102,12 @@ def steps(prepared, differentiable, threads, repeat) -> dict:
     hair = other_hair(prepared)
     width, height = prepared.resolution
     n = width * height
-    out = {"with_hair": best(lambda: prepared.with_hair(hair), repeat)}
+    # The gradient pass's look also makes each strand's derivatives (`gradient_data`), as launch_pixels asks.
+    out = {
+        "with_hair": best(
+            lambda: prepared.with_hair(hair).gradient_data() if differentiable else prepared.with_hair(hair), repeat
+        )
+    }
     if differentiable:
         out["coefficient derivatives"] = best(lambda: coefficient_derivatives(hair), repeat)
         kernel, derivs = pixel_jacobian_kernel, coefficient_derivatives(hair)
@@ -118,7 +123,8 @@ def steps(prepared, differentiable, threads, repeat) -> dict:
     out["output buffers"] = best(buffers, repeat)
     image, stderr, indices, *rest = buffers()
     jacobian = rest[0] if rest else None
-    inputs = [prepared.data, derivs, 0, 1, image, stderr, jacobian, indices]
+    data = prepared.gradient_data() if differentiable else prepared.data
+    inputs = [data, derivs, 0, 1, image, stderr, jacobian, indices]
     # spp = 0: the same kernel over the same ranges, no path traced; tile_pixels at the fit's spp.
     chunk = tile_pixels(16, n, max(1, min(threads or default_threads(), n)))
     out["launch, 0 samples"] = best(lambda: launch_ranges(kernel, n, inputs, threads=threads, chunk=chunk), repeat)

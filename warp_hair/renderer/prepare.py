@@ -69,17 +69,19 @@ class PreparedScene:
         # What the variation's controls need of the strands, made once and shared by `with_hair`'s copies: each
         # strand's random value, the segments' arc-length fractions.
         self._strand_data = {}
-        self.data = self._scene_data(scene.hair)
+        self._data = self._gradient_data = None  # made when a pass first asks (`data`, `gradient_data`)
         self.resolution = scene.camera.resolution
 
-    def _variation(self, hair: HairParams) -> HairVariation:
-        """The kernels' HairVariation of a look. Each strand's derivatives in the variation's controls and the
-        segments' arc-length fractions are there for every look (the gradient at no variation is not 0); each
-        strand's own coefficients and the tip's ramp only where the look varies."""
+    def _variation(self, hair: HairParams, derivatives: bool = False) -> HairVariation:
+        """The kernels' HairVariation of a look. With `derivatives` (the gradient pass's, `gradient_data`), each
+        strand's derivatives in the variation's controls, there for every look (the gradient at no variation is
+        not 0); the segments' arc-length fractions always; each strand's own coefficients and the tip's ramp only
+        where the look varies."""
         variation = HairVariation()
-        looks = strand_looks(hair, self._strand_random())
-        variation.derivs = wp.array(strand_derivatives(hair, looks), dtype=CoefficientDerivatives, device=self.device)
         variation.strands = int(strands_vary(hair))
+        looks = strand_looks(hair, self._strand_random()) if derivatives or variation.strands else None
+        derivs = strand_derivatives(hair, looks) if derivatives else np.zeros(0, CoefficientDerivatives.numpy_dtype())
+        variation.derivs = wp.array(derivs, dtype=CoefficientDerivatives, device=self.device)
         coefficients = (
             strand_coefficients(hair, looks) if variation.strands else np.zeros(0, HairCoefficients.numpy_dtype())
         )
@@ -107,7 +109,22 @@ class PreparedScene:
             )
         return self._strand_data["arc"]
 
-    def _scene_data(self, hair: HairParams) -> SceneData:
+    @property
+    def data(self) -> SceneData:
+        """What the forward pass reads of this look: made when it first runs on it, then kept."""
+        if self._data is None:
+            self._data = self._scene_data(self.scene.hair)
+        return self._data
+
+    def gradient_data(self) -> SceneData:
+        """`data` with each strand's derivatives in the variation's controls, which only the gradient pass reads
+        (a forward render need not make them: they grow with the strands); made when it first runs on this look,
+        then kept. A look a fit renders both ways builds each once."""
+        if self._gradient_data is None:
+            self._gradient_data = self._scene_data(self.scene.hair, derivatives=True)
+        return self._gradient_data
+
+    def _scene_data(self, hair: HairParams, derivatives: bool = False) -> SceneData:
         data = SceneData()
         data.camera = self._camera
         data.surfaces = Surfaces()
@@ -115,7 +132,7 @@ class PreparedScene:
         data.surfaces.card = self._card
         data.surfaces.exits = int(self.scene.render.interpenetration == "exit")
         data.hair = hair_coefficients(hair)
-        data.variation = self._variation(hair)
+        data.variation = self._variation(hair, derivatives)
         data.lights = self.lights
         data.num_lights = self._num_lights
         data.env = self.env
@@ -132,7 +149,7 @@ class PreparedScene:
             )
         other = copy.copy(self)
         other.scene = dataclasses.replace(self.scene, hair=hair)
-        other.data = self._scene_data(hair)
+        other._data = other._gradient_data = None
         return other
 
 

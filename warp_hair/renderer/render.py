@@ -161,7 +161,16 @@ def launch_pixels(
     launch_ranges(
         kernel,
         count,
-        [prepared.data, derivs, spp, seed, image, stderr, jacobian, wp.array(indices, dtype=wp.int32, device=device)],
+        [
+            prepared.gradient_data() if differentiable else prepared.data,
+            derivs,
+            spp,
+            seed,
+            image,
+            stderr,
+            jacobian,
+            wp.array(indices, dtype=wp.int32, device=device),
+        ],
         threads=threads,
         device=device,
         chunk=tile_pixels(spp, count, max(1, min(threads or default_threads(), count))),
