@@ -2,7 +2,8 @@
 by Cycles, fitted from the recipe a photographer would write down.
 
     python benchmarks/blender_swatch_acceptance.py make [NAMES] [--spp 1024] [--threads 2]   # with bpy 4.5
-    python benchmarks/blender_swatch_acceptance.py photo [NAMES]
+    python benchmarks/blender_swatch_acceptance.py card [NAMES] [--spp 1024]                 # with bpy 4.5
+    python benchmarks/blender_swatch_acceptance.py photo [NAMES] [--no-card]
     python benchmarks/blender_swatch_acceptance.py fit [NAMES] [--out DIR] [--threads T]
     python benchmarks/blender_swatch_acceptance.py table [--out DIR]
     python benchmarks/blender_swatch_acceptance.py compare [NAMES] [--spp 256]
@@ -15,12 +16,16 @@ Geometry Nodes hair curves (below), lays it over the rod, renders it with Cycles
 targets/blender_<name>: the two linear EXRs, scene files whose [fibers] is the recipe (what `targets photo` writes
 for the same flags: jitter 0.15, seed 1, no word of Blender's seed), `realisations = "random"`, truth.json (the look
 in warp-hair's controls) and blender.json (what Blender was asked for, what was measured off its strands, the
-recipe's flags). The strands go to OUT/strands/<name>.hair for `compare`. The others run in warp-hair's own
-environment.
-`photo` turns each pair of renders into what a camera saves (each view auto-exposed: its 99.5th percentile to 0.9; a
-white balance off by up to 8% per channel; clipped; sRGB; 8-bit PNG or JPEG at quality 90:
-benchmarks/make_photo_targets.py's camera; the files under OUT/photos and in the target) and runs `warp-hair targets
-photo` with the recipe's flags into targets/blender_<name>_<png|jpeg>, adding truth.json and camera_truth.json.
+recipe's flags). The strands go to OUT/strands/<name>.hair for `compare`. `card` (bpy too) renders the front view
+again with an 18% grey card in the shot (CARD: a Lambertian square above the strands in the frame's corner) into
+OUT/card/<name>. The others run in warp-hair's own environment.
+`photo` turns each pair of renders into what a camera saves (each view auto-exposed: its 99.5th percentile to about
+0.9, the shutter on the nearest third stop at f/8 and ISO 100, recorded in EXIF as a camera records it; a white
+balance off by up to 8% per channel; clipped; sRGB; 8-bit PNG or JPEG at quality 90:
+benchmarks/make_photo_targets.py's `camera_exposure`; the files under OUT/photos and in the target) and runs
+`warp-hair targets photo` with the recipe's flags into targets/blender_<name>_<png|jpeg>, adding truth.json and
+camera_truth.json. Its front photo is `card`'s, the card and the hair it shadows marked as a photographer marks
+them (`card_masks`: `--card-mask`, `--card-reflectance 0.18`, `--mask`), unless `--no-card`.
 `fit` runs `warp-hair fit DIR -o OUT/fits/TARGET` (defaults) on each target in turn and records its exit status and
 wall time; `table` prints the Markdown table of docs/acceptance.md ("Swatches Blender made"); `compare` renders, at
 the true look, Blender's strands and the recipe's realisations in warp-hair against Cycles' images.
@@ -116,6 +121,17 @@ SWATCHES = {
         "white_balance": (0.95, 1.0, 1.05),
     },
 }
+
+
+# The grey card the photographer holds in the front shot (docs/photos.md, "How to shoot"): an 18% grey Lambertian
+# square facing the camera in the frame's bottom-left corner, above every strand (z = 0.1; the hair reaches 0.05),
+# so that its face sees the light and the black sky only, as optimize/card_region.py assumes. Its shadow falls on
+# the hair below and to the right of it; the photographer's mask leaves that hair out.
+CARD = {"reflectance": 0.18, "x": (-0.17, -0.11), "y": (-0.17, -0.11), "z": 0.1}
+# Pixels left out round the card and its shadow (the one next to them is 0.3-0.7% dimmer with the card, the light
+# it would have had through the swatch from the shadowed strands; the next ones within 0.13%: Cycles at 1024 spp,
+# blender_straight, the same seed with and without the card): one, and one more to spare.
+CARD_MARGIN = 2
 
 
 def truth(name: str) -> dict:
@@ -418,14 +434,96 @@ def make(name, spp, threads, out, root):
     return directory
 
 
+def make_card(name, spp, threads, out, root):
+    """OUT/card/<name>: the front view again with the grey card (CARD) in the shot, Cycles at `spp`, and
+    card.json with the depths of the strands beneath the card, from which `card_masks` paints the masks a
+    photographer would."""
+    import bpy
+    from cycles_peer import render_cycles
+
+    from warp_hair.geometry import FiberAssembly
+    from warp_hair.io import write_exr
+    from warp_hair.scene import load_scene
+
+    flat, _ = blender_strands(bpy, name)
+    points = drape(flat)
+    strands = FiberAssembly.from_arrays(points, RADIUS)
+    scene = load_scene(root / f"blender_{name}" / "scene_front.toml")
+    start = time.perf_counter()
+    image = render_cycles(bpy, scene, spp, threads=threads, seed=1, fibers=strands, props=_card_prop)
+    directory = out / "card" / name
+    directory.mkdir(parents=True, exist_ok=True)
+    write_exr(directory / "front.exr", image)
+    near = points.reshape(-1, 3)
+    (x0, x1), (y0, y1) = CARD["x"], CARD["y"]
+    near = near[(near[:, 0] > x0 - 0.1) & (near[:, 0] < x1 + 0.1) & (near[:, 1] > y0 - 0.1) & (near[:, 1] < y1 + 0.1)]
+    depths = [float(CARD["z"] - near[:, 2].max()), float(CARD["z"] - near[:, 2].min())]
+    (directory / "card.json").write_text(json.dumps({"card": CARD, "depths": depths, "spp": spp}, indent=2) + "\n")
+    print(f"{name}: front view with the card, Cycles {spp} spp, {time.perf_counter() - start:.0f} s", flush=True)
+    return directory
+
+
+def _card_prop(bpy):
+    """CARD as a Blender quad with a Diffuse BSDF (Lambertian: roughness 0) of its reflectance."""
+    (x0, x1), (y0, y1), z = CARD["x"], CARD["y"], CARD["z"]
+    mesh = bpy.data.meshes.new("grey_card")
+    mesh.from_pydata([(x0, y0, z), (x1, y0, z), (x1, y1, z), (x0, y1, z)], [], [(0, 1, 2, 3)])
+    material = bpy.data.materials.new("grey_card")
+    material.use_nodes = True
+    bsdf = material.node_tree.nodes.new("ShaderNodeBsdfDiffuse")
+    bsdf.inputs["Color"].default_value = (*[CARD["reflectance"]] * 3, 1.0)
+    bsdf.inputs["Roughness"].default_value = 0.0
+    output = material.node_tree.nodes.get("Material Output") or material.node_tree.nodes.new("ShaderNodeOutputMaterial")
+    material.node_tree.links.new(bsdf.outputs["BSDF"], output.inputs["Surface"])
+    mesh.materials.append(material)
+    bpy.context.scene.collection.objects.link(bpy.data.objects.new("grey_card", mesh))
+
+
+def card_masks(depths, margin: int = CARD_MARGIN) -> tuple:
+    """((H, W) card, (H, W) hair) for the front view: the pixels wholly on CARD; the hair pixels that count,
+    leaving out every pixel the card touches and its shadow, swept over the strands' `depths` (min, max) beneath
+    it, and `margin` pixels more all round (the light that would have spread to them through the swatch from
+    the shadowed hair)."""
+    step = ORTHO_WIDTH / RESOLUTION
+    edges = -ORTHO_WIDTH / 2 + step * np.arange(RESOLUTION + 1)  # x left to right; y top to bottom is −edges
+    (x0, x1), (y0, y1) = CARD["x"], CARD["y"]
+    direction = np.asarray(LIGHTS["front"], dtype=np.float64)
+    shift = direction[:2] / -direction[2]  # across the image per unit of depth the light falls
+    near, far = depths[0] * shift, depths[1] * shift
+
+    def covered(lo_x, hi_x, lo_y, hi_y, wholly):
+        left, right, top, bottom = edges[:-1], edges[1:], -edges[:-1], -edges[1:]
+        if wholly:
+            return ((bottom >= lo_y) & (top <= hi_y))[:, None] & ((left >= lo_x) & (right <= hi_x))[None, :]
+        return ((top > lo_y) & (bottom < hi_y))[:, None] & ((right > lo_x) & (left < hi_x))[None, :]
+
+    card = covered(x0, x1, y0, y1, True)
+    touched = covered(x0, x1, y0, y1, False)
+    low, high = np.minimum(near, far), np.maximum(near, far)
+    shadow = covered(x0 + low[0], x1 + high[0], y0 + low[1], y1 + high[1], False)
+    out = touched | shadow
+    for _ in range(margin):  # one pixel more all round (the 8 neighbours), `margin` times
+        grown = out.copy()
+        grown[1:] |= out[:-1]
+        grown[:-1] |= out[1:]
+        out = (
+            grown
+            | np.roll(grown, 1, axis=1) * (np.arange(RESOLUTION) > 0)
+            | np.roll(grown, -1, axis=1) * (np.arange(RESOLUTION) < RESOLUTION - 1)
+        )
+    return card, ~out
+
+
 # ---------------------------------------------------------------------------------------------------------------
 # Photo-like targets, fits, the table (the main environment)
 
 
-def make_photo(name, root, out):
+def make_photo(name, root, out, card=True):
     """targets/blender_<name>_<png|jpeg>: the EXR target's two renders as a camera saves them, through
-    `warp-hair targets photo` with the recipe's flags; truth.json and camera_truth.json beside."""
-    from make_photo_targets import FORMATS, JPEG_QUALITY, auto_exposure
+    `warp-hair targets photo` with the recipe's flags; truth.json and camera_truth.json beside. With `card`, the
+    front view is `make_card`'s (the grey card in the shot), marked as a photographer marks it."""
+    from make_photo_targets import FORMATS, JPEG_QUALITY, camera_exposure
+    from PIL import Image
 
     from warp_hair.io import read_exr
     from warp_hair.photo import write_photo
@@ -435,19 +533,31 @@ def make_photo(name, root, out):
     kind = SWATCHES[name]["photo"]
     white_balance = np.array(SWATCHES[name]["white_balance"])
     directory = root / f"blender_{name}_{kind}"
-    if directory.exists():
-        shutil.rmtree(directory)
     photos = out / "photos" / name
     photos.mkdir(parents=True, exist_ok=True)
+    shot = out / "card" / name
+    if card and not (shot / "card.json").is_file():
+        raise SystemExit(f"{shot / 'card.json'} not found: run `card {name}` first (bpy), or `photo --no-card`")
+    if directory.exists():
+        shutil.rmtree(directory)
     command = ["warp-hair", "targets", "photo", str(directory)]
     gains = {}
     for view, light in LIGHTS.items():
-        image, _ = read_exr(source / f"{view}.exr")
-        exposure = auto_exposure(image)
+        image, _ = read_exr(shot / "front.exr" if card and view == "front" else source / f"{view}.exr")
+        exposure, exif = camera_exposure(image)
         path = photos / f"{view}{FORMATS[kind]}"
-        write_photo(path, image * np.float32(exposure) * white_balance.astype(np.float32), quality=JPEG_QUALITY)
+        scaled = image * np.float32(exposure) * white_balance.astype(np.float32)
+        write_photo(path, scaled, quality=JPEG_QUALITY, exif=exif)
         gains[view] = exposure * white_balance[1]
         command += ["--image", str(path), "--light", ",".join(f"{c:g}" for c in light)]
+    if card:  # the card in the front shot only: the back light does not reach its face
+        marked, hair = card_masks(json.loads((shot / "card.json").read_text(encoding="utf-8"))["depths"])
+        masks = {"front_card": marked, "front_hair": hair, "back_hair": np.ones_like(hair)}
+        for stem, mask in masks.items():
+            Image.fromarray((mask * 255).astype(np.uint8), "L").save(photos / f"{stem}.png")
+        command += ["--card-mask", str(photos / "front_card.png"), "none"]
+        command += ["--card-reflectance", str(CARD["reflectance"])]
+        command += ["--mask", str(photos / "front_hair.png"), str(photos / "back_hair.png")]
     command += record["recipe_flags"]
     print("$", " ".join(command), flush=True)
     subprocess.run(command, check=True)
@@ -471,9 +581,9 @@ def arrangement_lines(fibers) -> list[str]:
     ]
 
 
-def target_names(names, exr_only=False) -> list[str]:
-    """The targets of swatches `names`: the EXR one and (unless `exr_only`) the photo one of each."""
-    kinds = ("",) if exr_only else ("", "_{photo}")
+def target_names(names, only=None) -> list[str]:
+    """The targets of swatches `names`: the EXR one and the photo one of each, or `only` ("exr", "photo")."""
+    kinds = {"exr": ("",), "photo": ("_{photo}",)}.get(only, ("", "_{photo}"))
     return [f"blender_{name}" + kind.format(photo=SWATCHES[name]["photo"]) for name in names for kind in kinds]
 
 
@@ -501,7 +611,7 @@ def _flat(values: dict) -> np.ndarray:
     return np.concatenate([np.atleast_1d(np.asarray(values[name], dtype=np.float64)) for name in CONTROLS])
 
 
-def table(names, root, out, exr_only=False) -> str:
+def table(names, root, out, only=None) -> str:
     from optimize.settings import BOUNDS
 
     bounds = np.array([BOUNDS["albedo"]] * 3 + [BOUNDS["beta_m"], BOUNDS["beta_n"]])
@@ -511,7 +621,7 @@ def table(names, root, out, exr_only=False) -> str:
         "| --- | --- | --- | --- | --- | --- | --- | --- | --- |",
     ]
     ratios, kept = [], []
-    for target in target_names(names, exr_only):
+    for target in target_names(names, only):
         fit_dir = out / "fits" / target
         if not (fit_dir / "run.json").is_file():
             continue
@@ -591,13 +701,14 @@ def compare(name, spp, threads, out, root, realisations=4):
 
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("action", choices=("make", "photo", "fit", "table", "compare"))
+    parser.add_argument("action", choices=("make", "card", "photo", "fit", "table", "compare"))
     parser.add_argument("names", nargs="*", help=f"swatches, of {', '.join(SWATCHES)} (default all)")
     parser.add_argument("--out", type=Path, default=DEFAULT_OUT)
     parser.add_argument("--targets", type=Path, default=ROOT / "targets", help="where the targets go")
     parser.add_argument("--spp", type=int, default=None, help="make: Cycles' samples (1024); compare: ours (256)")
     parser.add_argument("--threads", type=int, help="make: Cycles' (2); fit: warp-hair's (its default: all cores)")
-    parser.add_argument("--exr-only", action="store_true", help="fit, table: the linear-EXR targets only")
+    parser.add_argument("--no-card", action="store_true", help="photo: no grey card in the front shot")
+    parser.add_argument("--only", choices=("exr", "photo"), help="fit, table: the linear-EXR or the photo targets only")
     args = parser.parse_args(argv)
     names = args.names or list(SWATCHES)
     unknown = sorted(set(names) - set(SWATCHES))
@@ -607,14 +718,17 @@ def main(argv=None) -> None:
     if args.action == "make":
         for name in names:
             print(make(name, args.spp or 1024, args.threads or 2, args.out, args.targets), flush=True)
+    elif args.action == "card":
+        for name in names:
+            print(make_card(name, args.spp or 1024, args.threads or 2, args.out, args.targets), flush=True)
     elif args.action == "photo":
         for name in names:
-            print(make_photo(name, args.targets, args.out), flush=True)
+            print(make_photo(name, args.targets, args.out, card=not args.no_card), flush=True)
     elif args.action == "fit":
-        for target in target_names(names, args.exr_only):
+        for target in target_names(names, args.only):
             run_fit(target, args.targets, args.out, args.threads)
     elif args.action == "table":
-        print(table(names, args.targets, args.out, args.exr_only))
+        print(table(names, args.targets, args.out, args.only))
     else:
         for name in names:
             compare(name, args.spp or 256, args.threads or 2, args.out, args.targets)

@@ -313,11 +313,12 @@ def _usd_fibers(bpy, path, material):
     return imported
 
 
-def render_cycles(bpy, scene, spp, threads=None, seed=0, fibers=None, usd=None, material=None, node=None):
+def render_cycles(bpy, scene, spp, threads=None, seed=0, fibers=None, usd=None, material=None, node=None, props=None):
     """The warp-hair `scene` (its fibers, or `fibers`, or the curves of the USD file `usd` as Blender imports
     them) rendered by Cycles: float32 (H, W, 3), row 0 on top. In place of the scene's look as exported:
     `node`, Cycles' own Principled Hair inputs ({"parametrization": ..., "inputs": {socket: value}}), or
-    `material(bpy)`, a material of the caller's (a probe of what Cycles' shader nodes see)."""
+    `material(bpy)`, a material of the caller's (a probe of what Cycles' shader nodes see). `props(bpy)` adds
+    objects the scene does not hold (a grey card in the shot)."""
     fibers = scene.fibers if fibers is None else fibers
     blender = _reset(bpy)
     _settings(blender, spp, scene.render.max_depth, seed, threads)
@@ -336,6 +337,8 @@ def render_cycles(bpy, scene, spp, threads=None, seed=0, fibers=None, usd=None, 
             _usd_fibers(bpy, usd, hair)
         if scene.card is not None:
             _card(bpy, scene, fibers)
+        if props is not None:
+            props(bpy)
         path = Path(tmp) / "cycles.exr"
         blender.render.filepath = str(path)
         bpy.ops.render.render(write_still=True)

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import shutil
 from pathlib import Path
 
@@ -38,9 +39,43 @@ JPEG_QUALITY = 90
 FORMATS = {"png": ".png", "jpeg": ".jpg"}
 
 
+# The camera of the Blender swatches' photos (blender_swatch_acceptance.py), which records its exposure: aperture
+# priority at f/8 and ISO 100, the shutter set on the third stop nearest what auto exposure asks for, and EXIF
+# written as a camera writes it: ExposureTime the stop's rounded name (1/60 s for 2^-6 s), ShutterSpeedValue and
+# ApertureValue its APEX values. A shutter of SHUTTER_AT_GAIN_1 gives the renders' radiance a gain of 1 (the
+# scale is arbitrary: a fit reads only the views' ratios).
+F_NUMBER, ISO = 8.0, 100
+SHUTTER_AT_GAIN_1 = 2.0**-7
+# The third-stop shutter speeds' names, from 2^5 s (30 s) down to 2^-13 s (1/8000 s).
+SHUTTER_NAMES = (
+    [30, 25, 20, 15, 13, 10, 8, 6, 5, 4, 3.2, 2.5, 2, 1.6, 1.3, 1, 0.8, 0.6, 0.5, 0.4, 0.3]
+    + [1 / d for d in (4, 5, 6, 8, 10, 13, 15, 20, 25, 30, 40, 50, 60, 80, 100, 125, 160, 200, 250, 320, 400)]
+    + [1 / d for d in (500, 640, 800, 1000, 1250, 1600, 2000, 2500, 3200, 4000, 5000, 6400, 8000)]
+)
+LONGEST_THIRD = 15  # SHUTTER_NAMES[0] names 2^(15/3) s
+
+
 def auto_exposure(image: np.ndarray) -> float:
     """A camera's auto exposure, roughly: the gain that brings the 99.5th percentile of the image to 0.9."""
     return LEVEL / float(np.percentile(image, PERCENTILE))
+
+
+def camera_exposure(image: np.ndarray) -> tuple[float, dict]:
+    """(gain, EXIF) of the recording camera above: the gain auto exposure asks for, set on the nearest third
+    stop of shutter time."""
+    third = round(3 * math.log2(auto_exposure(image) * SHUTTER_AT_GAIN_1))
+    index = LONGEST_THIRD - third
+    if not 0 <= index < len(SHUTTER_NAMES):
+        raise ValueError(f"the exposure asks for a shutter of 2^({third}/3) s, beyond 30 s to 1/8000 s")
+    seconds = 2.0 ** (third / 3)
+    exif = {
+        "ExposureTime": SHUTTER_NAMES[index],
+        "ShutterSpeedValue": -third / 3,
+        "FNumber": F_NUMBER,
+        "ApertureValue": 2 * math.log2(F_NUMBER),
+        "ISOSpeedRatings": ISO,
+    }
+    return seconds / SHUTTER_AT_GAIN_1, exif
 
 
 def make(name: str, out_root: Path, kind: str) -> Path:

@@ -70,7 +70,7 @@ def relative_exposures(target) -> np.ndarray:
     """Per image, the exposure the gain is tied to: EXIF's t·ISO/N² over the first image's ("exif"), else 1."""
     if target.gains != "exif":
         return np.ones(len(target.images))
-    values = np.array([image.photo.relative_exposure for image in target.images], dtype=np.float64)
+    values = np.array([image.relative_exposure for image in target.images], dtype=np.float64)
     return values / values[0]
 
 
@@ -259,6 +259,7 @@ def report(
     wb_sigma = [float(w[c] * sigma.get(f"white_balance[{'rgb'[c]}]", 0.0)) for c in range(3)]
     return {
         "modes": {"gains": target.gains, "white_balance": target.white_balance},
+        "cards": [image.name for image in target.images if getattr(image, "card", None) is not None],
         "gains": gains,
         "white_balance": {"value": [float(v) for v in w], "sigma": wb_sigma},
     }

@@ -274,7 +274,7 @@ def _set_camera_unknowns(target, args) -> None:
     if args.white_balance is not None:
         target.white_balance = args.white_balance
     if target.gains == "exif":
-        missing = [im.image_path.name for im in target.images if im.photo is None or im.photo.relative_exposure is None]
+        missing = [im.image_path.name for im in target.images if im.relative_exposure is None]
         if missing:
             raise ValueError(
                 f"--gains exif: {', '.join(missing)} has no EXIF exposure time, f-number and ISO; use --gains per-image"
@@ -528,6 +528,13 @@ def _add_photo(actions) -> None:
         default="camera",
         metavar="camera|X,Y,Z",
         help="the masked card's normal in the rig's frame, or 'camera' (facing it, the default)",
+    )
+    photo.add_argument(
+        "--gains",
+        choices=("auto", "exif", "per-image"),
+        default="auto",
+        help="the photos' exposures: exif (one gain, the views' ratios from EXIF: the same light in every view), "
+        "per-image (a gain each), auto (the default: exif where every photo has its EXIF exposure)",
     )
     photo.set_defaults(run=run_photo)
 

@@ -160,7 +160,7 @@ def expected_variance(
 def goodness_of_fit(lin: Linearization, target, settings, lin_spp: int, quantisation=None, draw=None) -> Goodness:
     """The measure of fit of the linearisation's mean residuals at the estimate (module docstring); `settings`
     the fit's (its pooling), lin_spp the samples per pass of lin's renders."""
-    photo = any(image.photo is not None for image in target.images)
+    photo = any(image.from_photo for image in target.images)
     target_spp = [None if image.photo is not None else image.scene.render.spp for image in target.images]
     expected, counted = expected_variance(lin, lin_spp, target_spp, quantisation, draw)
     r2 = lin.mean_residual**2
@@ -224,28 +224,30 @@ def _view(image, r2: np.ndarray, expected: np.ndarray, fitted: float, pool: int)
 def quantisation_variances(target, settings) -> np.ndarray | None:
     """(N,): the variance a photo's code values add to each weighted, pooled residual: a code is the value
     rounded to 1/(2^bits − 1) of the range, an error uniform over one step (variance step²/12), times the
-    transfer curve's slope there. JPEG's compression error comes on top of that and is not counted here (the
-    fit's own σ, from its residuals' scatter, counts it). None when no image is a photo."""
-    if all(image.photo is None for image in target.images):
+    transfer curve's slope there, over the photo pixels `targets photo` averaged into each pixel
+    (`TargetImage.coding`; independent roundings). JPEG's compression error comes on top of that and is not
+    counted here (the fit's own σ, from its residuals' scatter, counts it). None when no image is coded."""
+    if all(image.coding is None for image in target.images):
         return None
     parts = []
     for image in target.images:
         reference, _ = pool_like_loss(image, image.image, None, settings.pool)
         weight = loss_weights(reference, settings.loss)
-        photo = image.photo
-        if photo is None or photo.bits == 32:
+        coding = image.coding
+        if coding is None or coding[0] == 32:
             parts.append(np.zeros(reference.size))
             if image.card is not None and camera.fitted(target):
                 parts.append(np.zeros(card_region.card_values(image, settings.pool).size))
             continue
-        step = 1.0 / (2**photo.bits - 1)
+        bits, transfer, averaged = coding
+        step = 1.0 / (2**bits - 1)
         linear = image.image.astype(np.float64)
-        if photo.transfer == "linear":
+        if transfer == "linear":
             slope = np.ones_like(linear)
         else:  # the decoded value's change per code, by a finite step of the curve (sRGB or a power law)
             encoded = np.clip(np.where(linear <= 0.0031308, 12.92 * linear, 1.055 * linear ** (1 / 2.4) - 0.055), 0, 1)
             slope = (srgb_decode(np.minimum(encoded + step, 1.0)) - linear) / step
-        variance = (slope * step) ** 2 / 12.0
+        variance = (slope * step) ** 2 / 12.0 / averaged
         _, pooled = pool_like_loss(image, np.zeros_like(linear), variance, settings.pool)
         parts.append(pooled * weight**2)
         if image.card is not None and camera.fitted(target):  # its rows follow the image's (linearize.py)

@@ -379,7 +379,7 @@ def check_target(
 def is_photo(target) -> bool:
     """Whether the target's images are photographs: decoded from a PNG, JPEG, TIFF or raw file, or an EXR that
     `warp-hair targets photo` wrote from one (its header's "photo" record)."""
-    return any(image.photo is not None or "photo" in image.metadata for image in target.images)
+    return any(image.from_photo for image in target.images)
 
 
 def _realisation_linearisations(target, at, settings, render_spp, seed, threads, count) -> list:

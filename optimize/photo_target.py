@@ -43,6 +43,13 @@ holding a clipped or crushed pixel is left out (the mask), as is the background 
 within 5% of the border's median colour; not with a card, whose pixels carry the light's level and colour). EXIF
 that contradicts the flags (a `--fov` more than 2% from the one EXIF's focal length gives) is an error naming
 both; a light count that does not match the photos is an error.
+
+The photos' exposures: where every photo has its EXIF exposure (time, f-number, ISO), target.toml says `gains =
+"exif"` (`--gains auto`): one gain, the views' ratios the camera recorded (the APEX values where the file has
+them, warp_hair.photo.relative_exposure), which holds where each view's light is as strong as the others' (one
+lamp moved round the swatch, as the scenes' lights of equal irradiance say). A gain per photo (`--gains
+per-image`, and the default without EXIF) leaves each view's brightness free: with the white balance also
+free, a light or a dark swatch's overall level then trades with its albedo (docs/fitting.md).
 """
 
 from __future__ import annotations
@@ -191,6 +198,9 @@ def photo_line(photo, keep: np.ndarray) -> str:
     pixels = photo.clipped.size
     clipped, crushed = int(photo.clipped.sum()), int((photo.crushed & ~photo.clipped).sum())
     notes = "".join(f"; {note}" for note in photo.notes)
+    exif = photo.exif
+    if photo.relative_exposure is not None:
+        notes = f"; EXIF {exif['exposure_time']:.4g} s, f/{exif['f_number']:g}, ISO {exif['iso']:g}" + notes
     return (
         f"{photo.path.name}: {photo.format} {photo.bits}-bit, {photo.transfer} decoded; {clipped} clipped "
         f"({clipped / pixels:.2%}) and {crushed} crushed ({crushed / pixels:.2%}) of {pixels} pixels; "
@@ -350,6 +360,19 @@ def _table(name: str, table: dict, array: bool = False) -> str:
     return "\n".join([head] + [f"{key} = {_toml(value)}" for key, value in table.items()])
 
 
+def _gains(args, images, exposures) -> str:
+    """target.toml's gains: --gains, where auto "exif" when every photo has its EXIF exposure."""
+    choice = getattr(args, "gains", "auto")
+    lacking = [path.name for path, e in zip(images, exposures) if e is None]
+    if choice == "exif" and lacking:
+        raise ValueError(
+            f"--gains exif: {', '.join(lacking)} has no EXIF exposure time, f-number and ISO; use --gains per-image"
+        )
+    if choice == "auto":
+        return "per-image" if lacking else "exif"
+    return choice
+
+
 def make_photo_target(out_dir, args, log=None) -> list[Path]:
     """Write the target (see the module docstring) from the parsed `warp-hair targets photo` arguments; `log`
     (e.g. print) is given a line per photo: its decoding, its clipped and crushed pixels, its notes."""
@@ -371,9 +394,10 @@ def make_photo_target(out_dir, args, log=None) -> list[Path]:
     if len(set(names)) != len(names):
         raise ValueError(f"two photos have the same name {names}: the target names its files after them")
     out_dir.mkdir(parents=True, exist_ok=True)
-    written, entries = [], []
+    written, entries, exposures = [], [], []
     for k, path in enumerate(images):
         photo = read_photo(path, args.transfer)
+        exposures.append(photo.relative_exposure)
         bad = photo.clipped | photo.crushed
         image, flags = downsample(photo.image, bad, args.resolution)
         keep = ~flags
@@ -418,7 +442,17 @@ def make_photo_target(out_dir, args, log=None) -> list[Path]:
         parts.append(_table("render", {"spp": PHOTO_SPP, "max_depth": depth, "seed": 1}))
         (out_dir / scene_name).write_text("\n\n".join(parts) + "\n", encoding="utf-8")
         write_exr(
-            out_dir / exr_name, image, {"photo": {"file": path.name, "transfer": photo.transfer, "exif": photo.exif}}
+            out_dir / exr_name,
+            image,
+            {
+                "photo": {
+                    "file": path.name,
+                    "transfer": photo.transfer,
+                    "exif": photo.exif,
+                    "bits": photo.bits,  # with block, the codes' rounding the fit's χ² counts (goodness.py)
+                    "block": photo.image.shape[1] / image.shape[1],  # photo pixels across each target pixel
+                }
+            },
         )
         entry = {"scene": scene_name, "image": exr_name}
         written += [out_dir / scene_name, out_dir / exr_name]
@@ -432,10 +466,16 @@ def make_photo_target(out_dir, args, log=None) -> list[Path]:
             Image.fromarray((card * 255).astype(np.uint8), "L").save(out_dir / entry["card_mask"])
             written.append(out_dir / entry["card_mask"])
         entries.append(entry)
+    gains = _gains(args, images, exposures)
     lines = [
         "# Made by `warp-hair targets photo`: the photos decoded to linear EXR; their exposures and white balance "
         "are fitted with the hair.",
-        'gains = "per-image"',
+        *(
+            ["# One gain, the views' exposure ratios from EXIF: every view's light as strong as the others'."]
+            if gains == "exif"
+            else []
+        ),
+        f"gains = {_toml(gains)}",
         'white_balance = "fit"',
         "# The scenes' [fibers] are the rig's recipe, never the photographed strands: the fit renders other",
         "# realisations of it and counts the photo's strands as one draw in its σ (optimize/realisations.py).",

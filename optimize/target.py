@@ -85,7 +85,7 @@ import targets as shipped
 from warp_hair.geometry.interpenetration import checked_interpenetration
 from warp_hair.io import read_exr, write_exr
 from warp_hair.model.params import HairParams
-from warp_hair.photo import TRANSFERS, Photo, read_photo
+from warp_hair.photo import TRANSFERS, Photo, read_photo, relative_exposure
 from warp_hair.realisation import check_realisable
 from warp_hair.renderer.render import render, render_metadata
 from warp_hair.scene import Scene, load_scene
@@ -117,6 +117,39 @@ class TargetImage:
     metadata: dict = field(default_factory=dict)  # the EXR header's string attributes (`warp_hair.io.read_exr`)
     photo: Photo | None = None  # a PNG, JPEG or TIFF's decoding: transfer, clipped and crushed pixels, EXIF
     card: card_region.CardRegion | None = None  # a grey card marked in the image (optimize/card_region.py)
+
+    @property
+    def photo_record(self) -> dict | None:
+        """For an EXR `targets photo` decoded from a photo, its header's record of that photo (file, transfer,
+        EXIF, bits, photo pixels per block); None otherwise."""
+        record = self.metadata.get("photo")
+        return record if isinstance(record, dict) else None
+
+    @property
+    def from_photo(self) -> bool:
+        """Whether a camera made the image: a photo decoded here, or an EXR `targets photo` wrote from one."""
+        return self.photo is not None or self.photo_record is not None
+
+    @property
+    def coding(self) -> tuple | None:
+        """(bits, transfer, photo pixels averaged into each pixel) of the codes the camera wrote, for their
+        rounding's variance (optimize/goodness.py): a photo's, or the record an EXR `targets photo` wrote keeps
+        (targets made before it kept bits: None, as for a render)."""
+        if self.photo is not None:
+            return self.photo.bits, self.photo.transfer, 1.0
+        record = self.photo_record
+        if record is None or "bits" not in record:
+            return None
+        return int(record["bits"]), str(record.get("transfer", "srgb")), float(record.get("block", 1.0)) ** 2
+
+    @property
+    def relative_exposure(self) -> float | None:
+        """EXIF's t·ISO/N² (warp_hair.photo.relative_exposure): the photo's, or, for an EXR `targets photo`
+        decoded from one, the photo's EXIF its header keeps; None without."""
+        if self.photo is not None:
+            return self.photo.relative_exposure
+        exif = (self.photo_record or {}).get("exif")
+        return relative_exposure(exif) if isinstance(exif, dict) else None
 
 
 @dataclass
@@ -329,7 +362,7 @@ def _camera_unknowns(spec_path: Path, spec: dict, images) -> tuple:
     photos = [image.photo for image in images]
     # A grey card marked in an image is there to pin the gains: with one, they are unknowns even in an EXR.
     display = any(p is not None and p.camera_exposed for p in photos) or any(im.card is not None for im in images)
-    with_exif = all(p is not None and p.relative_exposure is not None for p in photos)
+    with_exif = all(image.relative_exposure is not None for image in images)
     gains = spec.get("gains", ("exif" if with_exif else "per-image") if display else "none")
     white_balance = spec.get("white_balance", "fit" if display else "none")
     if gains == "none" and white_balance == "none" and any(im.card is not None for im in images):
@@ -339,7 +372,7 @@ def _camera_unknowns(spec_path: Path, spec: dict, images) -> tuple:
             "card out"
         )
     if gains == "exif" and not with_exif:
-        lacking = next(image for image, p in zip(images, photos) if p is None or p.relative_exposure is None)
+        lacking = next(image for image in images if image.relative_exposure is None)
         raise ValueError(
             f'{spec_path}: gains = "exif" but {lacking.image_path.name} has no EXIF exposure time, '
             'f-number and ISO to relate its exposure to the others\'; use gains = "per-image"'

@@ -146,11 +146,24 @@ def _camera(report: dict | None) -> list[str]:
     if report is None:
         return []
     reasons = []
+    # What is left to pin a gain: EXIF where the views' exposures are not tied yet, a grey card where none is in
+    # view; with both, the hair outweighs the card, and the advice is to look at what the card and hair disagree on.
+    exif = report.get("modes", {}).get("gains") == "exif"
+    cards = report.get("cards", [])
+    remedy = 'a grey card in the shot, or fix the exposure (gains = "none")'
+    if not exif:
+        remedy = 'the photos\' exposures (gains = "exif"), ' + remedy
+    elif cards:
+        remedy = (
+            f"the grey card in view {', '.join(cards)} is outweighed by the hair, which the scenes do not describe "
+            "well enough to hold its brightness (the report's χ² per region says where): check the recipe and the "
+            "lights against the photos, and the card's mask, reflectance and normal"
+        )
     for name, (value, sigma) in report["gains"].items():
         if not np.isfinite(value) or value <= 0 or sigma > GAIN_RELATIVE_SIGMA * value:
             reasons.append(
                 f"the gain of view {name} ran to {value:.4g} ± {sigma:.3g}, which its images cannot support: give "
-                'the photos\' exposures (gains = "exif"), a grey card, or fix the exposure (gains = "none")'
+                f"{remedy}"
             )
     wb = report["white_balance"]
     for channel, value, sigma in zip("rgb", wb["value"], wb["sigma"]):

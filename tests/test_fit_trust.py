@@ -113,7 +113,7 @@ def _target(shape=(48, 48), spp=1024):
     scene = types.SimpleNamespace(render=types.SimpleNamespace(spp=spp))
     image = np.random.default_rng(0).uniform(0.1, 1.0, (*shape, 3))
     return types.SimpleNamespace(
-        images=[types.SimpleNamespace(name="front", image=image, mask=None, photo=None, scene=scene)]
+        images=[types.SimpleNamespace(name="front", image=image, mask=None, photo=None, from_photo=False, scene=scene)]
     )
 
 

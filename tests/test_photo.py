@@ -100,6 +100,93 @@ def test_icc_srgb_profile_and_exif(tmp_path):
         camera_fov(photo, fov=60.0, sensor_width=36.0)
 
 
+def test_exif_exposure_reads_the_exact_stop_where_apex_gives_it(tmp_path):
+    """ExposureTime is the stop's rounded name (1/60 s for 2^-6 s): with ShutterSpeedValue and ApertureValue
+    (APEX) beside it the exact stop is read; an APEX value more than a third of a stop from the name (an edited
+    file) is not. write_photo's EXIF reads back through read_photo, PNG and JPEG."""
+    named = {"ExposureTime": 1 / 60, "FNumber": 5.6, "ISOSpeedRatings": 200}
+    exact = {**named, "ShutterSpeedValue": 6.0, "ApertureValue": 5.0}
+    for suffix in (".png", ".jpg"):
+        write_photo(tmp_path / f"named{suffix}", _linear(), exif=named)
+        write_photo(tmp_path / f"exact{suffix}", _linear(), exif=exact)
+        assert read_photo(tmp_path / f"named{suffix}").relative_exposure == pytest.approx(200 / 60 / 5.6**2, rel=1e-6)
+        photo = read_photo(tmp_path / f"exact{suffix}")
+        assert photo.exif["shutter_speed_value"] == pytest.approx(6.0)
+        assert photo.relative_exposure == pytest.approx(200 * 2.0**-6 / 2.0**5, rel=1e-6)
+    edited = {**exact, "ExposureTime": 1 / 125}  # 7 stops named, 6 in APEX: the name is read
+    write_photo(tmp_path / "edited.jpg", _linear(), exif=edited)
+    assert read_photo(tmp_path / "edited.jpg").relative_exposure == pytest.approx(200 / 125 / 2.0**5, rel=1e-6)
+    with pytest.raises(ValueError, match="EXIF tag 'Flash' is not one warp-hair writes"):
+        write_photo(tmp_path / "f.jpg", _linear(), exif={"Flash": 1})
+
+
+def test_targets_photo_ties_the_gains_to_exif_where_every_photo_has_it(tmp_path, capsys):
+    """Photos with EXIF exposures make a target with gains = "exif" whose ratios (from the EXRs' headers) are the
+    photos'; without EXIF, a gain per photo; --gains exif without it is an error naming the photo."""
+    image = np.full((32, 32, 3), 0.3, np.float32) + _gradient(32)
+    write_photo(tmp_path / "front.jpg", image, exif={"ExposureTime": 1 / 60, "ShutterSpeedValue": 6.0, "FNumber": 8.0,
+                                                     "ISOSpeedRatings": 100})  # fmt: skip
+    write_photo(tmp_path / "back.jpg", image, exif={"ExposureTime": 1 / 500, "ShutterSpeedValue": 9.0, "FNumber": 8.0,
+                                                    "ISOSpeedRatings": 100})  # fmt: skip
+    write_photo(tmp_path / "plain.jpg", image)
+    views = ["--light", "0.2,-0.3,-1", "--light", "0,-0.15,1", "--ortho-width", "0.4", "--resolution", "16"]
+    args = photo_args("--image", str(tmp_path / "front.jpg"), "--image", str(tmp_path / "back.jpg"), *views)
+    make_photo_target(tmp_path / "exif", args)
+    target = load_target(tmp_path / "exif")
+    assert target.gains == "exif" and np.allclose(camera.relative_exposures(target), [1.0, 1 / 8], rtol=1e-9)
+    args = photo_args("--image", str(tmp_path / "front.jpg"), "--image", str(tmp_path / "plain.jpg"), *views)
+    make_photo_target(tmp_path / "mixed", args)
+    assert load_target(tmp_path / "mixed").gains == "per-image"
+    args.gains = "exif"
+    with pytest.raises(ValueError, match=r"--gains exif: plain\.jpg has no EXIF exposure"):
+        make_photo_target(tmp_path / "mixed2", args)
+
+
+def test_a_target_made_from_photos_counts_their_codes_rounding(tmp_path):
+    """The EXRs `targets photo` writes keep the photo's bits and block size, so the fit's χ² counts the 8-bit
+    codes' rounding as it does for the photo read directly (it counted none before), over the photo pixels each
+    target pixel averages."""
+    from optimize.goodness import quantisation_variances
+
+    write_photo(tmp_path / "front.png", np.full((32, 32, 3), 0.2, np.float32) + _gradient(32))
+    views = ["--image", str(tmp_path / "front.png"), "--light", "0.2,-0.3,-1", "--ortho-width", "0.4"]
+    make_photo_target(tmp_path / "made", photo_args(*views, "--resolution", "32"))
+    made = load_target(tmp_path / "made")
+    assert made.images[0].coding == (8, "srgb", 1.0) and made.images[0].photo is None
+    direct = tmp_path / "direct"
+    shutil.copytree(tmp_path / "made", direct)
+    shutil.copy(tmp_path / "front.png", direct / "front.png")
+    spec = direct / "target.toml"
+    spec.write_text(spec.read_text().replace('image = "front.exr"', 'image = "front.png"'))
+    read = load_target(direct)
+    assert read.images[0].photo is not None
+    settings = FitSettings()
+    counted = quantisation_variances(made, settings)
+    assert counted is not None and (counted > 0).all()
+    assert np.allclose(counted, quantisation_variances(read, settings), rtol=1e-4)
+    make_photo_target(tmp_path / "half", photo_args(*views, "--resolution", "16"))
+    assert load_target(tmp_path / "half").images[0].coding == (8, "srgb", 4.0)
+
+
+def test_a_runaway_gain_names_what_is_left_to_pin_it():
+    """A gain the images cannot support: where EXIF ties the views already, the advice is a grey card, not EXIF."""
+    from optimize.verdict import _camera
+
+    report = {
+        "gains": {"front": (10.8, 10.0)},
+        "white_balance": {"value": [1.0, 1.0, 1.0], "sigma": [0.0, 0.0, 0.0]},
+        "modes": {"gains": "exif", "white_balance": "fit"},
+    }
+    (reason,) = _camera(report)
+    assert "a grey card in the shot" in reason and '"exif"' not in reason
+    report["modes"]["gains"] = "per-image"
+    (reason,) = _camera(report)
+    assert 'gains = "exif"' in reason
+    report["modes"]["gains"], report["cards"] = "exif", ["front"]
+    (reason,) = _camera(report)
+    assert "the grey card in view front is outweighed by the hair" in reason
+
+
 def test_bad_photos_are_clear_errors(tmp_path):
     codes = np.round(srgb_encode(_linear(32, 32)) * 255).astype(np.uint8)
     Image.fromarray(codes, "RGB").save(tmp_path / "whole.jpg", quality=90)
@@ -503,7 +590,7 @@ def test_exif_gains_keep_the_exposure_ratios():
     """gains = "exif": one gain times each view's t·ISO/N² over the first's; the views' ratio is not fitted."""
     from types import SimpleNamespace
 
-    views = [SimpleNamespace(photo=SimpleNamespace(relative_exposure=e)) for e in (0.01, 0.04)]
+    views = [SimpleNamespace(relative_exposure=e) for e in (0.01, 0.04)]
     T = SimpleNamespace(gains="exif", white_balance="fit", images=views)
     renders = [torch.rand(8, 8, 3, dtype=torch.float64) + 0.1 for _ in range(2)]
     w = np.array([0.95, 1.0, 1.1])

@@ -87,7 +87,13 @@ EXIF_TAGS = {
     "FocalLength": "focal_length",
     "FocalLengthIn35mmFilm": "focal_length_35mm",
     "ExposureBiasValue": "exposure_bias",
+    "ShutterSpeedValue": "shutter_speed_value",  # APEX Tv = -log2(t): the exact stop, where ExposureTime names it
+    "ApertureValue": "aperture_value",  # APEX Av = 2 log2(N)
 }
+# How far (in stops) an APEX value may lie from the rounded value it stands beside and still be read in its place:
+# a rounded name is within a sixth of a stop of its stop (1/60 s names 2^-6 s: 0.093 stop); farther, the tags
+# disagree (an edited file) and the rounded value, which a person sees, is read.
+APEX_TOLERANCE = 1 / 3
 
 
 class PhotoWarning(UserWarning):
@@ -122,12 +128,27 @@ class Photo:
 
     @property
     def relative_exposure(self) -> float | None:
-        """t · ISO / N² from EXIF: proportional to the code value a given radiance gives, so the ratio of two
-        photos' is the ratio of their gains (None where a tag is missing)."""
-        t, n, iso = (self.exif.get(key) for key in ("exposure_time", "f_number", "iso"))
-        if not all(isinstance(v, float) and v > 0 for v in (t, n, iso)):
-            return None
-        return t * iso / (n * n)
+        """t · ISO / N² from this photo's EXIF (`relative_exposure`), or None."""
+        return relative_exposure(self.exif)
+
+
+def relative_exposure(exif: dict) -> float | None:
+    """t · ISO / N² from EXIF values (Photo.exif's keys): proportional to the code value a given radiance gives,
+    so the ratio of two photos' is the ratio of their gains (None where a tag is missing).
+
+    ExposureTime and FNumber are the rounded names a camera shows (1/60 s, f/5.6) of the stops it sets (2^-6 s,
+    2^2.5), up to 7% apart in the ratio of two photos; where the file also has the APEX ShutterSpeedValue and
+    ApertureValue (what DSLRs and phones write), those exact stops are read instead."""
+    t, n, iso = (exif.get(key) for key in ("exposure_time", "f_number", "iso"))
+    if not all(isinstance(v, (int, float)) and v > 0 for v in (t, n, iso)):
+        return None
+    stops_t, stops_n2 = -math.log2(t), 2 * math.log2(n)
+    tv, av = exif.get("shutter_speed_value"), exif.get("aperture_value")
+    if isinstance(tv, (int, float)) and abs(tv - stops_t) <= APEX_TOLERANCE:
+        stops_t = tv
+    if isinstance(av, (int, float)) and abs(av - stops_n2) <= APEX_TOLERANCE:
+        stops_n2 = av
+    return 2.0 ** (-stops_t - stops_n2) * iso
 
 
 def read_photo(path, transfer: str = "auto") -> Photo:
@@ -523,10 +544,10 @@ def _from_icc(path: Path, values: np.ndarray, icc: bytes, bits: int, notes: list
     return np.asarray(converted).astype(np.float64) / 255.0, f"icc:{name} → srgb"
 
 
-def write_photo(path, linear, quality: int = 90) -> None:
+def write_photo(path, linear, quality: int = 90, exif: dict | None = None) -> None:
     """Write linear RGB as a camera writes it: clipped at 1 (highlights beyond the range lost), sRGB-encoded,
-    8 bits, as PNG or (by the suffix) JPEG at `quality`. The photo-like targets are made so
-    (benchmarks/make_photo_targets.py)."""
+    8 bits, as PNG or (by the suffix) JPEG at `quality`, with `exif` (EXIF_TAGS' names to numbers) in its Exif
+    IFD. The photo-like targets are made so (benchmarks/make_photo_targets.py)."""
     from .io import _replaced, _rgb_image, srgb_encode
 
     path = Path(path)
@@ -537,8 +558,29 @@ def write_photo(path, linear, quality: int = 90) -> None:
     suffix = path.suffix.lower()
     if suffix not in (".png", ".jpg", ".jpeg"):
         raise ValueError(f"{path}: write_photo writes .png or .jpg")
+    extra = {"exif": _exif_bytes(path, exif)} if exif else {}
     with _replaced(path) as partial:
         if suffix == ".png":
-            Image.fromarray(codes, "RGB").save(partial, format="PNG")
+            Image.fromarray(codes, "RGB").save(partial, format="PNG", **extra)
         else:
-            Image.fromarray(codes, "RGB").save(partial, format="JPEG", quality=int(quality))
+            Image.fromarray(codes, "RGB").save(partial, format="JPEG", quality=int(quality), **extra)
+
+
+def _exif_bytes(path: Path, values: dict) -> bytes:
+    """An Exif block holding `values` (EXIF_TAGS' names) in its Exif IFD: rationals, ISO as an integer."""
+    from fractions import Fraction
+
+    from PIL.TiffImagePlugin import IFDRational
+
+    block = Image.Exif()
+    ifd = block.get_ifd(ExifTags.IFD.Exif)
+    for name, value in values.items():
+        if name not in EXIF_TAGS:
+            raise ValueError(f"{path}: EXIF tag {name!r} is not one warp-hair writes ({', '.join(EXIF_TAGS)})")
+        number = getattr(ExifTags.Base, name)
+        if name == "ISOSpeedRatings":
+            ifd[number] = int(value)
+        else:
+            fraction = Fraction(float(value)).limit_denominator(100000)
+            ifd[number] = IFDRational(fraction.numerator, fraction.denominator)
+    return block.tobytes()  # Pillow writes a PNG's eXIf chunk from bytes only
