@@ -102,6 +102,7 @@ class Identifiability:
     gains: str = "none"  # the target's gains (optimize/camera.py): what pins them is a remedy
     card: bool = False  # a grey card in it (marked or rendered) pins them already
     views: int = 1
+    arrangement: tuple = ()  # the keys of the target's [arrangement] prior, which the strands' draw includes
     quantisation: np.ndarray | None = None  # (p,) the part of σ target noise from the photos' 8- or 16-bit codes
 
     @property
@@ -370,10 +371,28 @@ def check_target(
         gains=target.gains,
         card=any(image.card is not None or image.scene.card is not None for image in target.images),
         views=len(target.images),
+        arrangement=_arrangement_keys(target),
         quantisation=quantised,
     )
     # What keeps each control from being identified needs the whole account (its σ parts) first.
     return dataclasses.replace(result, problems=_problems(result, flat))
+
+
+def _arrangement_keys(target) -> tuple:
+    """The keys of the target's [arrangement] prior whose range is not a point (none without one)."""
+    prior = getattr(target, "arrangement", None)
+    return () if prior is None else tuple(k for k, (a, b) in prior.ranges.items() if b > a)
+
+
+def _arrangement_hint(result) -> str:
+    """Where the strands' draw includes a prior over how they lie: that part does not fall with more strands."""
+    if not result.arrangement:
+        return ""
+    return (
+        f"; part of it is how the strands lie (target.toml's [arrangement]: {', '.join(result.arrangement)}), which "
+        "moves every strand at once and does not fall with more of them: narrow those ranges where you can measure "
+        "the swatch (the gap between its layers, how evenly its strands lie, how far its clumps close)"
+    )
 
 
 def is_photo(target) -> bool:
@@ -464,6 +483,7 @@ def _problems(result: Identifiability, flat: np.ndarray) -> list:
                 f"{drawn[k]:.3g} (over {result.realisation_samples} realisations), and no longer exposure removes "
                 "that: get more strands in view (a wider crop of the swatch, or the camera further back, or a wider "
                 "swatch: that part falls about as one over the square root of the strands seen)"
+                + _arrangement_hint(result)
             )
         elif beyond_samples and drawn[k] > model[k]:
             message += (
@@ -471,7 +491,7 @@ def _problems(result: Identifiability, flat: np.ndarray) -> list:
                 f"{drawn[k]:.3g} (over {result.realisation_samples} realisations), and no number of samples removes "
                 "that: show more strands (a wider swatch or more of it in view: that part falls about as one over "
                 "the square root of the strands seen), or give the scenes the very strands and fit them (realisations "
-                '= "fixed")'
+                '= "fixed")' + _arrangement_hint(result)
             )
         elif beyond_samples and result.photo:
             message += (

@@ -291,7 +291,10 @@ def test_every_cause_has_a_photographers_remedy():
         "went through the fibers), or fix it (leave it out of --fit)"
     )
     assert "get more strands in view (a wider crop of the swatch, or the camera further back" in photo["beta_n"]
-    assert 'realisations = "fixed"' not in photo["beta_n"]
+    assert 'realisations = "fixed"' not in photo["beta_n"] and "[arrangement]" not in photo["beta_n"]
+    # With a prior over how the strands lie, part of the draw does not fall with more strands: narrow it.
+    prior = dict(zip(result.labels, _problems(dataclasses.replace(result, arrangement=("jitter", "layer_gap")), flat)))
+    assert "target.toml's [arrangement]: jitter, layer_gap), which moves every strand at once" in prior["beta_n"]
     rendered = dict(zip(result.labels, _problems(dataclasses.replace(result, photo=False), flat)))
     assert "fit exposure as well" in rendered["albedo[r]"] and "render the target with" in rendered["albedo[g]"]
     assert 'realisations = "fixed"' in rendered["beta_n"] and "add a view or a light" in rendered["beta_m"]
