@@ -150,9 +150,9 @@ def _camera(report: dict | None) -> list[str]:
     # view; with both, the hair outweighs the card, and the advice is to look at what the card and hair disagree on.
     exif = report.get("modes", {}).get("gains") == "exif"
     cards = report.get("cards", [])
-    remedy = 'a grey card in the shot, or fix the exposure (gains = "none")'
+    remedy = 'give a grey card in the shot, or fix the exposure (gains = "none")'
     if not exif:
-        remedy = 'the photos\' exposures (gains = "exif"), ' + remedy
+        remedy = 'give the photos\' exposures (gains = "exif"), ' + remedy.removeprefix("give ")
     elif cards:
         remedy = (
             f"the grey card in view {', '.join(cards)} is outweighed by the hair, which the scenes do not describe "
@@ -162,16 +162,20 @@ def _camera(report: dict | None) -> list[str]:
     for name, (value, sigma) in report["gains"].items():
         if not np.isfinite(value) or value <= 0 or sigma > GAIN_RELATIVE_SIGMA * value:
             reasons.append(
-                f"the gain of view {name} ran to {value:.4g} ± {sigma:.3g}, which its images cannot support: give "
-                f"{remedy}"
+                f"the gain of view {name} ran to {value:.4g} ± {sigma:.3g}, which its images cannot support: {remedy}"
             )
     wb = report["white_balance"]
+    balance = (
+        f"the grey card in view {', '.join(cards)} does not hold it against the hair: check the recipe and the "
+        "lights against the photos, and the card's mask and reflectance"
+        if cards
+        else 'photograph a grey card, or give the white balance (white_balance = "none" for images already balanced)'
+    )
     for channel, value, sigma in zip("rgb", wb["value"], wb["sigma"]):
         low, high = WHITE_BALANCE_RANGE
         if not low <= value <= high or sigma > GAIN_RELATIVE_SIGMA * value:
             reasons.append(
                 f"the white balance's {channel} ran to {value:.4g} ± {sigma:.3g}, outside what a camera does "
-                f"({low:g} to {high:g}) or unsupported: photograph a grey card, or give the white balance "
-                '(white_balance = "none" for images already balanced)'
+                f"({low:g} to {high:g}) or unsupported: {balance}"
             )
     return reasons

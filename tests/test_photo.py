@@ -185,6 +185,9 @@ def test_a_runaway_gain_names_what_is_left_to_pin_it():
     report["modes"]["gains"], report["cards"] = "exif", ["front"]
     (reason,) = _camera(report)
     assert "the grey card in view front is outweighed by the hair" in reason
+    report["gains"], report["white_balance"]["value"] = {"front": (1.5, 0.1)}, [1.0, 1.0, 6.0]
+    (reason,) = _camera(report)
+    assert "white balance's b ran to 6" in reason and "the grey card in view front does not hold it" in reason
 
 
 def test_bad_photos_are_clear_errors(tmp_path):
