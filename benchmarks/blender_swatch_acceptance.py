@@ -23,9 +23,10 @@ OUT/card/<name>. The others run in warp-hair's own environment.
 0.9, the shutter on the nearest third stop at f/8 and ISO 100, recorded in EXIF as a camera records it; a white
 balance off by up to 8% per channel; clipped; sRGB; 8-bit PNG or JPEG at quality 90:
 benchmarks/make_photo_targets.py's `camera_exposure`; the files under OUT/photos and in the target) and runs
-`warp-hair targets photo` with the recipe's flags into targets/blender_<name>_<png|jpeg>, adding truth.json and
-camera_truth.json. Its front photo is `card`'s, the card and the hair it shadows marked as a photographer marks
-them (`card_masks`: `--card-mask`, `--card-reflectance 0.18`, `--mask`), unless `--no-card`.
+`warp-hair targets photo` with the recipe's flags and `--gains exif` (one lamp, as strong in both views, lit
+them) into targets/blender_<name>_<png|jpeg>, adding truth.json and camera_truth.json. Its front photo is
+`card`'s, the card and the hair it shadows marked as a photographer marks them (`card_masks`: `--card-mask`,
+`--card-reflectance 0.18`, `--mask`), unless `--no-card`.
 `fit` runs `warp-hair fit DIR -o OUT/fits/TARGET` (defaults) on each target in turn and records its exit status and
 wall time; `table` prints the Markdown table of docs/acceptance.md ("Swatches Blender made"); `compare` renders, at
 the true look, Blender's strands and the recipe's realisations in warp-hair against Cycles' images.
@@ -558,6 +559,7 @@ def make_photo(name, root, out, card=True):
         command += ["--card-mask", str(photos / "front_card.png"), "none"]
         command += ["--card-reflectance", str(CARD["reflectance"])]
         command += ["--mask", str(photos / "front_hair.png"), str(photos / "back_hair.png")]
+    command += ["--gains", "exif"]  # one lamp of the same irradiance lit both views (LIGHTS, IRRADIANCE)
     command += record["recipe_flags"]
     print("$", " ".join(command), flush=True)
     subprocess.run(command, check=True)

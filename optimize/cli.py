@@ -531,10 +531,10 @@ def _add_photo(actions) -> None:
     )
     photo.add_argument(
         "--gains",
-        choices=("auto", "exif", "per-image"),
-        default="auto",
-        help="the photos' exposures: exif (one gain, the views' ratios from EXIF: the same light in every view), "
-        "per-image (a gain each), auto (the default: exif where every photo has its EXIF exposure)",
+        choices=("per-image", "exif"),
+        default="per-image",
+        help="the photos' exposures: per-image (the default: a gain each), or exif (one gain, the views' ratios "
+        "from their EXIF: where one lamp, as strong in every view, lit them all)",
     )
     photo.set_defaults(run=run_photo)
 

@@ -44,12 +44,12 @@ within 5% of the border's median colour; not with a card, whose pixels carry the
 that contradicts the flags (a `--fov` more than 2% from the one EXIF's focal length gives) is an error naming
 both; a light count that does not match the photos is an error.
 
-The photos' exposures: where every photo has its EXIF exposure (time, f-number, ISO), target.toml says `gains =
-"exif"` (`--gains auto`): one gain, the views' ratios the camera recorded (the APEX values where the file has
-them, warp_hair.photo.relative_exposure), which holds where each view's light is as strong as the others' (one
-lamp moved round the swatch, as the scenes' lights of equal irradiance say). A gain per photo (`--gains
-per-image`, and the default without EXIF) leaves each view's brightness free: with the white balance also
-free, a light or a dark swatch's overall level then trades with its albedo (docs/fitting.md).
+The photos' exposures: a gain per photo by default (`--gains per-image`), which leaves each view's brightness
+free: with the white balance also free, a light or a dark swatch's overall level then trades with its albedo
+(docs/fitting.md). `--gains exif` ties them to one gain and the views' ratios the camera recorded (the APEX
+values where the file has them, warp_hair.photo.relative_exposure), which holds where each view's light is as
+strong as the others' (one lamp moved round the swatch, as the scenes' lights of equal irradiance say); only the
+photographer knows that, so it is never assumed (a note says when every photo has the EXIF to do it).
 """
 
 from __future__ import annotations
@@ -360,16 +360,20 @@ def _table(name: str, table: dict, array: bool = False) -> str:
     return "\n".join([head] + [f"{key} = {_toml(value)}" for key, value in table.items()])
 
 
-def _gains(args, images, exposures) -> str:
-    """target.toml's gains: --gains, where auto "exif" when every photo has its EXIF exposure."""
-    choice = getattr(args, "gains", "auto")
+def _gains(args, images, exposures, log=None) -> str:
+    """target.toml's gains: --gains, checked against the photos' EXIF; with every photo's EXIF exposure and a
+    gain each, `log` is told what tying them would take."""
+    choice = getattr(args, "gains", "per-image")
     lacking = [path.name for path, e in zip(images, exposures) if e is None]
     if choice == "exif" and lacking:
         raise ValueError(
             f"--gains exif: {', '.join(lacking)} has no EXIF exposure time, f-number and ISO; use --gains per-image"
         )
-    if choice == "auto":
-        return "per-image" if lacking else "exif"
+    if choice == "per-image" and not lacking and len(images) > 1 and log is not None:
+        log(
+            "every photo has its EXIF exposure: where one lamp, as strong in every view, lit them all (moved round "
+            "the swatch), --gains exif ties their gains to one, which pins the hair's brightness far better"
+        )
     return choice
 
 
@@ -466,7 +470,7 @@ def make_photo_target(out_dir, args, log=None) -> list[Path]:
             Image.fromarray((card * 255).astype(np.uint8), "L").save(out_dir / entry["card_mask"])
             written.append(out_dir / entry["card_mask"])
         entries.append(entry)
-    gains = _gains(args, images, exposures)
+    gains = _gains(args, images, exposures, log)
     lines = [
         "# Made by `warp-hair targets photo`: the photos decoded to linear EXR; their exposures and white balance "
         "are fitted with the hair.",

@@ -120,9 +120,10 @@ def test_exif_exposure_reads_the_exact_stop_where_apex_gives_it(tmp_path):
         write_photo(tmp_path / "f.jpg", _linear(), exif={"Flash": 1})
 
 
-def test_targets_photo_ties_the_gains_to_exif_where_every_photo_has_it(tmp_path, capsys):
-    """Photos with EXIF exposures make a target with gains = "exif" whose ratios (from the EXRs' headers) are the
-    photos'; without EXIF, a gain per photo; --gains exif without it is an error naming the photo."""
+def test_targets_photo_ties_the_gains_to_exif_when_told(tmp_path):
+    """--gains exif makes a target whose one gain keeps the photos' EXIF ratios (from the EXRs' headers); by
+    default a gain per photo, with a note where every photo has the EXIF to tie them (the lights' equality is the
+    photographer's to say); --gains exif without EXIF is an error naming the photo."""
     image = np.full((32, 32, 3), 0.3, np.float32) + _gradient(32)
     write_photo(tmp_path / "front.jpg", image, exif={"ExposureTime": 1 / 60, "ShutterSpeedValue": 6.0, "FNumber": 8.0,
                                                      "ISOSpeedRatings": 100})  # fmt: skip
@@ -130,16 +131,20 @@ def test_targets_photo_ties_the_gains_to_exif_where_every_photo_has_it(tmp_path,
                                                     "ISOSpeedRatings": 100})  # fmt: skip
     write_photo(tmp_path / "plain.jpg", image)
     views = ["--light", "0.2,-0.3,-1", "--light", "0,-0.15,1", "--ortho-width", "0.4", "--resolution", "16"]
-    args = photo_args("--image", str(tmp_path / "front.jpg"), "--image", str(tmp_path / "back.jpg"), *views)
-    make_photo_target(tmp_path / "exif", args)
+    both = ["--image", str(tmp_path / "front.jpg"), "--image", str(tmp_path / "back.jpg"), *views]
+    lines = []
+    make_photo_target(tmp_path / "default", photo_args(*both), log=lines.append)
+    assert load_target(tmp_path / "default").gains == "per-image"
+    assert any("every photo has its EXIF exposure" in line and "--gains exif" in line for line in lines)
+    make_photo_target(tmp_path / "exif", photo_args(*both, "--gains", "exif"))
     target = load_target(tmp_path / "exif")
     assert target.gains == "exif" and np.allclose(camera.relative_exposures(target), [1.0, 1 / 8], rtol=1e-9)
-    args = photo_args("--image", str(tmp_path / "front.jpg"), "--image", str(tmp_path / "plain.jpg"), *views)
-    make_photo_target(tmp_path / "mixed", args)
-    assert load_target(tmp_path / "mixed").gains == "per-image"
-    args.gains = "exif"
+    mixed = ["--image", str(tmp_path / "front.jpg"), "--image", str(tmp_path / "plain.jpg"), *views]
+    lines = []
+    make_photo_target(tmp_path / "mixed", photo_args(*mixed), log=lines.append)
+    assert not any("every photo has its EXIF" in line for line in lines)
     with pytest.raises(ValueError, match=r"--gains exif: plain\.jpg has no EXIF exposure"):
-        make_photo_target(tmp_path / "mixed2", args)
+        make_photo_target(tmp_path / "mixed2", photo_args(*mixed, "--gains", "exif"))
 
 
 def test_a_target_made_from_photos_counts_their_codes_rounding(tmp_path):
