@@ -28,8 +28,9 @@ of the mask). A camera chose each photo's exposure and white balance, so they ar
     gains = "per-image"        # or "exif" (one gain, EXIF's t·ISO/N² ratios), "shared", "none"
     white_balance = "fit"      # or "none"
 
-By default both are fitted when any image is display-referred (gains "exif" when every image has EXIF exposure,
-"per-image" otherwise) and neither for linear images (EXR); `warp-hair fit --gains/--white-balance` override.
+By default both are fitted when any image is display-referred (a gain per image: "exif" ties them only where one
+lamp, as strong in every view, lit them, which the photographer says) and neither for linear images (EXR);
+`warp-hair fit --gains/--white-balance` override.
 A grey card in the shot that no scene models is marked per image and described once (optimize/card_region.py):
 
     [card]
@@ -356,14 +357,14 @@ def _photo_mask(photo, mask):
 
 def _camera_unknowns(spec_path: Path, spec: dict, images) -> tuple:
     """(gains, white_balance) for the fit (optimize/camera.py): target.toml's, else, where any image is
-    display-referred or camera raw (a camera chose its exposure and white balance), both fitted: one gain and
-    EXIF's ratios when every image has EXIF exposure (t, N, ISO), a gain per image otherwise; for linear images
-    (EXR, linear TIFF), none."""
+    display-referred or camera raw (a camera chose its exposure and white balance), both fitted, a gain per image
+    (EXIF's ratios tie them only where the views' lights were alike, which target.toml's gains = "exif" says);
+    for linear images (EXR, linear TIFF), none."""
     photos = [image.photo for image in images]
     # A grey card marked in an image is there to pin the gains: with one, they are unknowns even in an EXR.
     display = any(p is not None and p.camera_exposed for p in photos) or any(im.card is not None for im in images)
     with_exif = all(image.relative_exposure is not None for image in images)
-    gains = spec.get("gains", ("exif" if with_exif else "per-image") if display else "none")
+    gains = spec.get("gains", "per-image" if display else "none")
     white_balance = spec.get("white_balance", "fit" if display else "none")
     if gains == "none" and white_balance == "none" and any(im.card is not None for im in images):
         raise ValueError(

@@ -217,8 +217,9 @@ def test_linear_raw_dng_is_read_at_full_size(tmp_path):
 def test_raw_photos_make_a_target_whose_gains_exif_ties(tmp_path):
     """The shipped photo-like brown swatch with its two PNGs replaced by DNGs of the Cycles renders (each
     render pixel a 2×2 quad, half its hair's highlight over the white level): the target loads at the scenes'
-    64×64, its gains tied by EXIF and its white balance fitted (raw is exposed and balanced by a camera), its
-    clipped quads left out, and its other pixels the render times min(D)."""
+    64×64, a gain per image and its white balance fitted (raw is exposed and balanced by a camera), its gains
+    tied by EXIF where target.toml says gains = "exif", its clipped quads left out, and its other pixels the
+    render times min(D)."""
     source = targets.path("photo_brown_straight_png")
     directory = tmp_path / "raw_target"
     shutil.copytree(source, directory)
@@ -232,6 +233,8 @@ def test_raw_photos_make_a_target_whose_gains_exif_ties(tmp_path):
         write_dng(directory / f"{view}.dng", sensels, exif=(exposure, 5.6, 100, 85.0, 85))
         (directory / f"{view}.png").unlink()
     spec.write_text(spec.read_text().replace(".png", ".dng"))
+    assert (load_target(directory).gains, load_target(directory).white_balance) == ("per-image", "fit")
+    spec.write_text('gains = "exif"\n' + spec.read_text().replace('gains = "per-image"\n', ""))
     target = load_target(directory)
     assert (target.gains, target.white_balance) == ("exif", "fit")
     for image in target.images:
