@@ -485,6 +485,8 @@ def card_masks(depths, margin: int = CARD_MARGIN) -> tuple:
     leaving out every pixel the card touches and its shadow, swept over the strands' `depths` (min, max) beneath
     it, and `margin` pixels more all round (the light that would have spread to them through the swatch from
     the shadowed hair)."""
+    from scipy.ndimage import binary_dilation
+
     step = ORTHO_WIDTH / RESOLUTION
     edges = -ORTHO_WIDTH / 2 + step * np.arange(RESOLUTION + 1)  # x left to right; y top to bottom is −edges
     (x0, x1), (y0, y1) = CARD["x"], CARD["y"]
@@ -503,15 +505,8 @@ def card_masks(depths, margin: int = CARD_MARGIN) -> tuple:
     low, high = np.minimum(near, far), np.maximum(near, far)
     shadow = covered(x0 + low[0], x1 + high[0], y0 + low[1], y1 + high[1], False)
     out = touched | shadow
-    for _ in range(margin):  # one pixel more all round (the 8 neighbours), `margin` times
-        grown = out.copy()
-        grown[1:] |= out[:-1]
-        grown[:-1] |= out[1:]
-        out = (
-            grown
-            | np.roll(grown, 1, axis=1) * (np.arange(RESOLUTION) > 0)
-            | np.roll(grown, -1, axis=1) * (np.arange(RESOLUTION) < RESOLUTION - 1)
-        )
+    if margin > 0:  # `margin` pixels more all round, diagonals included
+        out = binary_dilation(out, structure=np.ones((3, 3), bool), iterations=margin)
     return card, ~out
 
 

@@ -360,23 +360,6 @@ def _table(name: str, table: dict, array: bool = False) -> str:
     return "\n".join([head] + [f"{key} = {_toml(value)}" for key, value in table.items()])
 
 
-def _gains(args, images, exposures, log=None) -> str:
-    """target.toml's gains: --gains, checked against the photos' EXIF; with every photo's EXIF exposure and a
-    gain each, `log` is told what tying them would take."""
-    choice = getattr(args, "gains", "per-image")
-    lacking = [path.name for path, e in zip(images, exposures) if e is None]
-    if choice == "exif" and lacking:
-        raise ValueError(
-            f"--gains exif: {', '.join(lacking)} has no EXIF exposure time, f-number and ISO; use --gains per-image"
-        )
-    if choice == "per-image" and not lacking and len(images) > 1 and log is not None:
-        log(
-            "every photo has its EXIF exposure: where one lamp, as strong in every view, lit them all (moved round "
-            "the swatch), --gains exif ties their gains to one, which pins the hair's brightness far better"
-        )
-    return choice
-
-
 def make_photo_target(out_dir, args, log=None) -> list[Path]:
     """Write the target (see the module docstring) from the parsed `warp-hair targets photo` arguments; `log`
     (e.g. print) is given a line per photo: its decoding, its clipped and crushed pixels, its notes."""
@@ -398,10 +381,15 @@ def make_photo_target(out_dir, args, log=None) -> list[Path]:
     if len(set(names)) != len(names):
         raise ValueError(f"two photos have the same name {names}: the target names its files after them")
     out_dir.mkdir(parents=True, exist_ok=True)
-    written, entries, exposures = [], [], []
+    written, entries, with_exif = [], [], 0
     for k, path in enumerate(images):
         photo = read_photo(path, args.transfer)
-        exposures.append(photo.relative_exposure)
+        if photo.relative_exposure is not None:
+            with_exif += 1
+        elif args.gains == "exif":  # before this photo's files are written
+            raise ValueError(
+                f"--gains exif: {path.name} has no EXIF exposure time, f-number and ISO; use --gains per-image"
+            )
         bad = photo.clipped | photo.crushed
         image, flags = downsample(photo.image, bad, args.resolution)
         keep = ~flags
@@ -470,7 +458,12 @@ def make_photo_target(out_dir, args, log=None) -> list[Path]:
             Image.fromarray((card * 255).astype(np.uint8), "L").save(out_dir / entry["card_mask"])
             written.append(out_dir / entry["card_mask"])
         entries.append(entry)
-    gains = _gains(args, images, exposures, log)
+    gains = args.gains
+    if gains == "per-image" and len(images) > 1 and with_exif == len(images) and log is not None:
+        log(
+            "every photo has its EXIF exposure: where one lamp, as strong in every view, lit them all (moved round "
+            "the swatch), --gains exif ties their gains to one, which pins the hair's brightness far better"
+        )
     lines = [
         "# Made by `warp-hair targets photo`: the photos decoded to linear EXR; their exposures and white balance "
         "are fitted with the hair.",

@@ -150,10 +150,14 @@ def _camera(report: dict | None) -> list[str]:
     # view; with both, the hair outweighs the card, and the advice is to look at what the card and hair disagree on.
     exif = report.get("modes", {}).get("gains") == "exif"
     cards = report.get("cards", [])
-    remedy = 'give a grey card in the shot, or fix the exposure (gains = "none")'
     if not exif:
-        remedy = 'give the photos\' exposures (gains = "exif"), ' + remedy.removeprefix("give ")
-    elif cards:
+        remedy = (
+            'give the photos\' exposures (gains = "exif"), a grey card in the shot, or fix the exposure '
+            '(gains = "none")'
+        )
+    elif not cards:
+        remedy = 'give a grey card in the shot, or fix the exposure (gains = "none")'
+    else:
         remedy = (
             f"the grey card in view {', '.join(cards)} is outweighed by the hair, which the scenes do not describe "
             "well enough to hold its brightness (the report's χ² per region says where): check the recipe and the "

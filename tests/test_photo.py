@@ -145,6 +145,7 @@ def test_targets_photo_ties_the_gains_to_exif_when_told(tmp_path):
     assert not any("every photo has its EXIF" in line for line in lines)
     with pytest.raises(ValueError, match=r"--gains exif: plain\.jpg has no EXIF exposure"):
         make_photo_target(tmp_path / "mixed2", photo_args(*mixed, "--gains", "exif"))
+    assert not (tmp_path / "mixed2" / "plain.exr").exists()  # refused before its files are written
 
 
 def test_a_target_made_from_photos_counts_their_codes_rounding(tmp_path):
