@@ -11,6 +11,7 @@ target says which of those it does not know, and over what range (opt-in: withou
     jitter = [0.05, 0.4]            # irregularity, a fraction of the spacing: within [0, 0.4]
     layer_gap = [0.008, 0.014]      # distance between layers, scene units: > 0
     layers = [3, 5]                 # how many layers the count spreads over: integers, 1 to the count
+    layer_shift_jitter = [0.0, 1.0] # within [0, 1]: how independent the layers' places across the swatch are
     phase_jitter = [0.0, 0.3]       # wavy and curly only, within [0, 1]: how independent the strands' waves are
     layer_phase_jitter = [0.0, 1.0] # wavy and curly only, within [0, 1]: how independent the layers' waves are
     clump_strength = [0.4, 0.8]     # with clumps, within [0, 1]: how far a clump's strands are pulled together
@@ -42,14 +43,15 @@ Where the gradient is unbiased. Expectation is linear, so whatever numbers the t
 I_k(θ − δ))/(2δ)] = (Ī(θ + δ) − Ī(θ − δ))/(2δ): the quotient is unbiased for the difference quotient of the
 realisation average, always. That is ∂Ī/∂θ up to O(δ²) where Ī is smooth in θ, which holds where each strand moves
 continuously with θ and none is added, removed or redrawn: jitter and layer_gap (the strands' axes are affine in
-both, generators._swatch_axes; the default spacing and gap follow jitter smoothly) and phase_jitter and
-layer_phase_jitter (the phases are affine in them), and clump_strength (a strand's pull toward its guide is affine
-in it, generators._clump; the guides are drawn apart from it) with the number of layers held; a pixel's expected
-radiance, an integral over its footprint and over the paths, then changes smoothly even while single strands' edges
-cross it. It does not hold for `layers`: another number of layers redraws which strand lies where, so layers is
-marginalised only. What the common numbers buy is variance: the two renders share the strands' and the paths'
-random numbers, so their difference holds the motion's effect and little of the draws' (tests/test_arrangement.py
-measures both against independently estimated realisation means).
+both, generators._swatch_axes; the default spacing and gap follow jitter smoothly), phase_jitter and
+layer_phase_jitter (the phases are affine in them), layer_shift_jitter (each deeper layer's place across the
+swatch is affine in it, save the strands that wrap from one edge to the other), and clump_strength (a strand's pull
+toward its guide is affine in it, generators._clump; the guides are drawn apart from it) with the number of layers
+held; a pixel's expected radiance, an integral over its footprint and over the paths, then changes smoothly even
+while single strands' edges cross it. It does not hold for `layers`: another number of layers redraws which strand
+lies where, so layers is marginalised only. What the common numbers buy is variance: the two renders share the
+strands' and the paths' random numbers, so their difference holds the motion's effect and little of the draws'
+(tests/test_arrangement.py measures both against independently estimated realisation means).
 
 Reported (params.json "arrangement", the printed table): per continuous key its estimate ± σ (σ from the spread of
 the joint step over the K realisations, each's deviation from their mean: the seed's spread and our render noise),
@@ -79,6 +81,7 @@ KEYS = {
     "jitter": (("swatch", "wavy", "curly"), f"within [0, {_MAX_JITTER}]", lambda v: 0 <= v <= _MAX_JITTER),
     "layer_gap": (("swatch", "wavy", "curly"), "positive, scene units", lambda v: v > 0),
     "layers": (("swatch", "wavy", "curly"), "integers from 1 to the count", lambda v: v >= 1),
+    "layer_shift_jitter": (("swatch", "wavy", "curly"), "within [0, 1]", lambda v: 0 <= v <= 1),
     "phase_jitter": (("wavy", "curly"), "within [0, 1]", lambda v: 0 <= v <= 1),
     "layer_phase_jitter": (("wavy", "curly"), "within [0, 1]", lambda v: 0 <= v <= 1),
     "clump_strength": (("swatch", "wavy", "curly"), "within [0, 1], with clumps", lambda v: 0 <= v <= 1),

@@ -112,7 +112,12 @@ def test_without_a_prior_the_realisations_are_as_before(tmp_path):
     assert realisation(target.images[0].scene, 0) is target.images[0].scene
 
 
-def test_common_random_numbers_give_the_realisation_averages_difference_with_less_variance():
+# The variance ratio per pixel, independent over common numbers, at least: measured 3.1 for jitter, 2.1 for the
+# layers' shift, whose strands that wrap from one edge of the swatch to the other jump whatever the numbers.
+@pytest.mark.parametrize(
+    "key, middle, step, gain", [("jitter", 0.2, 0.05, 2.0), ("layer_shift_jitter", 0.5, 0.125, 1.5)]
+)
+def test_common_random_numbers_give_the_realisation_averages_difference_with_less_variance(key, middle, step, gain):
     """(I_k(θ + δ) − I_k(θ − δ)) / 2δ with the same strands' draws and render seed, averaged over realisations k,
     estimates the difference quotient of the realisation average (exactly, by linearity: arrangement.py): here it
     agrees with the difference of two independently estimated realisation means, with less variance per pixel."""
@@ -125,18 +130,18 @@ def test_common_random_numbers_give_the_realisation_averages_difference_with_les
             "render": {"spp": 4, "max_depth": 6, "seed": 2},
         }
     )
-    jitter, step, draws = 0.2, 0.05, 40
+    draws = 40
 
     def image(k, value, seed):
-        return render(realisation(scene, k, {"jitter": value}), spp=4, seed=seed).mean(axis=-1)
+        return render(realisation(scene, k, {key: value}), spp=4, seed=seed).mean(axis=-1)
 
     crn = np.array(
-        [(image(k, jitter + step, k) - image(k, jitter - step, k)) / (2 * step) for k in range(1, draws + 1)]
+        [(image(k, middle + step, k) - image(k, middle - step, k)) / (2 * step) for k in range(1, draws + 1)]
     )
     # Independent: other realisations and render seeds for the + and − renders.
     independent = np.array(
         [
-            (image(k, jitter + step, k) - image(k + 500, jitter - step, k + 900)) / (2 * step)
+            (image(k, middle + step, k) - image(k + 500, middle - step, k + 900)) / (2 * step)
             for k in range(1001, 1001 + draws)
         ]
     )
@@ -145,8 +150,8 @@ def test_common_random_numbers_give_the_realisation_averages_difference_with_les
     means = crn.mean(axis=(1, 2)), independent.mean(axis=(1, 2))
     se = [m.std(ddof=1) / np.sqrt(draws) for m in means]
     assert abs(means[0].mean() - means[1].mean()) < 3 * np.hypot(*se)
-    # Per pixel, the common numbers' quotient varies less (3× measured at this δ; the gain grows as δ shrinks).
-    assert independent.var(axis=0, ddof=1).mean() > 2 * crn.var(axis=0, ddof=1).mean()
+    # Per pixel, the common numbers' quotient varies less (the gain grows as δ shrinks).
+    assert independent.var(axis=0, ddof=1).mean() > gain * crn.var(axis=0, ddof=1).mean()
 
 
 def test_columns_follow_the_prior_and_a_fit_reports_the_arrangement(tmp_path):

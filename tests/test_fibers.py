@@ -568,6 +568,36 @@ def test_layer_phase_jitter_gives_each_layer_its_own_wave_and_keeps_the_front_la
     assert not np.allclose(curled.points[10 * 41 :], flat.points[10 * 41 :])
 
 
+def test_layer_shift_jitter_moves_each_deeper_layer_across_as_one_and_keeps_the_front_layer():
+    """Layer k > 0 moves across by its own offset, uniform in [0, layer_shift_jitter) spacings and affine in it
+    (the same draw scaled), wrapping at the edges; the front layer, depths and the other draws stay; 0 is the
+    stagger as before, bit for bit."""
+    recipe = {"count": 40, "layers": 4, "length": 0.3, "width": 0.2, "segments": 4, "seed": 3, "jitter": 0.1}
+    spacing = 0.2 / 10
+
+    def roots(**keys):
+        return swatch(**{**recipe, **keys}).points.reshape(40, -1, 3)[:, 0].astype(np.float64)
+
+    plain = roots()
+    np.testing.assert_array_equal(roots(layer_shift_jitter=0.0), plain)
+    full, half = roots(layer_shift_jitter=1.0), roots(layer_shift_jitter=0.5)
+    np.testing.assert_array_equal(full[:10], plain[:10])  # the front layer stays
+    np.testing.assert_allclose(full[:, 2], plain[:, 2], atol=1e-7)  # depths are not moved
+    assert not np.allclose(full[10:, 0], plain[10:, 0], atol=0.1 * spacing)
+
+    def offsets(moved, base):  # per deeper layer, its shift in spacings: sorted x against sorted x, mod a spacing
+        layers = [slice(10 * k, 10 * (k + 1)) for k in range(1, 4)]
+        return np.array(
+            [np.median(np.mod((np.sort(moved[k, 0]) - np.sort(base[k, 0])) / spacing, 1.0)) for k in layers]
+        )
+
+    np.testing.assert_allclose(offsets(half, plain), 0.5 * offsets(full, plain), atol=1e-4)
+    # Over 30 seeds, the offsets are uniform in [0, 1) spacings: mean ½, spread 1/√12.
+    many = np.concatenate([offsets(roots(seed=seed, layer_shift_jitter=1.0), roots(seed=seed)) for seed in range(30)])
+    assert np.mean(many) == pytest.approx(0.5, abs=0.11)  # 90 draws: ±0.03 (1σ)
+    assert np.std(many) == pytest.approx(1 / np.sqrt(12), rel=0.15)  # ±5% (1σ)
+
+
 def test_clumps_pull_each_fiber_toward_the_nearest_guide_toward_the_tips():
     recipe = {"count": 60, "layers": 3, "length": 0.4, "width": 0.3, "segments": 20, "seed": 6}
     plain = swatch(**recipe).points.reshape(60, -1, 3).astype(np.float64)
@@ -628,6 +658,7 @@ def test_a_thick_opaque_swatch_of_many_layers():
         ({"strays": 2, "stray_lift": -0.1}, "stray_lift must be a positive finite number, got -0.1"),
         ({"stray_lift": 0.1}, "stray_lift needs strays"),
         ({"layer_phase_jitter": 1.5}, r"layer_phase_jitter must be in \[0, 1\], got 1.5"),
+        ({"layer_shift_jitter": -0.2}, r"layer_shift_jitter must be in \[0, 1\], got -0.2"),
     ],
 )
 def test_bad_clumps_strays_and_layer_phases_name_the_key_in_the_scene(keys, message):

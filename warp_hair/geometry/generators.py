@@ -38,6 +38,7 @@ def swatch(
     layer_gap=None,
     drape=None,
     shift=0.0,
+    layer_shift_jitter=0.0,
     clumps=0,
     clump_strength=None,
     strays=0,
@@ -75,6 +76,10 @@ def swatch(
             wrapping round to the other, so that the swatch keeps its width and density: with another seed, another
             realisation of the same recipe (`warp_hair.realisation`). Jitter and wander are drawn as they are
             without it; a wrapped fiber's may take its axis up to 5/8 jitter × spacing past the width.
+        layer_shift_jitter: how independent the layers' places across the swatch are, in [0, 1]: layer k > 0
+            moves by a further offset uniform in [0, layer_shift_jitter) spacings, wrapping as for `shift`. 0 (the
+            default) keeps odd layers over the even ones' gaps; 1 places each layer independently, as in a swatch
+            laid layer by layer (the gaps of deeper layers then line up with the front's as often as not).
         clumps: number of clumps the fibers gather into, 0 (the default: none) to `count`. Each clump's guide is a
             fiber drawn at random; every fiber joins the guide nearest to it across the swatch (in x at the root),
             so a clump is a lock of neighbouring fibers through every layer.
@@ -95,7 +100,7 @@ def swatch(
     implies one, packs them tighter and lets neighbours overlap.
     """
     _, y, x, z = _straight_swatch(
-        count, layers, length, radius, spacing, jitter, segments, width, seed, layer_gap, shift
+        count, layers, length, radius, spacing, jitter, segments, width, seed, layer_gap, shift, layer_shift_jitter
     )
     x, z = _groom(x, y, z, count, layers, seed, clumps, clump_strength, strays, stray_lift)
     return _swatch_assembly(x, y, z, radius, drape)
@@ -117,6 +122,7 @@ def wavy(
     layer_gap=None,
     drape=None,
     shift=0.0,
+    layer_shift_jitter=0.0,
     phase=None,
     layer_phase_jitter=0.0,
     clumps=0,
@@ -127,10 +133,10 @@ def wavy(
     """A swatch of wavy fibers: the fibers of `swatch`, each swinging in x as amplitude·sin(2π·y/wavelength + phase).
 
     Args:
-        count, layers, length, radius, spacing, jitter, width, seed, layer_gap, drape, shift, clumps,
-            clump_strength, strays, stray_lift: as for `swatch` (fiber axes reach up to `amplitude` beyond its
-            width; `length` is the extent along y, not the arc length). A clump's fibers take on its guide's wave
-            towards their tips.
+        count, layers, length, radius, spacing, jitter, width, seed, layer_gap, drape, shift, layer_shift_jitter,
+            clumps, clump_strength, strays, stray_lift: as for `swatch` (fiber axes reach up to `amplitude` beyond
+            its width; `length` is the extent along y, not the arc length). A clump's fibers take on its guide's
+            wave towards their tips.
         amplitude: half the peak-to-peak swing of a wave in x, scene units.
         wavelength: length of one wave along y, scene units.
         phase_jitter: how independent the fibers' waves are, in [0, 1]. Each fiber's phase is its layer's phase
@@ -147,7 +153,7 @@ def wavy(
     _check_positive(amplitude=amplitude, wavelength=wavelength)
     segments = _segments_per_period(segments, length, wavelength, WAVE_SEGMENTS, "wavelength")
     rng, y, x, z = _straight_swatch(
-        count, layers, length, radius, spacing, jitter, segments, width, seed, layer_gap, shift
+        count, layers, length, radius, spacing, jitter, segments, width, seed, layer_gap, shift, layer_shift_jitter
     )
     phases = _fiber_phases(count, phase_jitter, rng, phase) + _layer_phases(count, layers, layer_phase_jitter, seed)
     x = x + amplitude * np.sin(phases[:, None] + 2 * np.pi * y / wavelength)
@@ -171,6 +177,7 @@ def curly(
     layer_gap=None,
     drape=None,
     shift=0.0,
+    layer_shift_jitter=0.0,
     phase=None,
     layer_phase_jitter=0.0,
     clumps=0,
@@ -183,9 +190,9 @@ def curly(
     Each fiber is (x + curl_radius·cos a, y, z + curl_radius·sin a) with a = 2π·y/pitch + phase.
 
     Args:
-        count, layers, length, radius, spacing, jitter, width, seed, layer_gap, drape, shift, clumps,
-            clump_strength, strays, stray_lift: as for `swatch` (fibers reach up to `curl_radius` beyond its width
-            and layers; `length` is the extent along y, not the arc length).
+        count, layers, length, radius, spacing, jitter, width, seed, layer_gap, drape, shift, layer_shift_jitter,
+            clumps, clump_strength, strays, stray_lift: as for `swatch` (fibers reach up to `curl_radius` beyond its
+            width and layers; `length` is the extent along y, not the arc length).
         curl_radius: radius of the helix, scene units.
         pitch: rise along y per turn, scene units.
         phase_jitter: how independent the fibers' curls are, in [0, 1]. Each fiber's phase is its layer's phase
@@ -198,7 +205,7 @@ def curly(
     _check_positive(curl_radius=curl_radius, pitch=pitch)
     segments = _segments_per_period(segments, length, pitch, CURL_SEGMENTS, "pitch")
     rng, y, x, z = _straight_swatch(
-        count, layers, length, radius, spacing, jitter, segments, width, seed, layer_gap, shift
+        count, layers, length, radius, spacing, jitter, segments, width, seed, layer_gap, shift, layer_shift_jitter
     )
     phases = _fiber_phases(count, phase_jitter, rng, phase) + _layer_phases(count, layers, layer_phase_jitter, seed)
     angle = phases[:, None] + 2 * np.pi * y / pitch
@@ -265,13 +272,27 @@ def fur(
     return FiberAssembly.from_arrays(roots[:, None, :] + offsets, np.broadcast_to(radii, (count, segments + 1)))
 
 
-def _straight_swatch(count, layers, length, radius, spacing, jitter, segments, width, seed, layer_gap, shift=0.0):
+def _straight_swatch(
+    count, layers, length, radius, spacing, jitter, segments, width, seed, layer_gap, shift=0.0, layer_shift_jitter=0.0
+):
     """What every swatch starts from: the seeded generator (the caller's own draws follow its), the heights y (N,)
     and the straight fiber axes x, z (S, N)."""
     _check_size(count, segments)
     rng = np.random.default_rng(seed)
     y = _heights(length, segments)
-    x, z = _swatch_axes(y, count, layers, radius, spacing, width, jitter, layer_gap, rng, shift)
+    x, z = _swatch_axes(
+        y,
+        count,
+        layers,
+        radius,
+        spacing,
+        width,
+        jitter,
+        layer_gap,
+        rng,
+        shift,
+        _layer_shifts(layers, layer_shift_jitter, seed),
+    )
     return rng, y, x, z
 
 
@@ -312,8 +333,9 @@ def _check_size(count, segments):
     )
 
 
-def _swatch_axes(y, count, layers, radius, spacing, width, jitter, layer_gap, rng, shift=0.0):
-    """x and z (S, N) of straight swatch fibers at heights y (N,): jittered, staggered roots plus wander."""
+def _swatch_axes(y, count, layers, radius, spacing, width, jitter, layer_gap, rng, shift=0.0, layer_shifts=None):
+    """x and z (S, N) of straight swatch fibers at heights y (N,): jittered, staggered roots plus wander.
+    layer_shifts: per layer, a further shift in spacings (`_layer_shifts`), or None."""
     _check_count(count=count, layers=layers)
     if layers > count:
         raise ValueError(f"layers must be at most count, got {layers} layers for {count} fibers")
@@ -333,6 +355,9 @@ def _swatch_axes(y, count, layers, radius, spacing, width, jitter, layer_gap, rn
         shift = validate.real("shift", shift)
         if not 0 <= shift < 1:
             raise ValueError(f"shift must be in [0, 1) (a fraction of the spacing), got {shift!r}")
+    if layer_shifts is not None:
+        shift = shift + layer_shifts[layer]
+    if np.any(shift):
         # Wrapped into [−½, n − ½) spacings: the lattice is periodic in n spacings, so wrapping keeps it.
         position = np.mod(position + shift + 0.5, sizes[layer]) - 0.5
         position = position[np.lexsort((position, layer))]  # left to right in each layer again
@@ -349,6 +374,22 @@ def _swatch_axes(y, count, layers, radius, spacing, width, jitter, layer_gap, rn
     return x[:, None] + wander[:, None] * bow, np.repeat(z[:, None], len(y), axis=1)
 
 
+def _layer_shifts(layers, layer_shift_jitter, seed):
+    """Per layer, its shift across the swatch beyond the stagger, in spacings (0 for the front layer), or None with
+    layer_shift_jitter 0. Layer k > 0 moves by an offset uniform in [0, layer_shift_jitter): 0 keeps alternate
+    layers half a spacing apart (each layer's fibers over the gaps of the one in front), 1 makes the layers'
+    places across the swatch independent, as in layers laid one by one. Affine in layer_shift_jitter, its own
+    stream: the other draws do not move with it."""
+    layer_shift_jitter = validate.real("layer_shift_jitter", layer_shift_jitter)
+    if not 0 <= layer_shift_jitter <= 1:
+        raise ValueError(f"layer_shift_jitter must be in [0, 1], got {layer_shift_jitter!r}")
+    if layer_shift_jitter == 0:
+        return None
+    offsets = layer_shift_jitter * _stream(seed, _LAYER_SHIFTS).uniform(0, 1, layers)
+    offsets[0] = 0.0
+    return offsets
+
+
 def _layer_sizes(count, layers):
     """Fibers per layer: the first `count % layers` layers hold one more."""
     sizes = np.full(layers, count // layers)
@@ -362,13 +403,13 @@ def _layer_of(count, layers):
 
 
 def _stream(seed, purpose):
-    """A random generator for one of the later keys (_LAYER_PHASES, _CLUMPS, _STRAYS), independent of the seed's
-    main generator and of each other (NumPy's spawned seed sequences): the draws of a recipe without those keys
-    stay what they were, and one key's draws do not move when another's are added."""
+    """A random generator for one of the later keys (_LAYER_PHASES, _CLUMPS, _STRAYS, _LAYER_SHIFTS), independent of
+    the seed's main generator and of each other (NumPy's spawned seed sequences): the draws of a recipe without
+    those keys stay what they were, and one key's draws do not move when another's are added."""
     return np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(purpose,)))
 
 
-_LAYER_PHASES, _CLUMPS, _STRAYS = 1, 2, 3
+_LAYER_PHASES, _CLUMPS, _STRAYS, _LAYER_SHIFTS = 1, 2, 3, 4
 # A stray leaves the surface somewhere in the first this fraction of its length.
 _STRAY_DEPARTURE = 0.75
 
@@ -472,7 +513,7 @@ def shared_phase(generator, **arguments) -> float:
     a = bound.arguments
     rng, *_ = _straight_swatch(
         a["count"], a["layers"], a["length"], a["radius"], a["spacing"], a["jitter"], 1, a["width"], a["seed"],
-        a["layer_gap"], a["shift"],
+        a["layer_gap"], a["shift"], a["layer_shift_jitter"],
     )  # fmt: skip
     return float(rng.uniform(0, 2 * np.pi))
 
