@@ -260,6 +260,10 @@ def report(
     return {
         "modes": {"gains": target.gains, "white_balance": target.white_balance},
         "cards": [image.name for image in target.images if getattr(image, "card", None) is not None],
+        # Each card's block's weight against a hair block (card_region.gls_weights).
+        "card_weights": {
+            image.name: float(image.card.weight) for image in target.images if getattr(image, "card", None) is not None
+        },
         "gains": gains,
         "white_balance": {"value": [float(v) for v in w], "sigma": wb_sigma},
     }

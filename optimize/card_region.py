@@ -31,6 +31,7 @@ left, a card the lights do not reach in some channel, are errors.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -54,6 +55,9 @@ class CardRegion:
     normal: np.ndarray
     radiance: np.ndarray  # ρ/π · E, per channel, in the scene's light units
     note: str = ""
+    # What each of its blocks weighs against one of the image's hair blocks: 1 until the fit measures both
+    # (`gls_weights`), after its descent.
+    weight: float = 1.0
 
 
 def description(table, where: str) -> dict:
@@ -164,7 +168,7 @@ def sums(target, loss: str, pool: int, scales) -> tuple | None:
         if image.card is None:
             continue
         values = card_values(image, pool)
-        w = weights(values, loss, float(scale)) / (hair_blocks(image, pool) * n)
+        w = image.card.weight * weights(values, loss, float(scale)) / (hair_blocks(image, pool) * n)
         radiance = image.card.radiance[None, :]
         a[k] = (w * radiance * values).sum(axis=0)
         b[k] = (w * radiance * radiance).sum(axis=0)
@@ -187,6 +191,63 @@ def rows(image, gains: np.ndarray, reference: np.ndarray, loss: str, pool: int) 
     w = omega(values, reference, loss)
     model = gains[None, :] * image.card.radiance[None, :]
     return (w * (model - values)).reshape(-1), (w * values).reshape(-1)
+
+
+# A card's block is never taken as more exact than this fraction of its value: the precision of a half-float EXR
+# (2⁻¹¹), which a card rendered or decoded without noise would otherwise pin the gains beyond.
+CARD_PRECISION = 2.0**-11
+
+
+def gls_weights(target, lin, settings, quantisation) -> list:
+    """Per target image, its card's weight against a hair block (1 without a card): the hair's residual variance
+    per row over the card's own, as generalised least squares weighs rows by their inverse variance, and never less
+    than 1. A hair row's residual holds the photo's noise and whatever the scene does not describe (the strands'
+    draw, the recipe); a card's only the photo's noise and the card's own unevenness, for its radiance is known
+    (ρ/π · E). Weighed alike (1), a card of a hundred pixels was outweighed by the hair and the gains ran off along
+    their valley with the albedo (docs/acceptance.md). The hair's variance is its rows' scatter about the model with
+    our render's noise taken out (as `Linearization.scatter_estimate`; it is counted apart, and the gains' σ, s²
+    (CᵀWC)⁻¹ in camera.Projection, then holds the card's own variance), per row of `lin` at the descent's estimate;
+    the card's the largest of its blocks' scatter about their mean, CARD_PRECISION and, for a photo, its codes'
+    rounding taken as one error for the whole card (`quantisation`, goodness.quantisation_variances, or None), per
+    row in the same weighted units."""
+    out, start = [], 0
+    for image, count in zip(target.images, lin.image_residuals):
+        rows = slice(start, start + count)
+        start += count
+        if getattr(image, "card", None) is None:
+            out.append(1.0)
+            continue
+        values = card_values(image, settings.pool)
+        m = values.size
+        hair = lin.mean_residual[rows][: count - m]
+        hair_variance = float(np.mean(hair * hair - lin.mean_variance[rows][: count - m]))
+        reference, _ = _hair_reference(image, settings.pool)
+        omega2 = omega(values, reference, settings.loss) ** 2
+        scatter = values.var(axis=0, ddof=1) if len(values) > 1 else np.zeros(3)
+        card = np.maximum(scatter[None, :], (CARD_PRECISION * values) ** 2) * omega2
+        if quantisation is not None:
+            # A flat card rounds alike throughout (no noise dithers its codes): its mean is known no better than
+            # one pixel's rounding, so each of its blocks' variances is at least that many blocks times it.
+            counts = _pooled(np.zeros((*image.card.mask.shape, 3)), image.card.mask, pool=settings.pool)[1]
+            pixel = quantisation[rows][count - m :].reshape(-1, 3) * counts[:, None]
+            card = np.maximum(card, pixel * len(counts))
+        out.append(max(1.0, hair_variance / max(float(np.mean(card)), 1e-300)))
+    return out
+
+
+def _hair_reference(image, pool: int):
+    from .linearize import pool_like_loss  # linearize imports this module
+
+    return pool_like_loss(image, image.image, None, pool)
+
+
+def with_weights(target, weights):
+    """The target with each image's card weighed as `weights` says (`gls_weights`)."""
+    images = [
+        image if image.card is None else dataclasses.replace(image, card=dataclasses.replace(image.card, weight=w))
+        for image, w in zip(target.images, weights)
+    ]
+    return dataclasses.replace(target, images=images)
 
 
 def summary(target) -> list[str]:

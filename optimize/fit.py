@@ -49,6 +49,7 @@ from warp_hair.renderer.prepare import prepare
 from warp_hair.renderer.render import render
 from warp_hair.torch import render_torch_pair, scene_with_controls
 
+from . import card_region
 from .arrangement import columns as arrangement_columns
 from .arrangement import estimate as estimate_arrangement
 from .arrangement import record as arrangement_record
@@ -503,6 +504,7 @@ class FitRun:
         steps = 0 if descent.stop_reason == "interrupted" else refine_steps(self.settings, self.target)
         if not steps:
             return None
+        self.weigh_cards(descent.estimate)
         bar = tqdm(total=steps, desc="Gauss-Newton", unit="step", disable=not self.progress)
         run = None
         try:
@@ -531,6 +533,29 @@ class FitRun:
             return Refinement(run.kept_values, None, None, tuple(run.steps), interrupted=True)
         finally:
             bar.close()
+
+    def weigh_cards(self, values: dict) -> None:
+        """A photo's grey cards weighed against its hair by their residuals' variances, from one linearisation at
+        the descent's estimate (card_region.gls_weights), for the refinement and all after it. Adam solved the
+        gains with each card block weighed as a hair block."""
+        if not (self.nuisance.solved and any(image.card is not None for image in self.target.images)):
+            return
+        lin = linearize(
+            self.target,
+            values,
+            self.settings,
+            self.final_spp,
+            iteration_seed(self.settings.seed, 2**31 - 1, 0),  # seeds of its own, apart from every other render's
+            threads=self.settings.threads,
+            scenes=self.realisations.pair(iteration_seed(self.settings.seed, 2**31 - 1, 1))
+            if self.random
+            else self.scenes,
+        )
+        weights = card_region.gls_weights(
+            self.target, lin, self.settings, quantisation_variances(self.target, self.settings)
+        )
+        self.target = card_region.with_weights(self.target, weights)
+        self.nuisance = Nuisance(self.target)
 
     def evaluate(self, descent: Descent, refinement: Refinement | None) -> Evaluation:
         """The final images and loss at the fitted controls, and the linearisation there (the refinement's, else

@@ -246,8 +246,8 @@ def linearize(
         images.append(0.5 * (pair[0] + pair[1]))
         weights.append(np.full(reference.size, 1.0 / (reference.size * len(target.images))))
         if getattr(image, "card", None) is not None and solved is not None:
-            # A grey card's rows (card_region.py), weighed as the image's hair rows are: no render, no noise of
-            # ours, no hair in them.
+            # A grey card's rows (card_region.py), weighed against the image's hair rows by their variances
+            # (`card_region.gls_weights`): no render, no noise of ours, no hair in them.
             card_r, card_t = card_region.rows(image, gains[k], reference, settings.loss, settings.pool)
             for half in range(2):
                 rs[half].append(card_r)
@@ -255,7 +255,7 @@ def linearize(
                 js[half].append(np.zeros((card_r.size, js[half][-1].shape[1])))
             ts.append(card_t)
             on_card.append(np.ones(card_r.size, bool))
-            weights.append(np.full(card_r.size, weights[-1][0]))
+            weights.append(np.full(card_r.size, weights[-1][0] * image.card.weight))
             counts[-1] += card_r.size
     residuals = np.stack([np.concatenate(r) for r in rs])
     jacobians = np.stack([np.concatenate(j) for j in js])

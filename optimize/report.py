@@ -487,6 +487,11 @@ def camera_table(result: FitResult, truth: dict | None = None) -> str:
         + _fmt(wb["sigma"], 4)
         + ("" if true is None else "  true " + _fmt(true, 4))
     )
+    for name, weight in camera.get("card_weights", {}).items():
+        lines.append(
+            f"  grey card in {name}: a block of it weighs {weight:.3g}x one of the hair's (their residuals' "
+            "variances, at the descent's estimate)"
+        )
     return "\n".join(lines)
 
 

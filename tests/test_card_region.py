@@ -203,6 +203,70 @@ def test_linearisation_with_a_card_pins_the_gains(tmp_path):
     assert sigmas["card"][0] < sigmas["plain"][0]
 
 
+def test_the_card_weighs_as_its_variance_says_against_the_hairs(tmp_path):
+    """Generalised least squares: a card block weighs the hair rows' mean square residual over the card's own
+    variance (its blocks' scatter, or the rounding of its 8-bit codes, one error for the whole flat card). Here the
+    hair is rendered at another look than the target's (a misfit, as a recipe leaves), so its residuals are large
+    against the card's: the card weighs many hair blocks, and the gains it pins lie within 3σ of the camera's true
+    ones with a σ well below the card's weighed as one hair block."""
+    from optimize.goodness import quantisation_variances
+
+    with_card(targets.path(SOURCE), tmp_path / "card")
+    target = load_target(tmp_path / "card")
+    truth = json.loads((tmp_path / "card" / "camera_truth.json").read_text())
+    hair = target.truth.to_dict()
+    values = {"albedo": hair["albedo"], "beta_m": hair["beta_m"] + 0.15, "beta_n": hair["beta_n"] - 0.15}
+    settings = FitSettings()
+    lin = linearize(target, values, settings, spp=32, seed=3, threads=2)
+    quantisation = quantisation_variances(target, settings)
+    weights = card_region.gls_weights(target, lin, settings, quantisation)
+    assert weights[1] == 1.0  # the back view has no card
+    # By hand: the front's hair rows' mean square residual over its card rows' mean variance.
+    hair_rows = lin.image_residuals[0] - 4 * 3
+    front = lin.mean_residual[: lin.image_residuals[0]]
+    values_card = card_region.card_values(target.images[0], settings.pool)
+    reference = target.images[0].image
+    omega2 = card_region.omega(values_card, card_region._hair_reference(target.images[0], 4)[0], "l2") ** 2
+    card_var = np.maximum(values_card.var(axis=0, ddof=1)[None, :], (card_region.CARD_PRECISION * values_card) ** 2)
+    # The card's 8-bit rounding is one error for all its 4 blocks (4×4 pixels each): a block's variance 4 × 16 × its
+    # own quantisation.
+    rounding = quantisation[hair_rows : lin.image_residuals[0]].reshape(-1, 3) * 16 * 4
+    card_var = np.maximum(card_var * omega2, rounding)
+    scatter = np.mean(front[:hair_rows] ** 2 - lin.mean_variance[:hair_rows])  # our render's noise taken out
+    assert weights[0] == pytest.approx(scatter / np.mean(card_var), rel=1e-9)
+    assert weights[0] > 100 and reference.shape[:2] == (64, 64)
+    sigmas = {}
+    for name, weighed in (("one", target), ("gls", card_region.with_weights(target, weights))):
+        lin = linearize(weighed, values, settings, spp=32, seed=5, threads=2)
+        projection = lin.camera
+        cov = projection.covariance(lin.statistical_covariance, lin.scatter, 0.01, brightness_sensitivity(lin))
+        sigmas[name] = np.sqrt(np.diag(cov))
+        if name == "gls":  # what the card sees: the front's gain and the white balance (the back's follows the hair)
+            for k, label in enumerate(projection.labels):
+                value, inside = camera.label_values(projection, weighed)[k], re.search(r"\[(.*)\]", label).group(1)
+                if label == "gain[front]":
+                    assert abs(math.log(value / truth["gains"]["front"])) < 3 * sigmas[name][k], (label, value)
+                elif label.startswith("white_balance"):
+                    true = truth["white_balance"]["rgb".index(inside)]
+                    assert abs(math.log(value / true)) < 3 * sigmas[name][k], (label, value, true)
+    assert sigmas["gls"][0] < 0.5 * sigmas["one"][0]
+
+
+def test_a_fit_weighs_its_card_before_refining_and_reports_it(tmp_path):
+    """The fit measures the card's weight once, after its descent, refines and reports with it: the weight in
+    params.json's camera record is `gls_weights`' at least 1, and the printed camera table names it."""
+    from optimize.fit import fit
+    from optimize.report import camera_table
+
+    with_card(targets.path(SOURCE), tmp_path / "card")
+    target = load_target(tmp_path / "card")
+    result = fit(target, iters=4, spp=4, refine=2, threads=2, progress=False)
+    weights = result.camera["card_weights"]
+    assert list(weights) == ["front"] and weights["front"] >= 1.0
+    assert f"grey card in front: a block of it weighs {weights['front']:.3g}x" in camera_table(result)
+    assert target.images[0].card.weight == 1.0  # the caller's target is left as it was
+
+
 def _write_spec(directory, edit):
     spec = (directory / "target.toml").read_text()
     (directory / "target.toml").write_text(edit(spec))
