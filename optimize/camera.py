@@ -257,13 +257,12 @@ def report(
         s = sigma.get(f"gain[{image.name}]", sigma.get("gain", 0.0))
         gains[image.name] = [float(g[k]), float(g[k] * s)]
     wb_sigma = [float(w[c] * sigma.get(f"white_balance[{'rgb'[c]}]", 0.0)) for c in range(3)]
+    # Each card's block's weight against a hair block (card_region.gls_weights), per image with a card.
+    card_weights = {im.name: float(im.card.weight) for im in target.images if getattr(im, "card", None) is not None}
     return {
         "modes": {"gains": target.gains, "white_balance": target.white_balance},
-        "cards": [image.name for image in target.images if getattr(image, "card", None) is not None],
-        # Each card's block's weight against a hair block (card_region.gls_weights).
-        "card_weights": {
-            image.name: float(image.card.weight) for image in target.images if getattr(image, "card", None) is not None
-        },
+        "cards": list(card_weights),
+        "card_weights": card_weights,
         "gains": gains,
         "white_balance": {"value": [float(v) for v in w], "sigma": wb_sigma},
     }

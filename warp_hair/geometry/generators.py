@@ -280,19 +280,8 @@ def _straight_swatch(
     _check_size(count, segments)
     rng = np.random.default_rng(seed)
     y = _heights(length, segments)
-    x, z = _swatch_axes(
-        y,
-        count,
-        layers,
-        radius,
-        spacing,
-        width,
-        jitter,
-        layer_gap,
-        rng,
-        shift,
-        _layer_shifts(layers, layer_shift_jitter, seed),
-    )
+    layer_shifts = _layer_shifts(layers, layer_shift_jitter, seed)
+    x, z = _swatch_axes(y, count, layers, radius, spacing, width, jitter, layer_gap, rng, shift, layer_shifts)
     return rng, y, x, z
 
 
@@ -378,16 +367,23 @@ def _layer_shifts(layers, layer_shift_jitter, seed):
     """Per layer, its shift across the swatch beyond the stagger, in spacings (0 for the front layer), or None with
     layer_shift_jitter 0. Layer k > 0 moves by an offset uniform in [0, layer_shift_jitter): 0 keeps alternate
     layers half a spacing apart (each layer's fibers over the gaps of the one in front), 1 makes the layers'
-    places across the swatch independent, as in layers laid one by one. Affine in layer_shift_jitter, its own
-    stream: the other draws do not move with it."""
-    layer_shift_jitter = validate.real("layer_shift_jitter", layer_shift_jitter)
-    if not 0 <= layer_shift_jitter <= 1:
-        raise ValueError(f"layer_shift_jitter must be in [0, 1], got {layer_shift_jitter!r}")
-    if layer_shift_jitter == 0:
-        return None
-    offsets = layer_shift_jitter * _stream(seed, _LAYER_SHIFTS).uniform(0, 1, layers)
-    offsets[0] = 0.0
-    return offsets
+    places across the swatch independent, as in layers laid one by one. Affine in layer_shift_jitter."""
+    layer_shift_jitter, draws = _layer_draws("layer_shift_jitter", layer_shift_jitter, layers, seed, _LAYER_SHIFTS)
+    return None if draws is None else layer_shift_jitter * draws
+
+
+def _layer_draws(name, value, layers, seed, purpose):
+    """(value checked to lie in [0, 1], per layer a draw uniform in [0, 1) from the key's own stream with the front
+    layer's 0), or (value, None) where value is 0: what a per-layer key (layer_phase_jitter, layer_shift_jitter)
+    scales, its draws apart from every other key's."""
+    value = validate.real(name, value)
+    if not 0 <= value <= 1:
+        raise ValueError(f"{name} must be in [0, 1], got {value!r}")
+    if value == 0:
+        return value, None
+    draws = _stream(seed, purpose).uniform(0, 1, layers)
+    draws[0] = 0.0  # the front layer stays: its waves at `phase`, its place where the lattice puts it
+    return value, draws
 
 
 def _layer_sizes(count, layers):
@@ -416,14 +412,10 @@ _STRAY_DEPARTURE = 0.75
 
 def _layer_phases(count, layers, layer_phase_jitter, seed):
     """Per fiber, its layer's phase offset (0 for the front layer), or 0.0 with layer_phase_jitter 0."""
-    layer_phase_jitter = validate.real("layer_phase_jitter", layer_phase_jitter)
-    if not 0 <= layer_phase_jitter <= 1:
-        raise ValueError(f"layer_phase_jitter must be in [0, 1], got {layer_phase_jitter!r}")
-    if layer_phase_jitter == 0:
+    layer_phase_jitter, draws = _layer_draws("layer_phase_jitter", layer_phase_jitter, layers, seed, _LAYER_PHASES)
+    if draws is None:
         return 0.0
-    offsets = 2 * np.pi * layer_phase_jitter * _stream(seed, _LAYER_PHASES).uniform(0, 1, layers)
-    offsets[0] = 0.0  # the front layer waves at `phase`, which every realisation keeps
-    return offsets[_layer_of(count, layers)]
+    return (2 * np.pi * layer_phase_jitter * draws)[_layer_of(count, layers)]
 
 
 def _groom(x, y, z, count, layers, seed, clumps, clump_strength, strays, stray_lift):
