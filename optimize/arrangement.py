@@ -17,8 +17,8 @@ target says which of those it does not know, and over what range (opt-in: withou
     clump_strength = [0.4, 0.8]     # with clumps, within [0, 1]: how far a clump's strands are pulled together
 
 Each range is a uniform prior, independent of the others (layers uniform over its integers); a range [a, a]
-fixes the key at a. `targets photo` writes jitter and layer gap, and with clumps their strength
-(`photo_defaults`, below).
+fixes the key at a. `targets photo` writes jitter, layer gap and the layers' places across the swatch (from
+staggered to laid independently), and with clumps their strength (`photo_defaults`, below).
 
 Marginalisation. Every realisation the fit renders (its pool's and the realisation term's: realisations.py)
 draws these keys from the prior along with its seed and shift, deterministically from (the scene's seed, k)
@@ -95,6 +95,9 @@ OUTSIDE_Z = 3.0
 # the generator's most) and the gap between layers from touching (2 radii) to 1.75 radii of air between them.
 PHOTO_JITTER = (0.05, 0.4)
 PHOTO_GAP_RADII = (2.0, 3.75)
+# And where each layer lies across the swatch, from the recipe's stagger (0) to layers laid one by one (1, as
+# Blender's hair and, likely, a real swatch's): it moves a back-lit view by 10–25% (docs/acceptance.md).
+PHOTO_LAYER_SHIFT = (0.0, 1.0)
 # And for clumps, how far their strands are pulled together (clump_strength): read off a photo by how far the
 # tips close, to about this either side of what the recipe says, within [0, 1].
 PHOTO_CLUMP_STRENGTH = 0.2
@@ -185,13 +188,18 @@ def parse(table, scenes, where: str) -> Arrangement:
 
 def photo_defaults(fibers: dict) -> dict:
     """The [arrangement] `targets photo` writes for a swatch recipe: what a photographer cannot measure off a
-    photo, the jitter and the layers' gap (PHOTO_JITTER, PHOTO_GAP_RADII); none for fur. The count and layers
+    photo, the jitter, the layers' gap and their places across the swatch (PHOTO_JITTER, PHOTO_GAP_RADII,
+    PHOTO_LAYER_SHIFT); none for fur. The count and layers
     are counted off the swatch; the waves' phases are what the flags say (a photographer sees whether the waves
     are in step), so they stay in the recipe."""
     if fibers.get("generator") not in KEYS["jitter"][0]:
         return {}
     radius = float(fibers["radius"])
-    prior = {"jitter": list(PHOTO_JITTER), "layer_gap": [round(r * radius, 6) for r in PHOTO_GAP_RADII]}
+    prior = {
+        "jitter": list(PHOTO_JITTER),
+        "layer_gap": [round(r * radius, 6) for r in PHOTO_GAP_RADII],
+        "layer_shift_jitter": list(PHOTO_LAYER_SHIFT),
+    }
     if fibers.get("clumps"):
         strength = float(fibers.get("clump_strength", 0.5))  # the generator's default
         prior["clump_strength"] = [

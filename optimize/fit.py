@@ -74,6 +74,7 @@ from .uncertainty import (
     check_model_error,
     component_labels,
     estimate_uncertainty,
+    pinned,
     target_model_error,
 )
 from .verdict import failures
@@ -611,7 +612,9 @@ class FitRun:
         model_error = target_model_error(self.target, self.settings.model_error)
         if not self.random:
             goodness = self.goodness(lin)
-            return estimate_uncertainty(lin, mc, model_error, birge=goodness.birge), goodness, None
+            determined, unpinned = pinned(lin)
+            uncertainty = estimate_uncertainty(determined, mc, model_error, birge=goodness.birge, unpinned=unpinned)
+            return uncertainty, goodness, None
         # The noise term from one realisation's linearisation; the curvature, and the shift per unit brightness
         # (which that linearisation's own two Jacobians alone make noisy), from the pooled one.
         columns = self.arrangement_columns(lin)
@@ -624,6 +627,7 @@ class FitRun:
             term.covariance,
             brightness_from=term.pooled,
             birge=goodness.birge,
+            unpinned=term.unpinned,
         )
         return uncertainty, goodness, self.arrangement(lin, uncertainty, columns, term, goodness.birge)
 

@@ -130,7 +130,7 @@ class Linearization:
         """The covariance, from our render noise in the residuals, of where a Gauss–Newton step from here lands:
         H⁻¹ `noise_covariance` H⁻¹. It leaves out the Jacobian's own noise, so it is a lower bound where that
         noise is large."""
-        h_inv = np.linalg.pinv(self.curvature)
+        h_inv = inverse_curvature(self.curvature)
         return h_inv @ self.noise_covariance @ h_inv
 
     @property
@@ -191,6 +191,43 @@ def crossed_curvature(jacobians: np.ndarray, weights: np.ndarray) -> np.ndarray:
         return crossed
     a = (total / n) * np.sqrt(weights)[:, None]
     return a.T @ a
+
+
+# A direction of the curvature whose crossed estimate lies less than this many of its standard errors above zero is
+# not determined by the images at this noise: zero is within its 95% interval, and the Jacobians' noise, not the
+# images, would set its σ. (At 3, a light swatch's red albedo, 2.9 errors up, lost a σ that covered its errors.)
+DETERMINED_Z = 2.0
+
+
+def curvature_directions(jacobians: np.ndarray, weights: np.ndarray) -> tuple:
+    """(values (p,), vectors (p, p) as columns, standard errors (p,)): the eigen-directions of the crossed curvature
+    (`crossed_curvature`'s unbiased mean over distinct pairs, before any fallback) and the jackknife standard error of
+    each value over the n ≥ 3 Jacobians (each left out in turn, the crossed mean of the rest along the same direction).
+    Where a control's column is mostly noise (β_n of an opaque swatch averaged over many arrangements), its direction's
+    value is zero within its error, or below: the product fallback would count the noise as curvature."""
+    n = len(jacobians)
+    if n < 3:
+        raise ValueError(f"the curvature's standard errors need at least 3 Jacobians, got {n}")
+    total = jacobians.sum(axis=0)
+    squares = np.einsum("kni,n,knj->kij", jacobians, weights, jacobians)
+    crossed = (total.T @ (weights[:, None] * total) - squares.sum(axis=0)) / (n * (n - 1))
+    values, vectors = np.linalg.eigh(0.5 * (crossed + crossed.T))
+    along = np.einsum("nk,kp->np", total, vectors)  # the total's projection on each direction (N, p)
+    left_out = []
+    for j in range(n):
+        rest = along - jacobians[j] @ vectors
+        own = np.einsum("ip,ij,jp->p", vectors, squares.sum(axis=0) - squares[j], vectors)
+        left_out.append((np.einsum("np,n,np->p", rest, weights, rest) - own) / ((n - 1) * (n - 2)))
+    left_out = np.array(left_out)
+    errors = np.sqrt((n - 1) / n * ((left_out - left_out.mean(axis=0)) ** 2).sum(axis=0))
+    return values, vectors, errors
+
+
+def inverse_curvature(curvature: np.ndarray) -> np.ndarray:
+    """The curvature's (pseudo-)inverse: a curvature restricted to the directions the images determine
+    (uncertainty.py `pinned`) is singular by construction, and its zero directions must stay zero, not become the
+    inverse of rounding."""
+    return np.linalg.pinv(curvature, rcond=1e-10)
 
 
 def linearize(

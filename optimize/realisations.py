@@ -35,7 +35,8 @@ own draw adds a spread of about 1/√POOL of the realisation term's, both in the
 The realisation term of σ (`realisation_term`). At the fitted controls x̂, K further realisations
 (POOL + 1 … POOL + K) are each linearised with both passes on the same strands. Were the target realisation k,
 the estimate would move by u_k = H⁻¹ Aᵀ W r_k, r_k that realisation's weighted residuals (A and H the fit's,
-with these K linearisations' Jacobians pooled in: `pooled_jacobians` says why); their covariance over k is the
+with these K linearisations' Jacobians pooled in: `pooled_jacobians` says why; restricted to the directions they
+determine, uncertainty.py `pinned`); their covariance over k is the
 realisation term. Each u_k is formed
 from both passes, and the covariance is taken across passes (Σ (u_k¹ − ū¹)(u_k² − ū²)ᵀ / (K − 1)), so that
 our render noise, independent between the passes, drops out of it in expectation. The same cross-pass
@@ -60,6 +61,8 @@ from warp_hair.realisation import check_realisable, realisation_views
 from warp_hair.renderer.prepare import prepare_views
 
 from .arrangement import fiber_seed
+from .linearize import inverse_curvature
+from .uncertainty import pinned
 
 REALISATION_MODES = ("fixed", "random")
 # Realisations the fit draws its pairs from. Each costs a generator run, the strands' check and a BVH, once for all
@@ -139,6 +142,7 @@ class RealisationTerm:
     pooled: object  # the fit's linearisation with the K linearisations' Jacobians pooled in (`pooled_jacobians`)
     variance: np.ndarray | None = None  # (N,) one realisation's variance per residual (goodness.py's σ²_draw)
     arrangement: np.ndarray | None = None  # (p, p) the part of `covariance` how the strands lie makes (M Σ Mᵀ)
+    unpinned: object = None  # the directions the pooled Jacobians do not determine (uncertainty.py `pinned`), or None
 
 
 def pooled_jacobians(lin, linearizations):
@@ -159,7 +163,7 @@ def pooled_jacobians(lin, linearizations):
 
 def estimate_gain(lin) -> np.ndarray:
     """H⁻¹ Aᵀ W (p, N): how far the estimate moves per unit of each weighted residual, linearised at `lin`."""
-    return np.linalg.pinv(lin.curvature) @ (lin.mean_jacobian * lin.loss_weights[:, None]).T
+    return inverse_curvature(lin.curvature) @ (lin.mean_jacobian * lin.loss_weights[:, None]).T
 
 
 def realisation_term(lin, linearizations, arrangement=None) -> RealisationTerm:
@@ -168,7 +172,7 @@ def realisation_term(lin, linearizations, arrangement=None) -> RealisationTerm:
     linearisations' Jacobians pooled in. `arrangement`: where the realisations also draw how the strands lie,
     (their draws (K, q), the arrangement's columns (N, q), the prior's covariance (q, q)) for
     `realisation_spread`'s control variate."""
-    pooled = pooled_jacobians(lin, linearizations)
+    pooled, unpinned = pinned(pooled_jacobians(lin, linearizations))
     w = pooled.loss_weights
     covariance, variance, part = realisation_spread(estimate_gain(pooled), linearizations, arrangement)
     first = linearizations[0]
@@ -183,6 +187,7 @@ def realisation_term(lin, linearizations, arrangement=None) -> RealisationTerm:
         pooled,
         variance,
         part,
+        unpinned,
     )
 
 

@@ -248,10 +248,14 @@ def format_table(result: FitResult, truth: dict, renderer: str | None = None) ->
     parts = result.uncertainty_parts or {}
     split = result.uncertainties is not None and parts.get("model_error", 0.0) > 0
     realised = result.uncertainties is not None and parts.get("realisation") is not None
+    ranged = result.uncertainties is not None and parts.get("range") is not None
     versus = ("true", "error") if truth else ()
     header = ("control", "fitted", "± 1σ") + (("± noise", "± model") if split else ())
     if realised:
         header = header[:3] + (("± noise", "± model") if split else ("± noise",)) + ("± realisation",)
+    if ranged:
+        header += ("± noise",) if len(header) == 3 else ()
+        header += ("± range",)
     header += versus
     rows = []
     for name, value in result.values.items():
@@ -262,6 +266,9 @@ def format_table(result: FitResult, truth: dict, renderer: str | None = None) ->
             sigma += (_fmt(parts["noise"][name]),)
         if realised:
             sigma += (_fmt(parts["realisation"][name]),)
+        if ranged:
+            sigma += (_fmt(parts["noise"][name]),) if not (split or realised) else ()
+            sigma += (_fmt(parts["range"][name]),)
         true = truth.get(name)
         if not versus:
             rows.append((name, _fmt(value), *sigma))
@@ -275,9 +282,15 @@ def format_table(result: FitResult, truth: dict, renderer: str | None = None) ->
     if split:
         by = "the target" + (f" ({made_by(renderer)})" if renderer else "")
         lines.append(
-            f"± 1σ = √(noise² + model²{' + realisation²' if realised else ''}); model: what a "
+            f"± 1σ = √(noise² + model²{' + realisation²' if realised else ''}{' + range²' if ranged else ''}); "
+            "model: what a "
             f"{100 * parts['model_error']:g}% disagreement in brightness between {by} and warp-hair's renders "
             "moves the fit by (--model-error)"
+        )
+    if ranged:
+        lines.append(
+            "range: along a direction the images do not determine at the fit's noise, what the controls' ranges "
+            "allow (the warning below names it)"
         )
     if realised:
         lines.append(

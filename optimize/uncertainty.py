@@ -40,6 +40,18 @@ spread, Cov_real, measured from K realisations rendered at the fitted look, is a
 reported apart (`parts["realisation"]`); s² then leaves the realisations' own variance out, so that the noise
 term does not count it a second time.
 
+Directions the images do not pin: the curvature H is estimated from noisy Jacobians, crossed between independent
+renders so that their noise does not add to it (`linearize.crossed_curvature`). Where a control's column is mostly
+noise, as β_n's on an opaque swatch averaged over the layers' places, H's value along that direction is zero within
+its standard error, or below it; every σ above would then come from noise divided by noise (the fallback to the
+Jacobians' own product counts their noise as curvature: on blender_thick it made β_n 0.121 ± 0.018 for a true 0.36).
+`pinned` splits the crossed H into its eigen-directions and tests each value against its jackknife error
+(`linearize.curvature_directions`): those less than DETERMINED_Z errors above zero are left out of H (every term
+above is then zero along them), and σ along them is what the controls' ranges allow: the estimate along such a
+direction is where the steps stopped, not the images' value, so σ² there is the mean square distance from it to a
+look anywhere along the direction within the ranges (`range_covariance`, reported apart as `parts["range"]`, with
+a warning that names the direction).
+
 Identifiability: two components whose estimates correlate by |ρ| > 0.95 trade off against each other in these
 images (albedo and β_n can, through the albedo inversion, under a single front light); a control the images do
 not change with has a zero column in A. Both end in `Uncertainty.warnings` with what to do about them.
@@ -47,6 +59,7 @@ not change with has a zero column in A. Both end in `Uncertainty.warnings` with 
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import math
 from dataclasses import dataclass
@@ -54,7 +67,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .latents import SPECS, by_control
-from .linearize import Linearization
+from .linearize import DETERMINED_Z, Linearization, curvature_directions, inverse_curvature
 
 CORRELATION_WARNING = 0.95
 # The relative brightness disagreement assumed for a target warp-hair did not render: the measured disagreement
@@ -108,7 +121,7 @@ def brightness_sensitivity(lin: Linearization) -> np.ndarray:
             "the linearisation carries no target values (Linearization.targets): the sensitivity "
             "to a brightness disagreement needs them"
         )
-    return np.linalg.pinv(lin.curvature) @ lin.crossed(lin.residuals + lin.targets)
+    return inverse_curvature(lin.curvature) @ lin.crossed(lin.residuals + lin.targets)
 
 
 def component_labels(names) -> list[str]:
@@ -116,6 +129,69 @@ def component_labels(names) -> list[str]:
     for name in names:
         labels += [f"{name}[{'rgb'[k]}]" for k in range(3)] if SPECS[name].size == 3 else [name]
     return labels
+
+
+@dataclass(frozen=True)
+class Unpinned:
+    """The directions of the fitted components that the images do not determine at the fit's noise (`pinned`)."""
+
+    vectors: np.ndarray  # (p, m): orthonormal columns, in the components' own units
+    values: np.ndarray  # (m,): the crossed curvature along each
+    errors: np.ndarray  # (m,): its standard error
+
+
+def pinned(lin: Linearization) -> tuple[Linearization, Unpinned | None]:
+    """(`lin` with its curvature restricted to the directions its Jacobians determine, the others), or (`lin`, None)
+    unchanged where every direction is determined or there are too few Jacobians to tell (module docstring,
+    "Directions the images do not pin")."""
+    jacobians = lin.all_jacobians
+    if len(jacobians) < 3:
+        return lin, None
+    values, vectors, errors = curvature_directions(jacobians, lin.loss_weights)
+    weak = values < DETERMINED_Z * errors
+    if not weak.any():
+        return lin, None
+    kept = vectors[:, ~weak]
+    restricted = (kept * values[~weak]) @ kept.T
+    return dataclasses.replace(lin, curvature=restricted), Unpinned(vectors[:, weak], values[weak], errors[weak])
+
+
+def range_covariance(values: dict, unpinned: Unpinned) -> np.ndarray:
+    """(p, p): Σ_v E[t²] v vᵀ over the directions v the images leave free, t uniform along the chord of the controls'
+    ranges through the estimate x̂ in direction v (x̂ + t v within every control's range): the mean square distance
+    from x̂ to a look anywhere along v, for x̂ is not the images' choice along it (at a range's middle width²/12, at
+    its end width²/3). Components a direction hardly moves, and controls without an upper end (exposure), bound the
+    chord only where they reach an end; along a chord without ends σ² is infinite."""
+    names = list(values)
+    x = np.concatenate([np.atleast_1d(np.asarray(values[name], dtype=np.float64)) for name in names])
+    lo = np.concatenate([[SPECS[name].lo] * SPECS[name].size for name in names])
+    hi = np.concatenate([[SPECS[name].hi] * SPECS[name].size for name in names])
+    covariance = np.zeros((len(x), len(x)))
+    for v in unpinned.vectors.T:
+        moves = np.abs(v) > 1e-9
+        ends = np.stack([(lo - x)[moves] / v[moves], (hi - x)[moves] / v[moves]])
+        low, high = float(np.max(ends.min(axis=0))), float(np.min(ends.max(axis=0)))
+        if not np.isfinite(high - low):
+            covariance[moves, moves] = np.inf
+            continue
+        mean_square = (high**3 - low**3) / (3.0 * (high - low)) if high > low else 0.0
+        covariance += mean_square * np.outer(v, v)
+    return covariance
+
+
+def _unpinned_warning(labels, unpinned: Unpinned, sigma: np.ndarray) -> str:
+    directions = []
+    for column, value, error in zip(unpinned.vectors.T, unpinned.values, unpinned.errors):
+        order = np.argsort(-np.abs(column))
+        main = [f"{column[i]:+.2f} {labels[i]}" for i in order if abs(column[i]) >= 0.3]
+        directions.append(f"{' '.join(main)} (its curvature {value:.2g} ± {error:.2g})")
+    loose = [f"{label} ±{s:.2g}" for label, s in zip(labels, sigma) if s > 0]
+    return (
+        f"the images do not determine {'; '.join(directions)} at the fit's noise: along "
+        f"{'it' if len(directions) == 1 else 'them'} the value is not the images' but where the steps stopped, and "
+        f"σ there is the controls' range's ({', '.join(loose)}). To pin it: more samples (--spp, --batch), another "
+        "view or light, or fix one of the controls (--fix NAME=VALUE)"
+    )
 
 
 @dataclass(frozen=True)
@@ -138,6 +214,7 @@ def estimate_uncertainty(
     realisation_covariance: np.ndarray | None = None,
     brightness_from: Linearization | None = None,
     birge: float = 1.0,
+    unpinned: Unpinned | None = None,
 ) -> Uncertainty:
     """The uncertainties at the linearisation's values (see the module docstring). mc_covariance: the
     estimate's own Monte Carlo covariance (`refine`); None leaves it out. model_error: ε, the relative
@@ -148,7 +225,9 @@ def estimate_uncertainty(
     realisations passes its pooled one). birge: S = √(χ²/dof) where the images differ from the fitted look by
     more than noise (goodness.py); it scales the parts that the residuals' own scatter s² does not already
     scale (the refinement's Monte Carlo error, the model error, the realisation term), so that every part of
-    σ grows by S, the noise part through s²."""
+    σ grows by S, the noise part through s². unpinned: the directions the images do not determine (`pinned`, whose
+    restricted curvature `lin`, `brightness_from` and the realisation term then carry): σ along them is the
+    controls' range's, and the refinement's Monte Carlo error is taken off them."""
     names = list(lin.values)
     A = lin.mean_jacobian
     p = A.shape[1]
@@ -160,6 +239,9 @@ def estimate_uncertainty(
     ]
     cov = lin.statistical_covariance
     if mc_covariance is not None:
+        if unpinned is not None:
+            determined = np.eye(p) - unpinned.vectors @ unpinned.vectors.T  # the projector onto the pinned directions
+            mc_covariance = determined @ mc_covariance @ determined
         cov = cov + birge**2 * mc_covariance
     sigma = np.sqrt(np.maximum(np.diag(cov), 0.0))
     source = lin if brightness_from is None else brightness_from
@@ -170,11 +252,17 @@ def estimate_uncertainty(
     realised = np.zeros(p)
     if realisation_covariance is not None:
         realised = birge * np.sqrt(np.maximum(np.diag(realisation_covariance), 0.0))
+    ranged = np.zeros(p)
+    if unpinned is not None:
+        ranged = np.sqrt(np.maximum(np.diag(range_covariance(lin.values, unpinned)), 0.0))
+        warnings.append(_unpinned_warning(labels, unpinned, ranged))
     parts = {
         "model_error": float(model_error),
         "noise": by_control(names, sigma),
         "model": by_control(names, model),
         "realisation": None if realisation_covariance is None else by_control(names, realised),
+        # Along the directions the images do not determine: the controls' ranges (`range_covariance`).
+        "range": None if unpinned is None else by_control(names, ranged),
         # The estimate's change were the target 1% brighter (s · 0.01), signed.
         "shift_per_percent_brightness": None if sensitivity is None else by_control(names, 0.01 * sensitivity),
     }
@@ -186,14 +274,17 @@ def estimate_uncertainty(
         if owners[i] == owners[j] or not np.isfinite(rho[i, j]):
             continue
         correlations[f"{labels[i]}/{labels[j]}"] = float(rho[i, j])
-        if abs(rho[i, j]) > CORRELATION_WARNING:
+        # A component the images leave free along some direction has its own warning (`_unpinned_warning`).
+        if abs(rho[i, j]) > CORRELATION_WARNING and ranged[i] <= sigma[i] and ranged[j] <= sigma[j]:
             warnings.append(
                 f"{labels[i]} and {labels[j]} trade off in these images (correlation {rho[i, j]:+.3f}): a change of "
                 f"one is largely compensated by the other, and their uncertainties (±{sigma[i]:.2g}, "
                 f"±{sigma[j]:.2g}) lie mostly along that trade-off. To tell them apart, add an image under another "
                 "light or from another view (a back-lit one shows transmission), or fix one of them."
             )
-    # The diagonal of cov + ε² s sᵀ + Cov_real; with ε = 0 and no realisation term the noise's σ as it stands.
-    total = np.sqrt(sigma**2 + model**2 + realised**2) if (model_error or realisation_covariance is not None) else sigma
+    # The diagonal of cov + ε² s sᵀ + Cov_real (+ the range's along free directions); with ε = 0, no realisation
+    # term and every direction determined, the noise's σ as it stands.
+    some = model_error or realisation_covariance is not None or unpinned is not None
+    total = np.sqrt(sigma**2 + model**2 + realised**2 + ranged**2) if some else sigma
     uncertainties = by_control(names, total)
     return Uncertainty(uncertainties, parts, correlations, tuple(warnings), tuple(np.array(labels)[flat]))

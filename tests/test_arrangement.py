@@ -189,6 +189,7 @@ def test_photo_defaults_state_what_a_photographer_cannot_measure():
     assert photo_defaults({"generator": "swatch", "radius": 0.004}) == {
         "jitter": [0.05, 0.4],
         "layer_gap": [0.008, 0.015],
+        "layer_shift_jitter": [0.0, 1.0],
     }
     # With clumps, how far they close, as read off the tips: the recipe's strength ± 0.2 within [0, 1].
     clumped = {"generator": "wavy", "radius": 0.004, "clumps": 10, "clump_strength": 0.9}

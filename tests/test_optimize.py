@@ -282,6 +282,82 @@ def test_curvature_is_unbiased_where_the_jacobian_is_mostly_noise():
     np.testing.assert_allclose(lin.curvature, exact, rtol=0.15, atol=2e-3)
 
 
+def test_curvature_directions_standard_errors_match_their_scatter():
+    """The jackknife standard error of each crossed-curvature direction's value (`curvature_directions`) is the
+    scatter of that value over independent sets of Jacobians for a well-determined column, and no smaller than it
+    (up to 1.6x larger: the jackknife of a nearly degenerate U-statistic errs high) for a noise-dominated one, so
+    that a direction is never judged determined on an error too small."""
+    from optimize.linearize import curvature_directions
+
+    rng = np.random.default_rng(21)
+    n, count = 600, 16
+    jacobian = np.stack([rng.standard_normal(n), 0.05 * rng.standard_normal(n)], axis=1)
+    weights = np.full(n, 1.0 / n)
+    values, errors = [], []
+    for _ in range(200):
+        jacobians = jacobian + np.array([0.1, 0.5]) * rng.standard_normal((count, n, 2))
+        v, vectors, e = curvature_directions(jacobians, weights)
+        order = np.argsort(np.abs(vectors[1]))  # [the first column's direction, the second's]
+        values.append(v[order])
+        errors.append(e[order])
+    ratio = np.mean(errors, axis=0) / np.std(values, axis=0)
+    assert ratio[0] == pytest.approx(1.0, rel=0.15) and 0.9 < ratio[1] < 1.6
+    exact = np.diag(jacobian.T @ jacobian / n)
+    np.testing.assert_allclose(np.mean(values, axis=0), exact, rtol=0.1, atol=3 * np.std(values, axis=0)[1] / 14)
+
+
+def test_a_direction_the_jacobians_do_not_determine_takes_the_range_not_the_noise():
+    """β_n's column all noise and no signal (blender_thick's, averaged over the layers' places): the product
+    fallback counts that noise as curvature and gives β_n a σ a fraction of its range; `pinned` finds the direction
+    (its crossed value within its error of zero) and σ along it is the range's (the root mean square distance from
+    the estimate to any β_n in it), with a warning that names it. A determined column is left as it was, the
+    linearisation unchanged."""
+    from optimize.uncertainty import pinned
+
+    rng = np.random.default_rng(22)
+    n = 3999
+    jacobian = np.stack([rng.standard_normal(n), np.zeros(n)], axis=1)
+    lin = _noisy_linearization(rng, jacobian, np.zeros(2), 0.2, np.array([0.02, 1.0]))
+    lin = dataclasses.replace(lin, values={"beta_m": 0.3, "beta_n": 0.4}, scatter=0.002)
+    lin = dataclasses.replace(lin, earlier_jacobians=jacobian + np.array([0.02, 1.0]) * rng.standard_normal((8, n, 2)))
+    naive = estimate_uncertainty(lin).uncertainties["beta_n"]
+    determined, unpinned = pinned(lin)
+    assert unpinned is not None and unpinned.vectors.shape == (2, 1) and abs(unpinned.vectors[1, 0]) > 0.99
+    result = estimate_uncertainty(determined, unpinned=unpinned)
+    # β_n = 0.4 in (0.01, 1): the root mean square distance from 0.4 to a β_n uniform over the range.
+    low, high = SPECS["beta_n"].lo - 0.4, SPECS["beta_n"].hi - 0.4
+    width = math.sqrt((high**3 - low**3) / (3 * (high - low)))
+    assert naive < 0.2 * width
+    assert result.uncertainties["beta_n"] == pytest.approx(width, rel=1e-3)
+    assert result.parts["range"]["beta_n"] == pytest.approx(width, rel=1e-3)
+    assert result.uncertainties["beta_m"] == pytest.approx(estimate_uncertainty(lin).uncertainties["beta_m"], rel=0.05)
+    assert any("do not determine" in w and "beta_n" in w and "--fix" in w for w in result.warnings)
+    signal = dataclasses.replace(lin, jacobians=lin.jacobians + np.array([0.0, 1.0]), curvature=None)
+    signal = dataclasses.replace(signal, earlier_jacobians=signal.earlier_jacobians + np.array([0.0, 1.0]))
+    kept, none = pinned(signal)
+    assert none is None and kept is signal
+
+
+def test_the_range_along_a_free_direction_is_the_chord_through_the_estimate():
+    """σ² along a free direction is the mean square distance from the estimate to a point anywhere on the chord of
+    the ranges through it: width²/12 at a range's middle, width²/3 at its end; a control without an upper end
+    (exposure) bounds the chord only where it reaches an end, and only a chord without ends is infinite."""
+    from optimize.uncertainty import Unpinned, range_covariance
+
+    def sigma(values, direction):
+        v = np.array(direction, dtype=float)[:, None] / np.linalg.norm(direction)
+        return np.sqrt(np.diag(range_covariance(values, Unpinned(v, np.zeros(1), np.ones(1)))))
+
+    lo, hi = SPECS["beta_n"].lo, SPECS["beta_n"].hi
+    middle = 0.5 * (lo + hi)
+    np.testing.assert_allclose(sigma({"beta_m": 0.3, "beta_n": middle}, [0, 1]), [0, (hi - lo) / math.sqrt(12)])
+    np.testing.assert_allclose(sigma({"beta_m": 0.3, "beta_n": hi - 1e-12}, [0, 1]), [0, (hi - lo) / math.sqrt(3)])
+    # Mostly β_n, a little exposure: β_n's ends bound the chord; exposure moves by its share of it.
+    mixed = sigma({"beta_n": middle, "exposure": 2.0}, [1.0, 0.01])
+    assert mixed[0] == pytest.approx((hi - lo) / math.sqrt(12), rel=1e-3) and mixed[1] == pytest.approx(0.01 * mixed[0])
+    assert np.isinf(sigma({"beta_n": 0.4, "exposure": 2.0}, [0, 1])[1])  # exposure alone: no upper end
+
+
 def test_earlier_jacobians_take_the_jacobian_noise_out_of_the_steps():
     """A column whose Jacobian noise is twice its signal (fur_patch's β_n): met with the other pass's residual,
     that noise moves every step, and the steps along it scatter over four times as widely (in variance) as a

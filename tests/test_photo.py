@@ -653,11 +653,12 @@ def test_a_wavy_clumpy_swatch_with_strays_is_a_recipe_the_fit_redraws(tmp_path, 
     target = load_target(tmp_path / "made")
     assert target.realisations == "random"
     assert "never the photographed strands" in (tmp_path / "made" / "target.toml").read_text()
-    # How the strands lie, which a photo does not say: a prior over jitter, the layers' gap and how far the clumps
-    # close, the recipe's strength ± 0.2 (arrangement.py).
+    # How the strands lie, which a photo does not say: a prior over jitter, the layers' gap and places, and how far the
+    # clumps close, the recipe's strength ± 0.2 (arrangement.py).
     assert target.arrangement.ranges == {
         "jitter": (0.05, 0.4),
         "layer_gap": (0.008, 0.015),
+        "layer_shift_jitter": (0.0, 1.0),
         "clump_strength": (0.4, 0.8),
     }
     scene = target.images[0].scene

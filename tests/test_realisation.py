@@ -375,7 +375,9 @@ def test_a_fit_over_random_realisations_reports_the_realisation_term(tmp_path):
     parts = result.uncertainty_parts
     for name in ("albedo", "beta_m", "beta_n"):
         noise, model, realised = (np.asarray(parts[key][name]) for key in ("noise", "model", "realisation"))
-        np.testing.assert_allclose(result.uncertainties[name], np.sqrt(noise**2 + model**2 + realised**2))
+        # Two noisy Gauss–Newton steps at 2 spp leave some direction undetermined: its range's part (uncertainty.py).
+        ranged = 0.0 if parts["range"] is None else np.asarray(parts["range"][name])
+        np.testing.assert_allclose(result.uncertainties[name], np.sqrt(noise**2 + model**2 + realised**2 + ranged**2))
     # Other strands give other estimates: the term is not zero for the controls the strands' placement moves.
     assert max(np.max(parts["realisation"][name]) for name in ("albedo", "beta_m", "beta_n")) > 0
     assert "± realisation" in format_table(result, {})

@@ -125,3 +125,28 @@ def test_a_control_without_truth_leaves_its_cells_empty(own_target):
     rows = {line.split()[0]: line for line in format_table(result, {"beta_m": 0.3}).splitlines()[2:]}
     assert rows["beta_m"].split()[-2:] == ["0.300", "0.000"]
     assert rows["alpha"].split() == ["alpha", "2.000"]
+
+
+def test_a_direction_left_to_the_range_gets_its_column(own_target):
+    """A fit whose β_n the images do not determine (uncertainty.py `pinned`) prints its noise and range parts beside
+    ± 1σ, and a line that says what the range part is; a fit without one prints neither."""
+    import dataclasses
+
+    from optimize.report import format_table
+
+    target = load_target(own_target)
+    sigma = {"albedo": [0.01, 0.01, 0.01], "beta_m": 0.01, "beta_n": 0.29}
+    parts = {
+        "model_error": 0.0,
+        "noise": {"albedo": [0.01, 0.01, 0.01], "beta_m": 0.01, "beta_n": 0.002},
+        "range": {"albedo": [0.0, 0.0, 0.0], "beta_m": 0.0, "beta_n": 0.286},
+        "realisation": None,
+    }
+    result = dataclasses.replace(result_at(TRUTH, target), uncertainties=sigma, uncertainty_parts=parts)
+    lines = format_table(result, TRUTH).splitlines()
+    assert lines[0].split() == ["control", "fitted", "±", "1σ", "±", "noise", "±", "range", "true", "error"]
+    row = next(line for line in lines if line.startswith("beta_n")).split()
+    assert row[2:5] == ["0.290", "0.002", "0.286"]
+    assert any(line.startswith("range: along a direction the images do not determine") for line in lines)
+    plain = dataclasses.replace(result, uncertainty_parts={**parts, "range": None})
+    assert "range" not in format_table(plain, TRUTH)
