@@ -366,11 +366,11 @@ def record(
     failures where the images put a key outside its prior (`outside_prior`). look_variance (p,): the fit's σ² of
     the look; arrangement_variance (p,): its part the arrangement makes, as the realisation term counts it
     (realisations.py `realisation_spread`)."""
-    from .latents import SPECS
+    from .latents import SPECS, flat_values
     from .uncertainty import component_labels
 
     labels = component_labels(names)
-    flat = np.concatenate([np.atleast_1d(np.asarray(values[name], dtype=np.float64)) for name in names])
+    flat = flat_values({name: values[name] for name in names})
     moved, look, start = flat + found.look_step, {}, 0
     for name in names:
         size = SPECS[name].size

@@ -24,6 +24,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import numpy as np
 import torch
 
 from warp_hair.controls import COLOUR_CONTROL_NAMES, COLOUR_CONTROLS, CONTROLS
@@ -125,6 +126,19 @@ def parse_control_names(names, colour_input: str) -> tuple:
     if duplicates:
         raise ValueError(f"control(s) {duplicates} listed twice to fit")
     return tuple(names)
+
+
+def flat_values(values: dict) -> np.ndarray:
+    """The components of `values` ({name: float, or list of 3}) as one float64 vector, in its order: `by_control`'s
+    inverse."""
+    return np.concatenate([np.atleast_1d(np.asarray(v, dtype=np.float64)) for v in values.values()])
+
+
+def component_bounds(names) -> tuple[np.ndarray, np.ndarray]:
+    """(lo, hi): each control component's open interval, in `names` order."""
+    lo = np.concatenate([[SPECS[name].lo] * SPECS[name].size for name in names])
+    hi = np.concatenate([[SPECS[name].hi] * SPECS[name].size for name in names])
+    return lo, hi
 
 
 def by_control(names, flat) -> dict:

@@ -46,7 +46,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .latents import SPECS, by_control
+from .latents import by_control, component_bounds, flat_values
 from .linearize import Linearization, linearize
 from .uncertainty import component_labels
 
@@ -65,16 +65,6 @@ BEST_Z = 3.5
 DRIFT_T = 3.0  # a trend in the averaged points this many standard errors strong means they still move
 DRIFT_POINTS = 5  # fewer averaged points do not tell a trend (a t statistic with 3 degrees of freedom or more)
 MAX_EXTENSION = 3  # a refinement whose points still move runs on, up to this many times its planned steps
-
-
-def _flat(values: dict) -> np.ndarray:
-    return np.concatenate([np.atleast_1d(np.asarray(v, dtype=np.float64)) for v in values.values()])
-
-
-def _bounds(names) -> tuple:
-    lo = np.concatenate([[SPECS[name].lo] * SPECS[name].size for name in names])
-    hi = np.concatenate([[SPECS[name].hi] * SPECS[name].size for name in names])
-    return lo, hi
 
 
 def inside(x: np.ndarray, step: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
@@ -134,11 +124,11 @@ class GaussNewton:
     def __init__(self, target, start: dict, settings, spp: int, seed: int, steps: int, scenes=None):
         self.target, self.settings, self.spp, self.seed, self.scenes = target, settings, spp, seed, scenes
         self.names = list(start)
-        self.lo, self.hi = _bounds(self.names)
+        self.lo, self.hi = component_bounds(self.names)
         self.planned = steps
         self.limit = steps
         self.k = 0
-        self.x = _flat(start)
+        self.x = flat_values(start)
         self.kept_values = start
         # One linearisation's Jacobian is noisy, and so then are the curvature (where it comes out too small, a
         # step overshoots and the steps oscillate around the optimum) and the gradient. Those of the last few

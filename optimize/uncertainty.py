@@ -66,7 +66,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .latents import SPECS, by_control
+from .latents import SPECS, by_control, component_bounds, flat_values
 from .linearize import DETERMINED_Z, Linearization, curvature_directions, inverse_curvature
 
 CORRELATION_WARNING = 0.95
@@ -162,10 +162,8 @@ def range_covariance(values: dict, unpinned: Unpinned) -> np.ndarray:
     from x̂ to a look anywhere along v, for x̂ is not the images' choice along it (at a range's middle width²/12, at
     its end width²/3). Components a direction hardly moves, and controls without an upper end (exposure), bound the
     chord only where they reach an end; along a chord without ends σ² is infinite."""
-    names = list(values)
-    x = np.concatenate([np.atleast_1d(np.asarray(values[name], dtype=np.float64)) for name in names])
-    lo = np.concatenate([[SPECS[name].lo] * SPECS[name].size for name in names])
-    hi = np.concatenate([[SPECS[name].hi] * SPECS[name].size for name in names])
+    x = flat_values(values)
+    lo, hi = component_bounds(list(values))
     covariance = np.zeros((len(x), len(x)))
     for v in unpinned.vectors.T:
         moves = np.abs(v) > 1e-9

@@ -27,7 +27,7 @@ import numpy as np
 
 from warp_hair.controls import CONTROLS
 
-from .latents import SPECS
+from .latents import SPECS, flat_values
 from .refine import BEST_Z
 from .uncertainty import component_labels
 
@@ -123,7 +123,7 @@ def _at_bounds(values: dict) -> list[str]:
     reasons = []
     names = list(values)
     labels = component_labels(names)
-    flat = np.concatenate([np.atleast_1d(np.asarray(values[name], dtype=np.float64)) for name in names])
+    flat = flat_values(values)
     owners = [name for name in names for _ in range(SPECS[name].size)]
     for label, owner, x in zip(labels, owners, flat):
         spec = SPECS[owner]
