@@ -184,13 +184,18 @@ def crossed_curvature(jacobians: np.ndarray, weights: np.ndarray) -> np.ndarray:
     Jacobian's product with itself is used instead."""
     n = len(jacobians)
     total = jacobians.sum(axis=0)
-    squares = np.einsum("kni,n,knj->ij", jacobians, weights, jacobians)
-    crossed = (total.T @ (weights[:, None] * total) - squares) / (n * (n - 1))
-    crossed = 0.5 * (crossed + crossed.T)
+    crossed = _crossed_mean(total, np.einsum("kni,n,knj->ij", jacobians, weights, jacobians), weights, n)
     if np.all(np.linalg.eigvalsh(crossed) > 0):
         return crossed
     a = (total / n) * np.sqrt(weights)[:, None]
     return a.T @ a
+
+
+def _crossed_mean(total: np.ndarray, squares: np.ndarray, weights: np.ndarray, n: int) -> np.ndarray:
+    """Σ w aᵢ aⱼ averaged over the pairs of distinct ones of n Jacobians, from their sum `total` (N, p) and the sum
+    of their products with themselves `squares` (p, p); symmetric."""
+    crossed = (total.T @ (weights[:, None] * total) - squares) / (n * (n - 1))
+    return 0.5 * (crossed + crossed.T)
 
 
 # A direction of the curvature whose crossed estimate lies less than this many of its standard errors above zero is
@@ -210,13 +215,13 @@ def curvature_directions(jacobians: np.ndarray, weights: np.ndarray) -> tuple:
         raise ValueError(f"the curvature's standard errors need at least 3 Jacobians, got {n}")
     total = jacobians.sum(axis=0)
     squares = np.einsum("kni,n,knj->kij", jacobians, weights, jacobians)
-    crossed = (total.T @ (weights[:, None] * total) - squares.sum(axis=0)) / (n * (n - 1))
-    values, vectors = np.linalg.eigh(0.5 * (crossed + crossed.T))
+    all_squares = squares.sum(axis=0)
+    values, vectors = np.linalg.eigh(_crossed_mean(total, all_squares, weights, n))
     along = np.einsum("nk,kp->np", total, vectors)  # the total's projection on each direction (N, p)
     left_out = []
     for j in range(n):
         rest = along - jacobians[j] @ vectors
-        own = np.einsum("ip,ij,jp->p", vectors, squares.sum(axis=0) - squares[j], vectors)
+        own = np.einsum("ip,ij,jp->p", vectors, all_squares - squares[j], vectors)
         left_out.append((np.einsum("np,n,np->p", rest, weights, rest) - own) / ((n - 1) * (n - 2)))
     left_out = np.array(left_out)
     errors = np.sqrt((n - 1) / n * ((left_out - left_out.mean(axis=0)) ** 2).sum(axis=0))

@@ -254,7 +254,7 @@ def format_table(result: FitResult, truth: dict, renderer: str | None = None) ->
     if realised:
         header = header[:3] + (("± noise", "± model") if split else ("± noise",)) + ("± realisation",)
     if ranged:
-        header += ("± noise",) if len(header) == 3 else ()
+        header += ("± noise",) if not (split or realised) else ()
         header += ("± range",)
     header += versus
     rows = []
