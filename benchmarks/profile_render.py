@@ -48,6 +48,7 @@ from warp_hair.renderer.camera import generate_ray
 from warp_hair.renderer.envmap import env_sample
 from warp_hair.renderer.gradients import render_jacobian
 from warp_hair.renderer.integrator import SceneData
+from warp_hair.renderer.light_sampler import choose_light
 from warp_hair.renderer.prepare import prepare
 from warp_hair.renderer.render import pixel_start, render
 from warp_hair.scene import load_scene
@@ -131,7 +132,7 @@ def record_paths(
             y = wp.cross(z, x)
             setup = lobe_setup(scene.hair, to_local(-d, x, y, z), hit.h)
             if num_emitters > 0:
-                k = wp.min(int(wp.randf(rng) * float(num_emitters)), num_emitters - 1)
+                k, _p = choose_light(scene.light_cdf, wp.randf(rng))  # as integrator.sample_ld chooses
                 to_light = wp.vec3(0.0)
                 if k < scene.num_lights:
                     to_light = scene.lights[k].to_light

@@ -173,6 +173,16 @@ def _row_mean_sin_theta(height: int) -> np.ndarray:
     return (cos_edges[:-1] - cos_edges[1:]) * height / np.pi
 
 
+def mean_radiance(radiance=None, image=None) -> np.ndarray:
+    """(3,) float64: the environment's radiance averaged over the sphere by solid angle (the constant sky's own;
+    an image's pixels weighted by their solid angle), what a light sampler weighs it by."""
+    if image is None:
+        return _checked_radiance(0.0 if radiance is None else radiance)
+    image = _checked_image(image).astype(np.float64)
+    weights = _row_mean_sin_theta(image.shape[0])
+    return np.einsum("y,yxc->c", weights, image) / (weights.sum() * image.shape[1])
+
+
 def _cdf(weights: np.ndarray) -> np.ndarray:
     """CDFs along the last axis, 0 first and exactly 1 last; uniform where a row has no weight."""
     total = weights.sum(axis=-1, keepdims=True)

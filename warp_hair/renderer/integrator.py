@@ -21,6 +21,7 @@ from ..numerics import FLOAT32_MIN_NORMAL, power_heuristic, rand2, to_local, to_
 from .aggregate import MISS, Surfaces, intersect_scene, occluded_scene
 from .camera import CameraData
 from .envmap import EnvironmentData, env_pdf, env_radiance, env_sample
+from .light_sampler import choose_light, light_probability
 from .material import (
     HairVariation,
     Vertex,
@@ -57,6 +58,7 @@ class SceneData:
     num_lights: int
     env: EnvironmentData
     has_env: int
+    light_cdf: wp.array(dtype=float)  # the emitters' cumulative selection probabilities (light_sampler.py)
     max_depth: int
     rr_depth: int
 
@@ -116,11 +118,12 @@ def _named(f, name: str):
 
 
 @wp.func
-def escaped(scene: SceneData, throughput: wp.vec3, d: wp.vec3, prev_pdf: float, select_pdf: float):
-    """The environment's contribution to a ray that leaves the scene, MIS-weighted against light sampling (a
-    camera ray, prev_pdf = 0, takes it whole)."""
+def escaped(scene: SceneData, throughput: wp.vec3, d: wp.vec3, prev_pdf: float):
+    """The environment's contribution to a ray that leaves the scene, MIS-weighted against light sampling, which
+    chooses the environment with its own probability (a camera ray, prev_pdf = 0, takes it whole)."""
     mis = float(1.0)
     if prev_pdf > 0.0:
+        select_pdf = light_probability(scene.light_cdf, scene.num_lights)
         mis = power_heuristic(prev_pdf, select_pdf * env_pdf(scene.env, d))
     return mis * wp.cw_mul(throughput, env_radiance(scene.env, d))
 
@@ -163,14 +166,14 @@ def roulette(throughput: wp.vec3, rng: wp.uint32):
 def make_sample_ld(differentiable: bool):
     """Next-event estimation at a vertex, over every kind of light (pbrt's SampleLd):
 
-    sample_ld(scene, v, throughput, num_emitters, select_pdf, rng)
+    sample_ld(scene, v, throughput, rng)
         -> (lit, contribution, S toward the light, lobes toward the light, rng)
 
-    One emitter is chosen uniformly (one shadow ray per vertex whatever the number of lights, as in Mitsuba),
-    then a direction toward it. The sample is tested for occlusion before the BSDF is evaluated toward it: an
-    occluded sample, often most of them inside an assembly, then costs no evaluation. A directional light is a
-    delta that BSDF sampling cannot hit: its sample is not weighted. The environment's is combined with BSDF
-    sampling by the power heuristic (`escaped` takes the other side). With `differentiable`, `lobes` is the
+    One emitter is chosen, by the irradiance each gives (one shadow ray per vertex whatever the number of lights;
+    light_sampler.py), then a direction toward it. The sample is tested for occlusion before the BSDF is evaluated
+    toward it: an occluded sample, often most of them inside an assembly, then costs no evaluation. A directional
+    light is a delta that BSDF sampling cannot hit: its sample is not weighted. The environment's is combined with
+    BSDF sampling by the power heuristic (`escaped` takes the other side). With `differentiable`, `lobes` is the
     evaluation of the material toward the light that `bsdf_value_jacobian` differentiates.
     """
 
@@ -180,11 +183,9 @@ def make_sample_ld(differentiable: bool):
         scene: SceneData,
         v: Vertex,
         throughput: wp.vec3,
-        num_emitters: int,
-        select_pdf: float,
         rng: wp.uint32,
     ):
-        k = wp.min(int(wp.randf(rng) * float(num_emitters)), num_emitters - 1)
+        k, select_pdf = choose_light(scene.light_cdf, wp.randf(rng))
         delta = k < scene.num_lights
         to_light, light_pdf, rng = sample_light(scene, k, rng)
         lit = False
@@ -247,7 +248,6 @@ def make_trace_path(differentiable: bool):
         o = origin
         d = direction
         num_emitters = scene.num_lights + scene.has_env
-        select_pdf = 1.0 / float(wp.max(num_emitters, 1))
         prev_pdf = float(0.0)  # solid-angle pdf of the BSDF sample that produced d; 0 for the camera ray
         depth = int(0)  # scattering vertices so far
         strand = int(-1)  # the strand the ray leaves (the "exit" rule skips it); −1 for none
@@ -256,7 +256,7 @@ def make_trace_path(differentiable: bool):
             met = intersect_scene(scene.surfaces, o, d, strand, tube)
             if met.kind == MISS:
                 if scene.has_env != 0:
-                    contribution = escaped(scene, throughput, d, prev_pdf, select_pdf)
+                    contribution = escaped(scene, throughput, d, prev_pdf)
                     radiance += contribution
                     if wp.static(differentiable):
                         D += scaled_rows(contribution, G)
@@ -274,7 +274,7 @@ def make_trace_path(differentiable: bool):
                     k = vertex_derivatives(scene.variation, scene.surfaces.fibers, met.fiber, v, derivs)
 
             if num_emitters > 0:
-                lit, nee, nee_value, lobes_light, rng = sample_ld(scene, v, throughput, num_emitters, select_pdf, rng)
+                lit, nee, nee_value, lobes_light, rng = sample_ld(scene, v, throughput, rng)
                 if lit:
                     radiance += nee
                     if wp.static(differentiable):

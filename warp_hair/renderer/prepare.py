@@ -28,6 +28,7 @@ from .aggregate import Surfaces
 from .camera import camera_data
 from .envmap import environment_data
 from .integrator import DirectionalLightData, SceneData
+from .light_sampler import selection_cdf
 from .material import HairVariation
 
 
@@ -64,6 +65,9 @@ class PreparedScene:
         )
         self._num_lights = len(directional)
         self._has_env = int(env is not None)
+        # Which light a shadow ray goes to (light_sampler.py); a scene without lights passes one unread entry.
+        cdf = selection_cdf(directional, env) if scene.lights else [1.0]
+        self.light_cdf = wp.array(cdf, dtype=float, device=device)
         self._camera = camera_data(scene.camera)
         self._card = card_data(scene.card, scene.camera, self.bvh.bounds)
         # What the variation's controls need of the strands, made once and shared by `with_hair`'s copies: each
@@ -137,6 +141,7 @@ class PreparedScene:
         data.num_lights = self._num_lights
         data.env = self.env
         data.has_env = self._has_env
+        data.light_cdf = self.light_cdf
         data.max_depth = self.scene.render.max_depth
         data.rr_depth = self.scene.render.rr_depth
         return data

@@ -1,0 +1,112 @@
+"""Which light a shadow ray goes to (renderer/light_sampler.py): the weights, the choice in a kernel, and renders
+that stay unbiased whatever the choice (a scene's image is the sum of its images under each light alone)."""
+
+import numpy as np
+import pytest
+import warp as wp
+from helpers.scenes import swatch_scene
+
+from warp_hair.io import write_exr
+from warp_hair.renderer.envmap import mean_radiance
+from warp_hair.renderer.light_sampler import choose_light, selection_cdf
+from warp_hair.renderer.render import render
+from warp_hair.scene import DirectionalLight, EnvironmentLight
+
+
+def sun(irradiance):
+    return DirectionalLight(direction=(0.3, -0.4, -1.0), irradiance=irradiance)
+
+
+def test_each_light_weighs_the_irradiance_it_gives_a_surface_facing_it():
+    """A directional light's E against a constant sky's π L, channel means."""
+    cdf = selection_cdf([sun((3.0, 3.0, 3.0)), sun((1.0, 2.0, 3.0))], EnvironmentLight(radiance=(0.3, 0.3, 0.3)))
+    weights = np.array([3.0, 2.0, np.pi * 0.3])
+    np.testing.assert_allclose(cdf, np.cumsum(weights) / weights.sum(), rtol=1e-6)
+    assert cdf[-1] == 1.0
+
+
+def test_an_image_weighs_its_radiance_averaged_over_the_sphere():
+    """Rows of a lat-long map cover bands of θ whose solid angles are 2π (cos θ₀ − cos θ₁): a bright row at the
+    equator counts for more than one at a pole. Against that quadrature in float64, and a constant map as its
+    constant."""
+    rows, width = 8, 5
+    values = np.linspace(0.0, 7.0, rows)
+    image = np.repeat(values[:, None, None], width, axis=1) * np.array([1.0, 0.5, 2.0])
+    edges = np.cos(np.pi * np.arange(rows + 1) / rows)
+    expected = (values * (edges[:-1] - edges[1:])).sum() / 2.0 * np.array([1.0, 0.5, 2.0])
+    np.testing.assert_allclose(mean_radiance(image=image.astype(np.float32)), expected, rtol=1e-6)
+    np.testing.assert_allclose(mean_radiance(image=np.full((3, 4, 3), 0.25, np.float32)), 0.25, rtol=1e-6)
+    np.testing.assert_allclose(mean_radiance(radiance=0.4), [0.4] * 3)
+
+
+def test_black_lights_are_never_chosen_and_all_black_is_uniform():
+    black = sun((0.0, 0.0, 0.0))
+    cdf = selection_cdf([black, sun((2.0, 2.0, 2.0)), black], EnvironmentLight(radiance=(0.0, 0.0, 0.0)))
+    np.testing.assert_array_equal(cdf, [0.0, 1.0, 1.0, 1.0])
+    np.testing.assert_allclose(selection_cdf([black, black], None), [0.5, 1.0])
+    assert selection_cdf([], None).size == 0
+
+
+@wp.kernel
+def _choose(cdf: wp.array(dtype=float), u: wp.array(dtype=float), k: wp.array(dtype=int), p: wp.array(dtype=float)):
+    i = wp.tid()
+    chosen, probability = choose_light(cdf, u[i])
+    k[i] = chosen
+    p[i] = probability
+
+
+def choose(cdf, u):
+    n = len(u)
+    k, p = wp.zeros(n, dtype=int), wp.zeros(n, dtype=float)
+    wp.launch(_choose, dim=n, inputs=[wp.array(cdf, dtype=float), wp.array(u, dtype=float), k, p])
+    return k.numpy(), p.numpy()
+
+
+def test_the_choice_follows_the_probabilities_and_reports_them():
+    """Over a fine grid of u (and the largest float32 below 1) each emitter is chosen as often as its probability
+    says, which is the probability the kernel reports; a black emitter, inside or at the end, never."""
+    cdf = selection_cdf(
+        [sun((3.0, 3.0, 3.0)), sun((0.0, 0.0, 0.0)), sun((0.5, 0.5, 0.5))], EnvironmentLight(radiance=(0.3,) * 3)
+    )
+    probabilities = np.diff(cdf, prepend=0.0)
+    u = np.append((np.arange(200_000) + 0.5) / 200_000, np.nextafter(np.float32(1.0), np.float32(0.0)))
+    k, p = choose(cdf, u.astype(np.float32))
+    np.testing.assert_allclose(np.bincount(k, minlength=4) / len(u), probabilities, atol=2e-5)
+    np.testing.assert_allclose(p, probabilities[k], rtol=1e-6)
+    assert not np.any(k == 1)
+    k, _ = choose(selection_cdf([sun((1.0, 1.0, 1.0)), sun((0.0, 0.0, 0.0))], None), u.astype(np.float32))
+    assert np.all(k == 0)
+
+
+@pytest.mark.parametrize("sky", ["constant", "map"])
+def test_a_render_is_the_sum_of_its_renders_under_each_light(sky, tmp_path):
+    """Light adds: the swatch under a sun and a sky renders to its render under the sun plus its render under the
+    sky, within the standard error of their means. The shadow rays split between the two lights by their weights
+    (here far from half each), and the sky's light sampling is combined with BSDF sampling by MIS with the sky's own
+    probability: a wrong weight in either would show in the sum. The map has a bright patch for its importance
+    sampling to find."""
+    sun_light = {"type": "directional", "direction": [0.3, -0.4, -1.0], "irradiance": [3.0, 3.0, 3.0]}
+    if sky == "constant":
+        sky_light = {"type": "environment", "radiance": [0.3, 0.3, 0.3]}
+    else:
+        image = np.full((16, 32, 3), 0.05, np.float32)
+        image[3:6, 10:14] = (4.0, 3.0, 2.0)
+        write_exr(tmp_path / "sky.exr", image)
+        sky_light = {"type": "environment", "file": str(tmp_path / "sky.exr")}
+    hair = {"albedo": [0.7, 0.5, 0.3], "beta_m": 0.3, "beta_n": 0.3}
+    table = {"spp": 1024, "max_depth": 32, "seed": 4}
+    lights = ([sun_light, sky_light], [sun_light], [sky_light])
+    scenes = [swatch_scene(hair, each, resolution=(16, 16), render_table=table) for each in lights]
+    means = [image_mean(scene, seed) for scene, seed in zip(scenes, (4, 11, 12))]
+    difference = means[0][0] - means[1][0] - means[2][0]
+    error = np.sqrt(sum(se**2 for _, se in means))
+    assert abs(difference) < 4.0 * error, (difference, error)
+    assert error < 0.01 * means[0][0]  # and that noise is small: the test tells a bias of 4%
+
+
+def image_mean(scene, seed):
+    """(the image's mean over pixels and channels, its standard error): pixels are independent, a pixel's channels
+    share their paths (so their mean's error is taken as their errors' mean, an upper bound)."""
+    image, stderr = render(scene, seed=seed, return_stderr=True)
+    pixels = stderr.shape[0] * stderr.shape[1]
+    return float(image.mean()), float(np.sqrt((stderr.mean(axis=2) ** 2).sum()) / pixels)
