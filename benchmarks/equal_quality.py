@@ -3,6 +3,7 @@
     python benchmarks/equal_quality.py [--spps 4,16,64] [--scenes standard,draped] [--repeat 3] [--threads 2]
                                        [--samplers independent,multijitter,ldsampler] [--ref-spp 1024]
                                        [--draped PATH] [--draped-shape bsplinecurve] [--no-mitsuba] [--cuda]
+                                       [--mitsuba-lights uniform,weighted]
 
 For each swatch, renderer and spp it renders the image `--repeat` times, with seeds 0, 1, …, on `--threads`
 threads (round by round, each renderer in turn, so that a shared machine's changing load falls on all alike),
@@ -35,7 +36,10 @@ builds it (its `hair` BSDF as shipped, the `stock` sampler the speed benchmarks 
 frame is wrong, docs/MODEL.md, which changes its image, not its cost or its noise against its own reference);
 `--draped-shape bsplinecurve` renders the draped one as vs_peers.py does for agreement (the cubic curve through
 `bspline_control_points`, a costlier intersection and other fibers). Each pixel sampler is timed (`independent`,
-`multijitter`, `ldsampler`). Each renderer is warmed up (kernels compiled or loaded) before it is timed; Dr.Jit
+`multijitter`, `ldsampler`), each with Mitsuba's own choice of light (uniform over its emitters) and with
+the weights warp-hair chooses its lights by (warp_hair.renderer.light_sampler) given to Mitsuba's emitters as their
+`sampling_weight`: the light choice is a setting a Mitsuba user can make, so it is compared apart from the rest.
+Each renderer is warmed up (kernels compiled or loaded) before it is timed; Dr.Jit
 may compile again for a new spp, so --repeat 1 can count a compile in Mitsuba's time (the default 3 keeps the
 best).
 
@@ -82,6 +86,8 @@ WARMUP_SPP = 4
 REFERENCE_SEEDS = (1001, 1002)
 CACHE = HERE / "out" / "equal_quality"
 WARP_HAIR = "warp-hair"
+LIGHTS_WEIGHTED = ", lights weighted as warp-hair's"
+MITSUBA_LIGHTS = {"uniform": False, "weighted": True}
 
 
 def load_average() -> str:
@@ -128,14 +134,22 @@ def warp_hair_renderer(scene, device, stamp) -> Renderer:
     return Renderer(name, f"warp-hair:{stamp}", image)
 
 
-def mitsuba_renderers(mi, scene, shape, fibers_file, samplers) -> list:
-    """A Renderer per pixel sampler. Their one reference is the independent sampler's: every sampler converges to
-    the same image, and independent samples make the reference's noise estimate (module docstring) plain."""
+def mitsuba_renderers(mi, scene, shape, fibers_file, samplers, light_weights) -> list:
+    """A Renderer per pixel sampler (and per choice of lights in `light_weights`: False, Mitsuba's uniform one;
+    True, warp-hair's weights as Mitsuba's `sampling_weight`). Their one reference is the independent sampler's with
+    uniform lights: every one converges to the same image, and independent samples make the reference's noise
+    estimate (module docstring) plain."""
     import drjit as dr
 
-    def renderer_of(sensor_sampler):
+    def renderer_of(sensor_sampler, weighted=False):
         mi_scene = mitsuba_scene(
-            mi, scene, WARMUP_SPP, shape=shape, fibers_file=fibers_file, sensor_sampler=sensor_sampler
+            mi,
+            scene,
+            WARMUP_SPP,
+            shape=shape,
+            fibers_file=fibers_file,
+            sensor_sampler=sensor_sampler,
+            light_weights=weighted,
         )
 
         def image(spp, seed, threads):
@@ -144,16 +158,16 @@ def mitsuba_renderers(mi, scene, shape, fibers_file, samplers) -> list:
 
         return image
 
-    images = {sampler: renderer_of(sampler) for sampler in samplers}
-    reference_image = images.get("independent") or renderer_of("independent")
+    images = {(sampler, weighted): renderer_of(sampler, weighted) for weighted in light_weights for sampler in samplers}
+    reference_image = images.get(("independent", False)) or renderer_of("independent")
     return [
         Renderer(
-            f"Mitsuba {mi.__version__} {mi.variant()} {shape}, {sampler}",
+            f"Mitsuba {mi.__version__} {mi.variant()} {shape}, {sampler}{LIGHTS_WEIGHTED if weighted else ''}",
             f"mitsuba:{mi.__version__}:{shape}:independent",
             image,
             reference_image,
         )
-        for sampler, image in images.items()
+        for (sampler, weighted), image in images.items()
     ]
 
 
@@ -249,7 +263,9 @@ def measure(args, mi) -> list:
                     if shape == "bsplinecurve":
                         fibers_file = Path(tmp) / "control_points.txt"
                         save_fibers(bspline_control_points(scene.fibers), fibers_file)
-                    renderers += mitsuba_renderers(mi, scene, shape, fibers_file, args.samplers)
+                    renderers += mitsuba_renderers(
+                        mi, scene, shape, fibers_file, args.samplers, [MITSUBA_LIGHTS[x] for x in args.mitsuba_lights]
+                    )
                 references = []
                 for renderer in renderers:
                     references.append(reference(renderer, swatch, digest, args.ref_spp))
@@ -334,6 +350,12 @@ def main(argv=None):
     parser.add_argument("--draped", type=Path, default=SCENES["draped"], help="the draped swatch's TOML")
     parser.add_argument(
         "--draped-shape", choices=MITSUBA_SHAPES, default="linearcurve", help="Mitsuba's curve on the draped swatch"
+    )
+    parser.add_argument(
+        "--mitsuba-lights",
+        type=choices(MITSUBA_LIGHTS, "--mitsuba-lights"),
+        default=list(MITSUBA_LIGHTS),
+        help="how Mitsuba chooses its lights: uniform (its default), weighted (warp-hair's weights as sampling_weight)",
     )
     parser.add_argument("--cuda", action="store_true", help="also warp-hair on a GPU against Mitsuba's cuda_ad_rgb")
     parser.add_argument("--no-mitsuba", action="store_true", help="warp-hair alone")

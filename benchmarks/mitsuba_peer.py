@@ -32,6 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from warp_hair.geometry.assembly import FiberAssembly
+from warp_hair.renderer.light_sampler import light_weight
 from warp_hair.scene import DirectionalLight, EnvironmentLight
 
 LIBLLVM = Path("/usr/lib/x86_64-linux-gnu/libLLVM-19.so")
@@ -59,12 +60,23 @@ SAMPLERS = ("stock", "corrected")
 SENSOR_SAMPLERS = ("independent", "multijitter", "ldsampler")
 
 
-def mitsuba_scene(mi, scene, spp, shape="linearcurve", fibers_file=None, sampler="stock", sensor_sampler="independent"):
+def mitsuba_scene(
+    mi,
+    scene,
+    spp,
+    shape="linearcurve",
+    fibers_file=None,
+    sampler="stock",
+    sensor_sampler="independent",
+    light_weights=False,
+):
     """The warp-hair `scene` as a Mitsuba 3 scene. Only what the comparison needs is translated: an
     orthographic or perspective camera, directional lights, a constant environment, the backing card, fibers
     from a file (`fibers_file`, default the scene's) as `shape`, the hair as warp_hair.export.mitsuba writes it, sampled
     by Mitsuba's own `hair` (`sampler="stock"`) or with its residual lobe corrected (`"corrected"`). The
-    sensor draws its samples with `sensor_sampler` (one of SENSOR_SAMPLERS)."""
+    sensor draws its samples with `sensor_sampler` (one of SENSOR_SAMPLERS). Its emitters are chosen uniformly, as
+    Mitsuba does by default, or with `light_weights` by the weights warp-hair chooses its lights by
+    (warp_hair.renderer.light_sampler)."""
     from warp_hair.export.mitsuba import bsdf_dict
 
     if sampler not in SAMPLERS:
@@ -122,6 +134,9 @@ def mitsuba_scene(mi, scene, spp, shape="linearcurve", fibers_file=None, sampler
             result[f"light{k}"] = {"type": "constant", "radiance": {"type": "rgb", "value": list(light.radiance)}}
         else:
             raise ValueError("the Mitsuba comparison does not translate environment maps")
+        if light_weights:
+            # Mitsuba's own emitter `sampling_weight`, set to what warp-hair chooses its lights by.
+            result[f"light{k}"]["sampling_weight"] = light_weight(light)
     return mi.load_dict(result)
 
 
