@@ -53,7 +53,7 @@ WRONG_READINGS = {
 def _z_up(image):
     """The map a renderer with +z up would show in warp-hair's convention: each pixel takes the radiance of the
     direction (x, y, z) → (x, −z, y) turned a quarter about +x."""
-    from synthetic_sky import pixel_directions
+    from warp_hair.renderer.envmap import pixel_directions
 
     h, w = image.shape[:2]
     d = pixel_directions(w, h)

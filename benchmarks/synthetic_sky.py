@@ -18,14 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-
-def pixel_directions(width: int, height: int) -> np.ndarray:
-    """Unit directions (H, W, 3) of the pixels' centres in warp-hair's lat-long convention."""
-    phi = 2.0 * np.pi * (np.arange(width) + 0.5) / width
-    theta = np.pi * (np.arange(height) + 0.5) / height
-    sin_theta = np.sin(theta)[:, None]
-    x, y, z = np.sin(phi)[None, :] * sin_theta, np.cos(theta)[:, None], -np.cos(phi)[None, :] * sin_theta
-    return np.stack(np.broadcast_arrays(x, y, z), axis=-1)
+from warp_hair.renderer.envmap import pixel_directions
 
 
 def synthetic_sky(

@@ -7,7 +7,7 @@ import warp as wp
 from helpers.scenes import swatch_scene
 
 from warp_hair.io import write_exr
-from warp_hair.renderer.envmap import mean_radiance
+from warp_hair.renderer.envmap import peak_irradiance, pixel_directions
 from warp_hair.renderer.light_sampler import choose_light, selection_cdf
 from warp_hair.renderer.render import render
 from warp_hair.scene import DirectionalLight, EnvironmentLight
@@ -25,18 +25,20 @@ def test_each_light_weighs_the_irradiance_it_gives_a_surface_facing_it():
     assert cdf[-1] == 1.0
 
 
-def test_an_image_weighs_its_radiance_averaged_over_the_sphere():
-    """Rows of a lat-long map cover bands of θ whose solid angles are 2π (cos θ₀ − cos θ₁): a bright row at the
-    equator counts for more than one at a pole. Against that quadrature in float64, and a constant map as its
-    constant."""
-    rows, width = 8, 5
-    values = np.linspace(0.0, 7.0, rows)
-    image = np.repeat(values[:, None, None], width, axis=1) * np.array([1.0, 0.5, 2.0])
-    edges = np.cos(np.pi * np.arange(rows + 1) / rows)
-    expected = (values * (edges[:-1] - edges[1:])).sum() / 2.0 * np.array([1.0, 0.5, 2.0])
-    np.testing.assert_allclose(mean_radiance(image=image.astype(np.float32)), expected, rtol=1e-6)
-    np.testing.assert_allclose(mean_radiance(image=np.full((3, 4, 3), 0.25, np.float32)), 0.25, rtol=1e-6)
-    np.testing.assert_allclose(mean_radiance(radiance=0.4), [0.4] * 3)
+def test_an_environment_weighs_the_most_irradiance_it_gives_a_surface():
+    """Against closed forms: a constant sky gives a surface π L whichever way it faces; a sky bright above the
+    horizon only, π L to a surface facing up; a disc of angular radius a, π L sin² a to a surface facing it (and a
+    black map around it)."""
+    np.testing.assert_allclose(peak_irradiance(radiance=(0.2, 0.4, 0.6)), np.pi * 0.4, rtol=1e-12)
+    np.testing.assert_allclose(peak_irradiance(image=np.full((32, 64, 3), 0.4, np.float32)), np.pi * 0.4, rtol=2e-3)
+    upper = np.zeros((64, 128, 3), np.float32)
+    upper[:32] = 1.0
+    np.testing.assert_allclose(peak_irradiance(image=upper), np.pi, rtol=2e-3)
+    height, width, radius = 512, 1024, np.radians(6.0)
+    towards = np.array([0.6, 0.48, -0.64])
+    inside = pixel_directions(width, height) @ towards > np.cos(radius)
+    disc = np.where(inside[..., None], np.float32(50.0), np.float32(0.0)) * np.ones(3, np.float32)
+    np.testing.assert_allclose(peak_irradiance(image=disc), np.pi * 50.0 * np.sin(radius) ** 2, rtol=0.02)
 
 
 def test_black_lights_are_never_chosen_and_all_black_is_uniform():

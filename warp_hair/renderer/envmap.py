@@ -173,14 +173,46 @@ def _row_mean_sin_theta(height: int) -> np.ndarray:
     return (cos_edges[:-1] - cos_edges[1:]) * height / np.pi
 
 
-def mean_radiance(radiance=None, image=None) -> np.ndarray:
-    """(3,) float64: the environment's radiance averaged over the sphere by solid angle (the constant sky's own;
-    an image's pixels weighted by their solid angle), what a light sampler weighs it by."""
+# `peak_irradiance` reads a map at no more than these cells (area-weighted means; the cosine it is integrated
+# against is smooth) and tries this many orientations of the surface, spread evenly over the sphere.
+PEAK_CELLS = (64, 128)
+PEAK_ORIENTATIONS = 1024
+
+
+def peak_irradiance(radiance=None, image=None) -> float:
+    """The most irradiance the environment gives a surface, over the surface's orientations, in the mean of the three
+    channels: π L for a constant sky, about a sun's irradiance plus the sky around it for a map with one. What a
+    light sampler weighs it by (light_sampler.py)."""
     if image is None:
-        return _checked_radiance(0.0 if radiance is None else radiance)
-    image = _checked_image(image).astype(np.float64)
-    weights = _row_mean_sin_theta(image.shape[0])
-    return np.einsum("y,yxc->c", weights, image) / (weights.sum() * image.shape[1])
+        return math.pi * float(np.mean(_checked_radiance(0.0 if radiance is None else radiance)))
+    radiance = _checked_image(image).mean(axis=2, dtype=np.float64)
+    height, width = radiance.shape
+    # Each pixel's radiance × solid angle (2π/W × its row's band of cos θ), summed into cells seen from their centres.
+    cos_edges = np.cos(np.pi * np.arange(height + 1) / height)
+    power = radiance * ((cos_edges[:-1] - cos_edges[1:]) * 2.0 * np.pi / width)[:, None]
+    rows, cols = (min(n, cells) for n, cells in zip((height, width), PEAK_CELLS))
+    cell = ((np.arange(height) * rows // height)[:, None] * cols + (np.arange(width) * cols // width)[None, :]).ravel()
+    cells = np.bincount(cell, weights=power.ravel(), minlength=rows * cols)
+    directions = pixel_directions(cols, rows).reshape(-1, 3)
+    normals = np.concatenate([_even_directions(PEAK_ORIENTATIONS), directions[[int(np.argmax(cells))]]])
+    return float(np.max(np.maximum(normals @ directions.T, 0.0) @ cells))
+
+
+def pixel_directions(width: int, height: int) -> np.ndarray:
+    """(H, W, 3) unit directions of the centres of a W×H map's pixels (`uv_to_direction`)."""
+    theta = np.pi * (np.arange(height) + 0.5) / height
+    phi = 2.0 * np.pi * (np.arange(width) + 0.5) / width
+    sin_theta = np.sin(theta)[:, None]
+    x, y, z = np.sin(phi)[None, :] * sin_theta, np.cos(theta)[:, None], -np.cos(phi)[None, :] * sin_theta
+    return np.stack(np.broadcast_arrays(x, y, z), axis=-1)
+
+
+def _even_directions(n: int) -> np.ndarray:
+    """(n, 3) unit directions spread evenly over the sphere (a Fibonacci lattice)."""
+    y = 1.0 - (2.0 * np.arange(n) + 1.0) / n
+    phi = np.pi * (3.0 - math.sqrt(5.0)) * np.arange(n)
+    r = np.sqrt(1.0 - y * y)
+    return np.stack([r * np.cos(phi), y, r * np.sin(phi)], axis=-1)
 
 
 def _cdf(weights: np.ndarray) -> np.ndarray:

@@ -1,20 +1,22 @@
 """Which light a vertex's shadow ray goes to: one emitter per vertex, chosen with a probability proportional to the
-irradiance it gives a surface facing it, where Mitsuba 3 (and pbrt-v4's BVH light sampler, for lights at infinity)
-chooses uniformly.
+most irradiance it gives a surface, over the surface's orientations, where Mitsuba 3 (and pbrt-v4's BVH light
+sampler, for lights at infinity) chooses uniformly.
 
 A vertex traces one shadow ray whatever the number of lights and divides what it finds by the chosen light's
 probability, so the estimate is unbiased for any choice that gives every light that sends something a probability
 above 0; the choice sets the noise. A directional light's weight is its irradiance E (what the scene file states:
-on a surface facing it), an environment's π L̄, L̄ its radiance averaged over the sphere by solid angle (a
-surface facing a uniform sky receives π L), each the mean of its three channels.
+on a surface facing it); an environment's is the irradiance on a surface turned to where it gives most
+(`envmap.peak_irradiance`): π L for a constant sky, about a sun's E plus the sky around it for a map with a sun.
+Each is the mean of its three channels.
 
-Why not by power, as pbrt-v4's `PowerLightSampler` (the flux into the scene's bounding sphere: E π r² against
-4π L̄ π r²): measured on the standard and the draped swatch (docs/benchmarks.md, issue 45), the power's 4π L̄
-gave the standard swatch more noise than the uniform choice, and π L̄ less than either on both: a sample toward a
-constant sky is drawn uniformly over the sphere and mostly lands where the hair's lobes are not or where other
-fibers block it, while the BSDF's own samples, weighted against it by MIS (`integrator.escaped`), find that
-light well. Lower weights still (π L̄ / 4) lowered the noise a little more on both swatches, but would starve an
-environment map's importance sampling of a sun; this rule has the units of the scene's own lights.
+Why this and not power, as pbrt-v4's `PowerLightSampler` (the flux into the scene's bounding sphere: E π r² against
+4π L̄ π r² for a sky), nor the uniform choice: measured (docs/benchmarks.md, "Which light a shadow ray goes to"),
+a constant sky weighted by its power gave the standard swatch more noise than the uniform choice, and weighted
+by π L 1.5–1.9× less than uniform on both swatches: a light sample toward a constant sky is drawn uniformly over
+the sphere and mostly lands where the hair's lobes are not or where other fibers block it, while the BSDF's own
+samples, weighted against it by MIS (`integrator.escaped`), find that light well. A map with a sun is the other
+case: its light samples find the sun, and weighed by its mean radiance (π L̄, a quarter of a sun's share here) it
+had 1.3× the uniform choice's noise; by its peak irradiance it has the uniform choice's.
 
 A scene whose lights are all black is given a uniform choice (there is nothing to estimate, and the table must
 still sum to 1). A scene with one light draws the one number it always drew and chooses that light.
@@ -26,13 +28,11 @@ still sum to 1). A scene with one light draws the one number it always drew and 
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 import warp as wp
 
 from ..scene import DirectionalLight, EnvironmentLight
-from .envmap import mean_radiance
+from .envmap import peak_irradiance
 
 wp.set_module_options({"enable_backward": False, "optimization_level": 3})
 
@@ -42,7 +42,7 @@ def light_weight(light) -> float:
     if isinstance(light, DirectionalLight):
         return float(np.mean(light.irradiance))
     if isinstance(light, EnvironmentLight):
-        return math.pi * float(np.mean(mean_radiance(light.radiance, light.image)))
+        return peak_irradiance(light.radiance, light.image)
     raise TypeError(f"not a light: {light!r}")
 
 
