@@ -18,19 +18,22 @@ def sun(irradiance):
 
 
 def test_each_light_weighs_the_irradiance_it_gives_a_surface_facing_it():
-    """A directional light's E against a constant sky's π L, channel means."""
+    """A directional light's E, channel means; a constant sky nothing beside other lights (the BSDF's own samples
+    find it), so it is never chosen."""
     cdf = selection_cdf([sun((3.0, 3.0, 3.0)), sun((1.0, 2.0, 3.0))], EnvironmentLight(radiance=(0.3, 0.3, 0.3)))
-    weights = np.array([3.0, 2.0, np.pi * 0.3])
-    np.testing.assert_allclose(cdf, np.cumsum(weights) / weights.sum(), rtol=1e-6)
-    assert cdf[-1] == 1.0
+    np.testing.assert_allclose(cdf, [0.6, 1.0, 1.0], rtol=1e-6)
 
 
 def test_an_environment_weighs_the_most_irradiance_it_gives_a_surface():
     """Against closed forms: a constant sky gives a surface π L whichever way it faces; a sky bright above the
-    horizon only, π L to a surface facing up; a disc of angular radius a, π L sin² a to a surface facing it (and a
-    black map around it)."""
+    horizon only, π L to a surface facing up; a disc of angular radius a, π L sin² a to a surface facing it. Above
+    the least radiance (what the light sampler weighs): a constant sky gives nothing, and a disc on a constant sky
+    what the disc gives alone."""
     np.testing.assert_allclose(peak_irradiance(radiance=(0.2, 0.4, 0.6)), np.pi * 0.4, rtol=1e-12)
-    np.testing.assert_allclose(peak_irradiance(image=np.full((32, 64, 3), 0.4, np.float32)), np.pi * 0.4, rtol=2e-3)
+    assert peak_irradiance(radiance=(0.2, 0.4, 0.6), above_least=True) == 0.0
+    constant = np.full((32, 64, 3), 0.4, np.float32)
+    np.testing.assert_allclose(peak_irradiance(image=constant), np.pi * 0.4, rtol=2e-3)
+    assert peak_irradiance(image=constant, above_least=True) == 0.0
     upper = np.zeros((64, 128, 3), np.float32)
     upper[:32] = 1.0
     np.testing.assert_allclose(peak_irradiance(image=upper), np.pi, rtol=2e-3)
@@ -38,13 +41,18 @@ def test_an_environment_weighs_the_most_irradiance_it_gives_a_surface():
     towards = np.array([0.6, 0.48, -0.64])
     inside = pixel_directions(width, height) @ towards > np.cos(radius)
     disc = np.where(inside[..., None], np.float32(50.0), np.float32(0.0)) * np.ones(3, np.float32)
-    np.testing.assert_allclose(peak_irradiance(image=disc), np.pi * 50.0 * np.sin(radius) ** 2, rtol=0.02)
+    expected = np.pi * 50.0 * np.sin(radius) ** 2
+    np.testing.assert_allclose(peak_irradiance(image=disc), expected, rtol=0.02)
+    np.testing.assert_allclose(peak_irradiance(image=disc + np.float32(0.3), above_least=True), expected, rtol=0.02)
 
 
-def test_black_lights_are_never_chosen_and_all_black_is_uniform():
+def test_black_lights_are_never_chosen_and_a_sky_alone_is():
     black = sun((0.0, 0.0, 0.0))
+    sky = EnvironmentLight(radiance=(0.2, 0.2, 0.2))
     cdf = selection_cdf([black, sun((2.0, 2.0, 2.0)), black], EnvironmentLight(radiance=(0.0, 0.0, 0.0)))
     np.testing.assert_array_equal(cdf, [0.0, 1.0, 1.0, 1.0])
+    np.testing.assert_array_equal(selection_cdf([], sky), [1.0])
+    np.testing.assert_array_equal(selection_cdf([black], sky), [0.0, 1.0])
     np.testing.assert_allclose(selection_cdf([black, black], None), [0.5, 1.0])
     assert selection_cdf([], None).size == 0
 
@@ -67,9 +75,7 @@ def choose(cdf, u):
 def test_the_choice_follows_the_probabilities_and_reports_them():
     """Over a fine grid of u (and the largest float32 below 1) each emitter is chosen as often as its probability
     says, which is the probability the kernel reports; a black emitter, inside or at the end, never."""
-    cdf = selection_cdf(
-        [sun((3.0, 3.0, 3.0)), sun((0.0, 0.0, 0.0)), sun((0.5, 0.5, 0.5))], EnvironmentLight(radiance=(0.3,) * 3)
-    )
+    cdf = selection_cdf([sun((3.0, 3.0, 3.0)), sun((0.0, 0.0, 0.0)), sun((0.5, 0.5, 0.5)), sun((1.0, 1.0, 1.0))], None)
     probabilities = np.diff(cdf, prepend=0.0)
     u = np.append((np.arange(200_000) + 0.5) / 200_000, np.nextafter(np.float32(1.0), np.float32(0.0)))
     k, p = choose(cdf, u.astype(np.float32))
@@ -83,10 +89,10 @@ def test_the_choice_follows_the_probabilities_and_reports_them():
 @pytest.mark.parametrize("sky", ["constant", "map"])
 def test_a_render_is_the_sum_of_its_renders_under_each_light(sky, tmp_path):
     """Light adds: the swatch under a sun and a sky renders to its render under the sun plus its render under the
-    sky, within the standard error of their means. The shadow rays split between the two lights by their weights
-    (here far from half each), and the sky's light sampling is combined with BSDF sampling by MIS with the sky's own
-    probability: a wrong weight in either would show in the sum. The map has a bright patch for its importance
-    sampling to find."""
+    sky, within the standard error of their means. Beside the sun a constant sky is never light-sampled: its light
+    comes from the BSDF's samples alone, whole (MIS weight 1). The map has a bright patch, which its light samples
+    find: they share the shadow rays with the sun by their weights (not half each), and are combined with the BSDF's
+    samples by MIS with the map's own probability. A wrong probability in either would show in the sum."""
     sun_light = {"type": "directional", "direction": [0.3, -0.4, -1.0], "irradiance": [3.0, 3.0, 3.0]}
     if sky == "constant":
         sky_light = {"type": "environment", "radiance": [0.3, 0.3, 0.3]}

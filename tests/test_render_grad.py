@@ -21,7 +21,10 @@ HAIR = SPARSE_HAIR
 # Central-difference steps (ε; the differences are extrapolated from ε and ε/2): large enough that the 1/ε
 # variance of the discontinuities stays small.
 STEPS = {"albedo": 0.04, "beta_m": 0.04, "beta_n": 0.08, "alpha": 1.0, "eta": 0.04, "r_roughness_scale": 0.4}
-SEEDS = range(1, 9)
+# 32 seeds: beside the directional light the sky is never light-sampled (renderer/light_sampler.py), so its light
+# arrives through BSDF samples whose lobe choices a change of the albedo flips; with 8 the red albedo's difference
+# resolved its gradient to 65% only (3 standard errors).
+SEEDS = range(1, 33)
 
 
 def loss(scene, adjoint, seed):
@@ -97,8 +100,8 @@ def test_gradient_matches_finite_differences(fd_case, name, component):
     fd_mean, fd_se = mean_and_se(central_difference(scene, adjoint, name, component))
     se = np.hypot(g_se, fd_se)
     assert abs(g_mean - fd_mean) <= max(0.03 * abs(fd_mean), 3.0 * se), (g_mean, fd_mean, g_se, fd_se)
-    # Meaningful: the comparison resolves the gradient to better than 40% of its size (the looser ones, measured:
-    # 3 SE = 34% of it for r_roughness_scale, 29% β_n, 28% β_m, 20% α, 15% η, 9-19% the albedo).
+    # Meaningful: the comparison resolves the gradient to better than 40% of its size (measured: 3 SE = 17% of it
+    # for the red albedo, 15% r_roughness_scale, 14% β_n, 12% α, 4–9% the rest).
     assert 3.0 * se < 0.4 * abs(fd_mean), (g_mean, fd_mean, g_se, fd_se)
 
 

@@ -179,13 +179,17 @@ PEAK_CELLS = (64, 128)
 PEAK_ORIENTATIONS = 1024
 
 
-def peak_irradiance(radiance=None, image=None) -> float:
+def peak_irradiance(radiance=None, image=None, above_least: bool = False) -> float:
     """The most irradiance the environment gives a surface, over the surface's orientations, in the mean of the three
-    channels: π L for a constant sky, about a sun's irradiance plus the sky around it for a map with one. What a
-    light sampler weighs it by (light_sampler.py)."""
+    channels: π L for a constant sky, about a sun's irradiance plus the sky around it for a map with one. With
+    `above_least`, that of its radiance less the least it sends anywhere (0 for a constant sky, about a sun's
+    irradiance for a map with one), what a light sampler weighs it by (light_sampler.py)."""
     if image is None:
-        return math.pi * float(np.mean(_checked_radiance(0.0 if radiance is None else radiance)))
+        constant = _checked_radiance(0.0 if radiance is None else radiance)
+        return 0.0 if above_least else math.pi * float(np.mean(constant))
     radiance = _checked_image(image).mean(axis=2, dtype=np.float64)
+    if above_least:
+        radiance = radiance - radiance.min()
     height, width = radiance.shape
     # Each pixel's radiance × solid angle (2π/W × its row's band of cos θ), summed into cells seen from their centres.
     cos_edges = np.cos(np.pi * np.arange(height + 1) / height)

@@ -1,25 +1,28 @@
-"""Which light a vertex's shadow ray goes to: one emitter per vertex, chosen with a probability proportional to the
-most irradiance it gives a surface, over the surface's orientations, where Mitsuba 3 (and pbrt-v4's BVH light
-sampler, for lights at infinity) chooses uniformly.
+"""Which light a vertex's shadow ray goes to: one emitter per vertex, chosen with a probability proportional to
+what its light samples are for, where Mitsuba 3 (and pbrt-v4's BVH light sampler, for lights at infinity) chooses
+uniformly.
 
 A vertex traces one shadow ray whatever the number of lights and divides what it finds by the chosen light's
-probability, so the estimate is unbiased for any choice that gives every light that sends something a probability
-above 0; the choice sets the noise. A directional light's weight is its irradiance E (what the scene file states:
-on a surface facing it); an environment's is the irradiance on a surface turned to where it gives most
-(`envmap.peak_irradiance`): π L for a constant sky, about a sun's E plus the sky around it for a map with a sun.
-Each is the mean of its three channels.
+probability, so the estimate is unbiased for any choice that gives every light the BSDF's samples cannot reach a
+probability above 0; the choice sets the noise. A directional light's weight is its irradiance E (what the scene
+file states: on a surface facing it). An environment's is the most irradiance its radiance above the least it
+sends anywhere gives a surface, over the surface's orientations (`envmap.peak_irradiance`): about a sun's E for a
+map with a sun, nothing for a constant sky. Each is the mean of its three channels.
 
-Why this and not power, as pbrt-v4's `PowerLightSampler` (the flux into the scene's bounding sphere: E π r² against
-4π L̄ π r² for a sky), nor the uniform choice: measured (docs/benchmarks.md, "Which light a shadow ray goes to"),
-a constant sky weighted by its power gave the standard swatch more noise than the uniform choice, and weighted
-by π L 1.5–1.9× less than uniform on both swatches: a light sample toward a constant sky is drawn uniformly over
-the sphere and mostly lands where the hair's lobes are not or where other fibers block it, while the BSDF's own
-samples, weighted against it by MIS (`integrator.escaped`), find that light well. A map with a sun is the other
-case: its light samples find the sun, and weighed by its mean radiance (π L̄, a quarter of a sun's share here) it
-had 1.3× the uniform choice's noise; by its peak irradiance it has the uniform choice's.
+Why the environment's uniform part counts for nothing: the BSDF's own samples find it. The hair BSDF is sampled
+exactly (its weight S/pdf is 1 in every channel where nothing is absorbed, docs/MODEL.md) and the card by its
+cosine, so under a uniform sky a BSDF sample's estimate varies only with what blocks it, and its escaped ray takes
+the sky whole (MIS weight 1 when the sky is never light-sampled, `integrator.escaped`); a light sample toward a
+uniform sky is drawn uniformly over the sphere and mostly lands where the lobes send little. A sun is the other
+case: its light samples find it, the BSDF's rarely. Measured (docs/benchmarks.md, "Which light a shadow ray goes
+to"): under a directional light and a constant sky, never light-sampling the sky gave 1.3–2.0× less noise than the
+uniform choice on the standard swatch and the draped one (weighing it by π L, the irradiance it gives a surface,
+1.5–1.9×; by its power, as pbrt-v4's `PowerLightSampler`, more noise than uniform on the standard swatch); under a
+directional light and a map with a sun, the uniform choice's noise (weighing the map by its mean radiance instead:
+1.3× that).
 
-A scene whose lights are all black is given a uniform choice (there is nothing to estimate, and the table must
-still sum to 1). A scene with one light draws the one number it always drew and chooses that light.
+Where no light has a weight (a uniform sky alone, or with black lights) the lights that send anything share the
+choice evenly. A scene with one light draws the one number it always drew and chooses that light.
 
     cdf = selection_cdf(directional, environment)   # host: the emitters in SceneData's order (directional, env)
     k, p = choose_light(cdf, u)                     # kernel: emitter k, chosen with probability p
@@ -42,19 +45,29 @@ def light_weight(light) -> float:
     if isinstance(light, DirectionalLight):
         return float(np.mean(light.irradiance))
     if isinstance(light, EnvironmentLight):
-        return peak_irradiance(light.radiance, light.image)
+        return peak_irradiance(light.radiance, light.image, above_least=True)
     raise TypeError(f"not a light: {light!r}")
+
+
+def sends_light(light) -> bool:
+    """Whether `light` sends anything anywhere."""
+    if isinstance(light, DirectionalLight):
+        return bool(np.max(light.irradiance) > 0.0)
+    return peak_irradiance(light.radiance, light.image) > 0.0
 
 
 def selection_cdf(directional: list, environment) -> np.ndarray:
     """float32 cumulative probabilities of the emitters in the kernels' order (the directional lights, then the
     environment if any): entry k is the probability of choosing one of emitters 0..k. The last emitter with any
-    light ends at exactly 1, so that no u ∈ [0, 1) chooses a black one after it. Uniform where every light is black;
-    empty for a scene without lights."""
+    weight ends at exactly 1, so that no u ∈ [0, 1) chooses one after it. Where no light has a weight (a uniform sky
+    alone, or with black lights), the lights that send anything share the choice evenly, and where none does, all
+    of them; empty for a scene without lights."""
     lights = [*directional, *([environment] if environment is not None else [])]
     weight = np.array([light_weight(light) for light in lights], dtype=np.float64)
     if weight.size == 0:
         return np.zeros(0, dtype=np.float32)
+    if not weight.sum() > 0.0:
+        weight = np.array([float(sends_light(light)) for light in lights])
     if not weight.sum() > 0.0:
         weight = np.ones_like(weight)
     cdf = np.cumsum(weight / weight.sum())
