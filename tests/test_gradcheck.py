@@ -20,7 +20,10 @@ def sparse_scene_file(tmp_path):
 
 
 def test_gradcheck_prints_a_row_per_control(sparse_scene_file, capsys):
-    assert main(["gradcheck", str(sparse_scene_file), "--spp", "64", "--seeds", "4", "--params", "albedo,eta"]) == 0
+    # 16 seed pairs: the verdict's standard error comes from their spread, and the differences are heavy-tailed
+    # (a step of η flips lobe choices of the BSDF samples that bring this scene's sky): with 4 pairs (3 degrees of
+    # freedom) η's row once read 5.7 standard errors off where 16 read 2.3.
+    assert main(["gradcheck", str(sparse_scene_file), "--spp", "64", "--seeds", "16", "--params", "albedo,eta"]) == 0
     out = capsys.readouterr().out
     rows = {line.split()[0]: line for line in out.splitlines() if re.match(r"(albedo\[[rgb]\]|eta)\s", line)}
     assert set(rows) == {"albedo[r]", "albedo[g]", "albedo[b]", "eta"}, out
