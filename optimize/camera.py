@@ -205,13 +205,19 @@ class Projection:
     def normal(self) -> np.ndarray:
         return self.columns.T @ (self.weights[:, None] * self.columns)
 
+    def coefficients(self, x: np.ndarray) -> np.ndarray:
+        """(Cᵀ W C)⁻¹ Cᵀ W x, along the first axis of x (N, ...): x's part along the gains' columns, in log-gains."""
+        flat = x.reshape(x.shape[0], -1)
+        return (np.linalg.pinv(self.normal) @ (self.columns.T @ (self.weights[:, None] * flat))).reshape(
+            (self.columns.shape[1], *x.shape[1:])
+        )
+
     def apply(self, x: np.ndarray) -> np.ndarray:
         """P⊥ x = x − C (Cᵀ W C)⁻¹ Cᵀ W x, along the first axis of x (N, ...): the part no change of the gains
         makes."""
         shape = x.shape
         flat = x.reshape(shape[0], -1)
-        coefficients = np.linalg.pinv(self.normal) @ (self.columns.T @ (self.weights[:, None] * flat))
-        return (flat - self.columns @ coefficients).reshape(shape)
+        return (flat - self.columns @ self.coefficients(flat)).reshape(shape)
 
     @property
     def follow(self) -> np.ndarray:
@@ -245,11 +251,15 @@ def report(
     scatter: float,
     model_error: float,
     shift: np.ndarray | None = None,
+    realisation: np.ndarray | None = None,
 ) -> dict:
     """{"gains": {image name: [value, σ]}, "white_balance": {"value": [r, g, b], "sigma": [...]}, "modes": ...},
     σ from the log-gains' covariance (σ of a gain = gain · σ of its log); `shift` the hair's move per unit
-    brightness disagreement (used with a grey card, `Projection.brightness`)."""
+    brightness disagreement (used with a grey card, `Projection.brightness`); `realisation` (q, q) the log-gains'
+    spread over the target's strand realisations (realisations.camera_spread), added."""
     cov = projection.covariance(hair_covariance, scatter, model_error, shift)
+    if realisation is not None:
+        cov = cov + realisation
     sigma = dict(zip(projection.labels, np.sqrt(np.maximum(np.diag(cov), 0.0))))
     g, w = projection.gains.g, projection.gains.w
     gains = {}

@@ -343,6 +343,7 @@ class FitRun:
         self.batches = [Batches(image, settings.pool, settings.batch) for image in target.images]
         self.nuisance = Nuisance(target)  # what the fit solves beside the look
         self.begun = time.perf_counter()
+        self.camera_realisation = None  # a photo's gains' spread over the realisations, once `uncertainty` has it
         # The fibers, BVH, camera and lights of each image, built once: only the hair changes between renders.
         self.scenes = [prepare(image.scene, self.device) for image in target.images]
         self.random = (settings.realisations or target.realisations) == "random"
@@ -619,6 +620,7 @@ class FitRun:
         # (which that linearisation's own two Jacobians alone make noisy), from the pooled one.
         columns = self.arrangement_columns(lin)
         term = self.realisation_term(lin, columns)
+        self.camera_realisation = term.camera  # the gains' own spread over the realisations, for `camera_report`
         goodness = self.goodness(lin, term.variance)
         uncertainty = estimate_uncertainty(
             dataclasses.replace(term.linearization, curvature=term.pooled.curvature),
@@ -791,7 +793,9 @@ class FitRun:
         # With a grey card the gains take part of a brightness disagreement and follow the hair's share of it.
         shift = None if lin.camera is None or lin.camera.direct is None else brightness_sensitivity(lin)
         model_error = target_model_error(self.target, self.settings.model_error)
-        return self.nuisance.report(lin.camera, hair_covariance, lin.scatter, model_error, shift)
+        return self.nuisance.report(
+            lin.camera, hair_covariance, lin.scatter, model_error, shift, self.camera_realisation
+        )
 
 
 def _render_fitted(scenes, values: dict, spp: int, seed: int, threads, gains=None) -> list:

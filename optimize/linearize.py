@@ -57,6 +57,9 @@ class Linearization:
     curvature: np.ndarray | None = None  # (p, p) Gauss–Newton matrix; default: `crossed_curvature` of all Jacobians
     scatter: float | None = None  # s² of `statistical_covariance`; default: this linearisation's `scatter_estimate`
     camera: object | None = None  # a photo's gains, projected out of residuals and Jacobian (camera.Projection)
+    # (2, q): each pass's residuals' part along the gains' columns before they were projected out, in log-gains
+    # (what the gains would take of them; realisations.camera_spread); None without gains.
+    camera_moves: np.ndarray | None = None
     # (N,) a photo's weighted model ω G Ī, the passes' mean, before the projection: the gains' columns for a later
     # linearisation (`linearize`'s gain_columns). None for other targets.
     model: np.ndarray | None = None
@@ -307,7 +310,7 @@ def linearize(
     card_rows = on_card if on_card.any() else None
     image_residuals = tuple(counts)
     projection = nuisance.projection(solved, targets, weights, jacobians, image_residuals, gain_columns)
-    model = None
+    model = camera_moves = None
     if projection is not None:
         model = residuals.mean(axis=0) + targets
         if card_rows is not None:
@@ -315,6 +318,7 @@ def linearize(
             # known (uncertainty.brightness_sensitivity takes `targets` as what it scales).
             targets = np.where(card_rows, 0.0, targets)
             projection.direct = np.linalg.pinv(projection.normal) @ (projection.columns.T @ (weights * targets))
+        camera_moves = np.stack([projection.coefficients(r) for r in residuals])
         residuals = np.stack([projection.apply(r) for r in residuals])
         jacobians = np.stack([projection.apply(a) for a in jacobians])
         targets = projection.apply(targets)
@@ -328,6 +332,7 @@ def linearize(
         targets=targets,
         image_residuals=image_residuals,
         camera=projection,
+        camera_moves=camera_moves,
         card_rows=card_rows,
         model=model,
     )

@@ -80,9 +80,11 @@ class Nuisance:
             camera.labels(self.target),
         )
 
-    def report(self, projection, hair_covariance, scatter: float, model_error: float, shift=None) -> dict | None:
+    def report(
+        self, projection, hair_covariance, scatter: float, model_error: float, shift=None, realisation=None
+    ) -> dict | None:
         """The solved gains' values and σ (camera.report) for params.json and the printed table; None where the
         gains are not solved (a fitted exposure is a control, reported with the look)."""
         if projection is None:
             return None
-        return camera.report(projection, self.target, hair_covariance, scatter, model_error, shift)
+        return camera.report(projection, self.target, hair_covariance, scatter, model_error, shift, realisation)

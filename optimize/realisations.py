@@ -143,6 +143,7 @@ class RealisationTerm:
     variance: np.ndarray | None = None  # (N,) one realisation's variance per residual (goodness.py's σ²_draw)
     arrangement: np.ndarray | None = None  # (p, p) the part of `covariance` how the strands lie makes (M Σ Mᵀ)
     unpinned: object = None  # the directions the pooled Jacobians do not determine (uncertainty.py `pinned`), or None
+    camera: np.ndarray | None = None  # (q, q) a photo's log-gains' spread over the realisations (`camera_spread`)
 
 
 def pooled_jacobians(lin, linearizations):
@@ -174,7 +175,8 @@ def realisation_term(lin, linearizations, arrangement=None) -> RealisationTerm:
     `realisation_spread`'s control variate."""
     pooled, unpinned = pinned(pooled_jacobians(lin, linearizations))
     w = pooled.loss_weights
-    covariance, variance, part = realisation_spread(estimate_gain(pooled), linearizations, arrangement)
+    gain = estimate_gain(pooled)
+    covariance, variance, part = realisation_spread(gain, linearizations, arrangement)
     first = linearizations[0]
     hair = first.hair_rows  # as scatter_estimate counts them (a grey card's rows left out)
     n, p = len(w[hair]), first.jacobians.shape[2]
@@ -188,7 +190,26 @@ def realisation_term(lin, linearizations, arrangement=None) -> RealisationTerm:
         variance,
         part,
         unpinned,
+        camera_spread(lin.camera, gain, linearizations),
     )
+
+
+def camera_spread(projection, gain: np.ndarray, linearizations) -> np.ndarray | None:
+    """(q, q): the cross-pass covariance over the K realisations of how far a photo's log-gains would move on each,
+    or None without gains. On realisation k a pass's residuals r move the gains directly by their part along the
+    gains' columns, c = (CᵀWC)⁻¹CᵀW r (`Linearization.camera_moves`: a realisation that renders brighter moves the
+    gains, not the hair), and through the hair's move u = gain · P⊥r (as `realisation_spread`) by `follow` · u; the
+    gains take −(c + follow · u). The hair's covariance carried into the gains (camera.Projection.covariance) leaves
+    this out, and a grey card outweighed by hair rows that a realisation moves together does not hold it."""
+    if projection is None or any(other.camera_moves is None for other in linearizations):
+        return None
+    k = len(linearizations)
+    residuals = np.stack([other.residuals for other in linearizations])  # (K, 2, N)
+    moves = np.stack([other.camera_moves for other in linearizations])  # (K, 2, q)
+    u = np.einsum("pn,khn->khp", gain, residuals - residuals.mean(axis=0))
+    v = moves - moves.mean(axis=0) + np.einsum("qp,khp->khq", projection.follow, u)
+    crossed = np.einsum("ki,kj->ij", v[:, 0], v[:, 1]) / (k - 1)
+    return _nearest_psd(0.5 * (crossed + crossed.T))
 
 
 def realisation_spread(gain: np.ndarray, linearizations, arrangement=None) -> tuple:

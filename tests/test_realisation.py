@@ -402,3 +402,39 @@ def test_a_wavy_recipe_drawn_as_a_curve_or_with_a_random_seed_has_realisations(e
     assert other.fibers.num_strands == scene.fibers.num_strands
     assert not np.array_equal(other.fibers.points, scene.fibers.points)
     assert (other.fibers.strand_random is not None) == ("random_seed" in extra)
+
+
+def test_a_photos_gains_spread_over_the_realisations_is_their_joint_least_squares_move():
+    """Each realisation moves a photo's log-gains as the joint least-squares solve over gains and controls would
+    (Frisch–Waugh–Lovell: the gains take the residuals' part along their columns, then follow the hair's move on
+    the rest); the realisation term of the gains (`camera_spread`) is that move's covariance over the realisations.
+    Here a realisation mostly changes the overall brightness, which the hair's own covariance carried over
+    (`follow`) does not see at all."""
+    from optimize.camera import Projection
+    from optimize.realisations import camera_spread
+
+    rng = np.random.default_rng(5)
+    n, k = 90, 300
+    columns = np.stack([np.ones(n), np.tile([1.0, 0.0], n // 2)], axis=1) * rng.uniform(0.5, 1.5, size=(n, 1))
+    jacobian = rng.normal(size=(n, 2))
+    weights = rng.uniform(0.5, 2.0, size=n) / n
+    projection = Projection(None, columns, weights, jacobian, ["gain", "white_balance[r]"])
+    projected = projection.apply(jacobian)
+    shifts = rng.normal(scale=0.05, size=k)[:, None] * columns[:, 0] + rng.normal(scale=0.01, size=(k, n))
+
+    def realisation(r):
+        lin = _linearization(np.stack([projection.apply(r)] * 2), projected, weights)
+        return dataclasses.replace(lin, camera=projection, camera_moves=np.stack([projection.coefficients(r)] * 2))
+
+    lins = [realisation(r) for r in shifts]
+    fitted = dataclasses.replace(realisation(np.zeros(n)), camera_moves=None)
+    gain = np.linalg.pinv(projected.T @ (weights[:, None] * projected)) @ (projected * weights[:, None]).T
+    both = np.concatenate([columns, jacobian], axis=1)
+    joint = -np.linalg.pinv(both.T @ (weights[:, None] * both)) @ (both * weights[:, None]).T @ shifts.T
+    expected = np.cov(joint[:2])
+    np.testing.assert_allclose(camera_spread(projection, gain, lins), expected, rtol=1e-8, atol=1e-14)
+    np.testing.assert_allclose(realisation_term(fitted, lins).camera, expected, rtol=1e-6, atol=1e-12)
+    # The hair's spread carried over alone: far less than the gains' own.
+    hair = np.cov(joint[2:])
+    assert np.all(np.diag(projection.follow @ hair @ projection.follow.T) < 0.1 * np.diag(expected))
+    assert camera_spread(None, gain, lins) is None
