@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from warp_hair.geometry.assembly import FiberAssembly
-from warp_hair.renderer.light_sampler import light_weight
+from warp_hair.renderer.light_sampler import selection_probabilities
 from warp_hair.scene import DirectionalLight, EnvironmentLight
 
 LIBLLVM = Path("/usr/lib/x86_64-linux-gnu/libLLVM-19.so")
@@ -122,6 +122,11 @@ def mitsuba_scene(
     }
     if scene.card is not None:
         result["card"] = _card(mi, scene)
+    # warp-hair's emitters in its order (prepare.py): the directional lights, then the environment.
+    directional = [light for light in scene.lights if isinstance(light, DirectionalLight)]
+    environment = next((light for light in scene.lights if isinstance(light, EnvironmentLight)), None)
+    emitters = directional + ([environment] if environment is not None else [])
+    probabilities = selection_probabilities(directional, environment)
     for k, light in enumerate(scene.lights):
         if isinstance(light, DirectionalLight):
             # Both take the direction the light travels, and the irradiance on a surface facing the light.
@@ -135,8 +140,9 @@ def mitsuba_scene(
         else:
             raise ValueError("the Mitsuba comparison does not translate environment maps")
         if light_weights:
-            # Mitsuba's own emitter `sampling_weight`, set to what warp-hair chooses its lights by.
-            result[f"light{k}"]["sampling_weight"] = light_weight(light)
+            # Mitsuba's own emitter `sampling_weight`, set to warp-hair's probability of choosing the light.
+            position = next(i for i, emitter in enumerate(emitters) if emitter is light)
+            result[f"light{k}"]["sampling_weight"] = float(probabilities[position])
     return mi.load_dict(result)
 
 

@@ -620,7 +620,7 @@ class FitRun:
         # (which that linearisation's own two Jacobians alone make noisy), from the pooled one.
         columns = self.arrangement_columns(lin)
         term = self.realisation_term(lin, columns)
-        self.camera_realisation = term.camera  # the gains' own spread over the realisations, for `camera_report`
+        self.camera_realisation = term.camera
         goodness = self.goodness(lin, term.variance)
         uncertainty = estimate_uncertainty(
             dataclasses.replace(term.linearization, curvature=term.pooled.curvature),

@@ -203,13 +203,9 @@ def camera_spread(projection, gain: np.ndarray, linearizations) -> np.ndarray | 
     this out, and a grey card outweighed by hair rows that a realisation moves together does not hold it."""
     if projection is None or any(other.camera_moves is None for other in linearizations):
         return None
-    k = len(linearizations)
-    residuals = np.stack([other.residuals for other in linearizations])  # (K, 2, N)
+    _, u = _estimate_moves(gain, linearizations)
     moves = np.stack([other.camera_moves for other in linearizations])  # (K, 2, q)
-    u = np.einsum("pn,khn->khp", gain, residuals - residuals.mean(axis=0))
-    v = moves - moves.mean(axis=0) + np.einsum("qp,khp->khq", projection.follow, u)
-    crossed = np.einsum("ki,kj->ij", v[:, 0], v[:, 1]) / (k - 1)
-    return _nearest_psd(0.5 * (crossed + crossed.T))
+    return _crossed_covariance(moves - moves.mean(axis=0) + np.einsum("qp,khp->khq", projection.follow, u))
 
 
 def realisation_spread(gain: np.ndarray, linearizations, arrangement=None) -> tuple:
@@ -228,19 +224,31 @@ def realisation_spread(gain: np.ndarray, linearizations, arrangement=None) -> tu
     k = len(linearizations)
     if k < 2:
         raise ValueError(f"the realisation term needs at least 2 realisations, got {k}")
-    residuals = np.stack([other.residuals for other in linearizations])  # (K, 2, N)
-    deviations = residuals - residuals.mean(axis=0)
-    u = np.einsum("pn,khn->khp", gain, deviations)
+    deviations, u = _estimate_moves(gain, linearizations)
     part = None
     if arrangement is not None:
         draws, columns, prior = arrangement
         moved = gain @ columns  # (p, q): the estimate's move per unit of each key
         u = u - ((draws - draws.mean(axis=0)) @ moved.T)[:, None, :]
         part = moved @ prior @ moved.T
-    crossed = np.einsum("ki,kj->ij", u[:, 0], u[:, 1]) / (k - 1)
     variance = (deviations[:, 0] * deviations[:, 1]).sum(axis=0) / (k - 1)
-    covariance = _nearest_psd(0.5 * (crossed + crossed.T))
+    covariance = _crossed_covariance(u)
     return (covariance if part is None else covariance + part), variance, part
+
+
+def _estimate_moves(gain: np.ndarray, linearizations) -> tuple:
+    """(each realisation's pass's residuals less their mean over the realisations (K, 2, N), and the estimate's move
+    they make, gain · that (K, 2, p))."""
+    residuals = np.stack([other.residuals for other in linearizations])
+    deviations = residuals - residuals.mean(axis=0)
+    return deviations, np.einsum("pn,khn->khp", gain, deviations)
+
+
+def _crossed_covariance(moves: np.ndarray) -> np.ndarray:
+    """The covariance over K realisations of a move seen in both of each one's passes (K, 2, ·), crossed between the
+    passes so that their independent render noise drops out: symmetric, positive semi-definite."""
+    crossed = np.einsum("ki,kj->ij", moves[:, 0], moves[:, 1]) / (len(moves) - 1)
+    return _nearest_psd(0.5 * (crossed + crossed.T))
 
 
 def _nearest_psd(matrix: np.ndarray) -> np.ndarray:

@@ -191,9 +191,8 @@ def peak_irradiance(radiance=None, image=None, above_least: bool = False) -> flo
     if above_least:
         radiance = radiance - radiance.min()
     height, width = radiance.shape
-    # Each pixel's radiance × solid angle (2π/W × its row's band of cos θ), summed into cells seen from their centres.
-    cos_edges = np.cos(np.pi * np.arange(height + 1) / height)
-    power = radiance * ((cos_edges[:-1] - cos_edges[1:]) * 2.0 * np.pi / width)[:, None]
+    # Each pixel's radiance × solid angle (2π²/(HW) × its row's mean sin θ), summed into cells seen from their centres.
+    power = radiance * (_row_mean_sin_theta(height) * (2.0 * np.pi**2 / (height * width)))[:, None]
     rows, cols = (min(n, cells) for n, cells in zip((height, width), PEAK_CELLS))
     cell = ((np.arange(height) * rows // height)[:, None] * cols + (np.arange(width) * cols // width)[None, :]).ravel()
     cells = np.bincount(cell, weights=power.ravel(), minlength=rows * cols)

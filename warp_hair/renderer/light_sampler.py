@@ -50,10 +50,10 @@ def light_weight(light) -> float:
 
 
 def sends_light(light) -> bool:
-    """Whether `light` sends anything anywhere."""
+    """Whether `light` sends anything anywhere (its values are checked non-negative where it is made)."""
     if isinstance(light, DirectionalLight):
         return bool(np.max(light.irradiance) > 0.0)
-    return peak_irradiance(light.radiance, light.image) > 0.0
+    return bool(np.max(light.radiance if light.image is None else light.image) > 0.0)
 
 
 def selection_cdf(directional: list, environment) -> np.ndarray:
@@ -73,6 +73,11 @@ def selection_cdf(directional: list, environment) -> np.ndarray:
     cdf = np.cumsum(weight / weight.sum())
     cdf[int(np.flatnonzero(weight > 0.0)[-1]) :] = 1.0
     return cdf.astype(np.float32)
+
+
+def selection_probabilities(directional: list, environment) -> np.ndarray:
+    """Each emitter's probability of being chosen, in `selection_cdf`'s order: the widths of its steps."""
+    return np.diff(selection_cdf(directional, environment), prepend=np.float32(0.0))
 
 
 @wp.func
