@@ -123,8 +123,9 @@ def add_fit(subparsers) -> None:
         "--refine",
         type=int,
         metavar="K",
-        help="Gauss-Newton steps after Adam (default 8, or more for a target rendered at more samples "
-        "per pixel than 8 steps average; 0 with --loss l1, which is not a sum of squares)",
+        help="Gauss-Newton steps planned after Adam (default 8, or more for a target rendered at more samples "
+        "per pixel than 8 steps average; fewer are taken where Adam left the fit settled; 0 with --loss l1, which "
+        "is not a sum of squares)",
     )
     parser.add_argument(
         "--batch",

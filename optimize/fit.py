@@ -528,6 +528,7 @@ class FitRun:
                     refresh=False,
                 )
                 bar.update()
+            bar.total = bar.n  # fewer steps than planned where Adam left the fit settled (refine.py)
             return run.result()
         except KeyboardInterrupt:
             if run is None:

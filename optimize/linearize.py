@@ -117,6 +117,21 @@ class Linearization:
         return 0.5 * sum(((total - a) / (n - 1)).T @ (w * v) for a, v in zip(self.jacobians, vectors))
 
     @property
+    def gradient_covariance(self) -> np.ndarray:
+        """(p, p): the covariance of `gradient` from our render noise, the Jacobians' included: each pass's term of
+        `crossed` met with the other's, per pixel (or pooled block), Σ of d dᵀ with d the half difference of the
+        two terms over the pixel's channels (the terms of one pixel are independent of every other's, and the two
+        passes' alike). Beside `noise_covariance` it counts the Jacobians' noise times the residuals, which near the
+        optimum of a target with any misfit or noise of its own moves the gradient as much or more (refine.py's
+        settled test). The earlier Jacobians' noise, which both terms share, is left out."""
+        w, jacobians = self.loss_weights, self.all_jacobians
+        total, n = jacobians.sum(axis=0), len(jacobians)
+        terms = [((total - a) / (n - 1)) * (w * v)[:, None] for a, v in zip(self.jacobians, self.residuals)]
+        half_difference = 0.5 * (terms[0] - terms[1])
+        per_pixel = half_difference.reshape(-1, CHANNELS, half_difference.shape[1]).sum(axis=1)
+        return per_pixel.T @ per_pixel
+
+    @property
     def noise_covariance(self) -> np.ndarray:
         """(p, p): the covariance of the gradient Aᵀ W r̄ from our render noise in the mean residual r̄,
         Aᵀ W C W A. A pixel's channels come from the same paths, so C is block diagonal, one 3×3 block per pixel

@@ -30,19 +30,30 @@ the best of many noisy values is low by chance), returns that point instead and 
 leaves the fit worse than Adam left it.
 
 Every linearisation renders with fresh seeds, so each step's end point carries that render's own noise (with
-common seeds every step would converge to the same noisy point). The result is the mean of the later half of
-the kept points after the first, which scatter around the optimum as Adam's last iterates do;
-`mean_covariance` is its Monte Carlo error. From a start far from the optimum, in a curved valley, the steps
-can creep: while the averaged points still follow a trend (`drift_statistic`), the refinement takes more steps,
-up to MAX_EXTENSION times as many, and says so if they never settle. L2 and relative L2 are sums of squares as they
-stand; the L1 loss
-is not, and is not refined.
+common seeds every step would converge to the same noisy point). The result is the mean of the end points of
+steps taken from settled points, which scatter around the optimum as Adam's last iterates do; `mean_covariance`
+is its Monte Carlo error. A point is settled when the gradient there is zero within our render noise (its χ²
+against `noise_covariance` below the SETTLED quantile): a step from it lands where a step from the optimum would,
+up to that noise, and so does every step after. Before, the refinement averaged the later half of its steps
+whatever the first half did; Adam usually leaves the fit a few steps short of settled, and a photo waited
+through 12 of its 24. (Pooling no Jacobian from before a far step, so that none from Adam's end point leans the
+settled steps, was tried: a single linearisation's curvature sent fur_patch's second step from albedo 0.55 to
+0.38 and its refinement into a region it took 20 steps to leave.) A refinement of
+`steps` planned steps still averages `averaged_points(steps)` end points (the precision those steps were sized
+for: settings.refine_steps, identify.py) and counts its points as settled by force where the old rule began to
+average, so it takes no more steps than planned unless its points drift: from a start far from the optimum, in
+a curved valley, the steps can creep, and while the averaged points still follow a trend (`drift_statistic`),
+the refinement takes more steps, up to MAX_EXTENSION times as many, and says so if they never settle.
+
+L2 and relative L2 are sums of squares as they stand; the L1 loss is not, and is not refined.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass
+from statistics import NormalDist
 
 import numpy as np
 
@@ -65,6 +76,10 @@ BEST_Z = 3.5
 DRIFT_T = 3.0  # a trend in the averaged points this many standard errors strong means they still move
 DRIFT_POINTS = 5  # fewer averaged points do not tell a trend (a t statistic with 3 degrees of freedom or more)
 MAX_EXTENSION = 3  # a refinement whose points still move runs on, up to this many times its planned steps
+# A point is settled when its gradient's χ² against its noise is below this quantile of the χ² distribution (one
+# optimum in a hundred is taken for unsettled, and costs a step; the gradient's noise leaves out the Jacobian's, so
+# the test errs that way).
+SETTLED = 0.99
 
 
 def inside(x: np.ndarray, step: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
@@ -126,8 +141,11 @@ class GaussNewton:
         self.names = list(start)
         self.lo, self.hi = component_bounds(self.names)
         self.planned = steps
-        self.limit = steps
+        self.needed = averaged_points(steps)
+        self.settled_by = steps - self.needed  # the linearisation from which the planned steps' rule averaged
         self.k = 0
+        self.settled = False  # whether a point has been found settled: every linearisation since is at one
+        self.averaging = False  # whether the current linearisation's step end point counts (`averaged`)
         self.x = flat_values(start)
         self.kept_values = start
         # One linearisation's Jacobian is noisy, and so then are the curvature (where it comes out too small, a
@@ -135,9 +153,9 @@ class GaussNewton:
         # linearisations together are steadier, and unlike all of them they forget the start's, whose curvature
         # far from the optimum would keep the steps short.
         self.jacobians = []  # each linearisation's pair, in order
-        self.models = []  # a photo's weighted model of each linearisation (`_gain_columns`), in order
-        self.frozen_columns = None
+        self.settled_models = []  # a photo's weighted model of each settled linearisation (`_gain_columns`)
         self.kept, self.scatters = [], []  # the kept end points and their linearisations' scatter estimates
+        self.averaged, self.averaged_scatters = [], []  # the kept end points of steps from settled points
         self.steps: list[GaussNewtonStep] = []
         self.damping = LAMBDA_START
         self.lin = self._with_earlier(self._linearized(self.x, 0))
@@ -156,36 +174,52 @@ class GaussNewton:
         )
 
     def _gain_columns(self, k: int):
-        """For a photo's gains, from the later half of the planned steps on (the points averaged into the
-        estimate), the mean render of the linearisations so far (the last JACOBIAN_WINDOW − 1), held from then
-        on, instead of the target (nuisance.Nuisance.projection): near the optimum it removes the lean that the
-        target's noise gives the steps, where from afar the target's columns step more surely."""
-        if k < self.planned // 2:
-            return None
-        if self.frozen_columns is None:
-            earlier = [m for m in self.models[-(JACOBIAN_WINDOW - 1) :] if m is not None]
-            if not earlier:
-                return None
-            self.frozen_columns = np.mean(earlier, axis=0)
-        return self.frozen_columns
+        """For a photo's gains, once a point has settled, the mean render of the settled linearisations before this
+        one (the last JACOBIAN_WINDOW − 1), instead of the target (nuisance.Nuisance.projection): near the optimum
+        it removes the lean that the target's noise gives the steps, where from afar the target's columns step more
+        surely. None before, and for the first settled linearisation, which has no settled render before it."""
+        earlier = [m for m in self.settled_models[-(JACOBIAN_WINDOW - 1) :] if m is not None]
+        return np.mean(earlier, axis=0) if self.settled and earlier else None
 
     def _with_earlier(self, lin_at: Linearization) -> Linearization:
         """lin_at with the Jacobians of the JACOBIAN_WINDOW − 1 linearisations before it."""
         earlier = self.jacobians[-(JACOBIAN_WINDOW - 1) :]
         self.jacobians.append(lin_at.jacobians)
-        if self.frozen_columns is None:  # read only until the columns are frozen
-            self.models.append(lin_at.model)
         if not earlier:
             return lin_at
         return dataclasses.replace(lin_at, earlier_jacobians=np.concatenate(earlier), curvature=None)
 
     @property
     def done(self) -> bool:
-        return self.k >= self.limit or self.damping > LAMBDA_MAX
+        """After the planned number of averaged points (or the planned steps, should many be undone), unless those
+        points still drift; after MAX_EXTENSION × the planned steps, or damping that moves nothing, in any case."""
+        if self.damping > LAMBDA_MAX or self.k >= MAX_EXTENSION * self.planned:
+            return True
+        enough = 0 < self.needed <= len(self.averaged) or self.k >= self.planned
+        return enough and not drifting(self._averaged_points())
+
+    def _settles(self) -> bool:
+        """Whether the current point is settled (the module docstring), or the planned steps' rule would average
+        from here on."""
+        if self.k - 1 >= self.settled_by:
+            return True
+        lin = self.lin
+        chi2 = float(lin.gradient @ np.linalg.lstsq(lin.gradient_covariance, lin.gradient, rcond=1e-12)[0])
+        return np.isfinite(chi2) and chi2 <= chi2_quantile(SETTLED, len(self.x))
+
+    def _settle(self) -> None:
+        """From here on every linearisation is at a settled point: a photo's gain columns come from settled
+        linearisations only, and this point's step counts, unless it is a photo's whose gains still took the
+        target's columns."""
+        self.settled = True
+        self.settled_models = [self.lin.model]
+        self.averaging = self.lin.model is None
 
     def step(self) -> GaussNewtonStep:
         self.k += 1
-        lin, x = self.lin, self.x
+        if not self.settled and self._settles():
+            self._settle()
+        lin, x, counts = self.lin, self.x, self.averaging
         h = lin.curvature
         damped = h + self.damping * np.diag(np.diag(h)) + 1e-12 * np.eye(len(x))
         step = inside(x, -np.linalg.solve(damped, lin.gradient), self.lo, self.hi)
@@ -200,6 +234,12 @@ class GaussNewton:
             self.x, self.lin = x + step, lin_new
             self.kept.append(self.x)
             self.scatters.append(lin_new.scatter_estimate)
+            if counts:
+                self.averaged.append(self.x)
+                self.averaged_scatters.append(lin_new.scatter_estimate)
+            if self.settled:
+                self.settled_models.append(lin_new.model)
+                self.averaging = True
             self.kept_values = lin_new.values
             self.damping = max(self.damping * LAMBDA_DOWN, 1e-9)
         else:
@@ -215,28 +255,27 @@ class GaussNewton:
             noise=noise,
         )
         self.steps.append(record)
-        if (
-            self.damping <= LAMBDA_MAX
-            and self.k == self.limit
-            and self.limit < MAX_EXTENSION * self.planned
-            and drifting(_later(self.kept))
-        ):
-            self.limit += 1
         return record
 
+    def _averaged_points(self) -> list:
+        """The end points averaged into the estimate: the last `needed` of those stepped from settled points; the
+        later half of all kept points where none was (a refinement stopped before any point settled)."""
+        return self.averaged[-self.needed :] if self.averaged and self.needed else _later(self.kept)
+
     def result(self) -> Refinement:
-        """The mean of the later kept points, linearised there (see the module docstring); the best point seen
-        instead, should that mean fit worse than it beyond noise."""
-        # Each linearisation's own render noise moves its step's end point; the later kept points scatter around
-        # the optimum, and their mean scatters less.
-        averaged = _later(self.kept)
+        """The mean of the end points of the steps from settled points, linearised there (see the module
+        docstring); the best point seen instead, should that mean fit worse than it beyond noise."""
+        # Each linearisation's own render noise moves its step's end point; the kept points from settled ones
+        # scatter around the optimum, and their mean scatters less.
+        averaged = self._averaged_points()
+        scatters = self.averaged_scatters[-self.needed :] if self.averaged and self.needed else _later(self.scatters)
         notes = () if not drifting(averaged) else (_unsettled(averaged, self.k, self.names),)
         if len(self.kept) < 2:
             final, mc = self._best_of(self.lin), None
         else:
             final = self._with_earlier(self._linearized(np.mean(averaged, axis=0), self.k + 1))
             # One linearisation's scatter estimate is noisy where our render is much noisier than the target.
-            final = dataclasses.replace(final, scatter=float(np.mean([*_later(self.scatters), final.scatter_estimate])))
+            final = dataclasses.replace(final, scatter=float(np.mean([*scatters, final.scatter_estimate])))
             mc = mean_covariance(averaged, final)
             best = self._best_of(final)
             if best is not final:
@@ -309,6 +348,14 @@ def _later(kept: list) -> list:
     """The later half of the kept steps after the first: the earlier ones may still be on their way in."""
     after_first = kept[1:]
     return after_first[-((len(after_first) + 1) // 2) :]
+
+
+def chi2_quantile(q: float, dof: int) -> float:
+    """The q quantile of the χ² distribution with `dof` degrees of freedom, by Wilson and Hilferty's cube-root
+    normal approximation (within 1% from 1 degree of freedom at q = 0.99; exact enough for a threshold)."""
+    z = NormalDist().inv_cdf(q)
+    c = 2.0 / (9.0 * dof)
+    return dof * (1.0 - c + z * math.sqrt(c)) ** 3
 
 
 def averaged_points(steps: int) -> int:

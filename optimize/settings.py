@@ -82,8 +82,9 @@ def gauss_newton_spp(settings: FitSettings, target: Target) -> int:
 
 def refine_steps(settings: FitSettings, target: Target, target_spp: int | None = None) -> int:
     """settings.refine; by default at least DEFAULT_REFINE_STEPS, and enough that the refinement's renders add up
-    to half the samples per pixel the target was rendered with (its scenes' [render] spp). The later half of the
-    steps is averaged into the estimate, so its Monte Carlo variance is then about four times what the target's
+    to half the samples per pixel the target was rendered with (its scenes' [render] spp). As many points as the
+    later half of the steps are averaged into the estimate (refine.py: the end points of steps from settled
+    points, which may take fewer steps), so its Monte Carlo variance is then about four times what the target's
     own noise gives it (the reported σ counts both), and a target rendered at more samples to be less noisy
     (fur_patch) gets more steps, and a photo PHOTO_REFINE_FACTOR times as many. refine.py may run more while its
     steps still move. target_spp: the target's samples per pixel, if not its scenes' (`targets check --spp`)."""

@@ -109,6 +109,51 @@ def test_gauss_newton_still_converges_where_the_linear_model_is_right(monkeypatc
     np.testing.assert_allclose([result.values["beta_m"], result.values["beta_n"]], model.truth, atol=1e-3)
 
 
+def test_gradient_covariance_counts_the_jacobians_noise():
+    """`gradient_covariance` (what the settled test weighs a gradient against) against the gradients' scatter over
+    independent linearisations whose Jacobians are noisy and whose residuals do not vanish (a misfit):
+    `noise_covariance`, which leaves the Jacobians' noise out, is half of it here."""
+    rng = np.random.default_rng(1)
+    n = 3 * 2000
+    jacobian, misfit = rng.standard_normal((n, 2)), 0.05 * rng.standard_normal(n)
+    lins = []
+    for _ in range(400):
+        lin = _linearization(rng, misfit, np.full(n, 0.1), jacobian)
+        lin.jacobians = jacobian + 2.0 * rng.standard_normal((2, n, 2))
+        lin.curvature = None
+        lin.__post_init__()
+        lins.append(lin)
+    scatter = np.cov(np.array([lin.gradient for lin in lins]).T)
+    predicted = np.mean([lin.gradient_covariance for lin in lins], axis=0)
+    np.testing.assert_allclose(np.diag(predicted), np.diag(scatter), rtol=0.15)
+    assert np.all(np.diag(np.mean([lin.noise_covariance for lin in lins], axis=0)) < 0.7 * np.diag(scatter))
+
+
+def test_chi2_quantile_is_scipys():
+    from scipy.stats import chi2
+
+    for dof in (1, 2, 3, 5, 8, 13):
+        assert refine.chi2_quantile(refine.SETTLED, dof) == pytest.approx(chi2.ppf(refine.SETTLED, dof), rel=0.01)
+
+
+def test_gauss_newton_averages_from_the_first_settled_point(monkeypatch):
+    """From a start far off, the first steps land near the optimum but short of it by their damping (0.1% of the
+    way, a dozen standard errors of this model's noise): those points are not settled, and the refinement
+    averages the planned number of end points from the first that is, in fewer steps than planned (before: the
+    later half of 8 steps whatever the first did); its estimate is within the Monte Carlo error it reports."""
+    model = _Model(linear=True)
+    monkeypatch.setattr(refine, "linearize", model.linearize)
+    start = {"beta_m": 0.3 + 3 * model.W, "beta_n": 0.5}
+    run = refine.GaussNewton(None, start, types.SimpleNamespace(threads=None), spp=1, seed=0, steps=8)
+    while not run.done:
+        run.step()
+    result = run.result()
+    assert len(run.averaged) == refine.averaged_points(8) == 4
+    assert len(result.steps) < 8 and all(a is k for a, k in zip(run.averaged, run.kept[-4:]))
+    error = np.array([result.values["beta_m"], result.values["beta_n"]]) - model.truth
+    assert float(error @ np.linalg.solve(result.mc_covariance, error)) < 13.8  # χ² with 2 degrees of freedom, 0.999
+
+
 def _target(shape=(48, 48), spp=1024):
     scene = types.SimpleNamespace(render=types.SimpleNamespace(spp=spp))
     image = np.random.default_rng(0).uniform(0.1, 1.0, (*shape, 3))
