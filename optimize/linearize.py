@@ -109,12 +109,17 @@ class Linearization:
         (unbiased; without earlier ones, the other pass's)."""
         return self.crossed(self.residuals)
 
+    def _others(self) -> list:
+        """Per pass, (N, p) the mean of every Jacobian but its own pass's (`all_jacobians`)."""
+        jacobians = self.all_jacobians
+        total, n = jacobians.sum(axis=0), len(jacobians)
+        return [(total - a) / (n - 1) for a in self.jacobians]
+
     def crossed(self, vectors: np.ndarray) -> np.ndarray:
         """(p,): ½ Σ over the two passes of Aᵀ W v, each pass's v (2, N) met with the mean of every Jacobian but
         its own pass's: unbiased where v carries that pass's noise (its residual, its image)."""
-        w, jacobians = self.loss_weights, self.all_jacobians
-        total, n = jacobians.sum(axis=0), len(jacobians)
-        return 0.5 * sum(((total - a) / (n - 1)).T @ (w * v) for a, v in zip(self.jacobians, vectors))
+        w = self.loss_weights
+        return 0.5 * sum(other.T @ (w * v) for other, v in zip(self._others(), vectors))
 
     @property
     def gradient_covariance(self) -> np.ndarray:
@@ -124,12 +129,9 @@ class Linearization:
         passes' alike). Beside `noise_covariance` it counts the Jacobians' noise times the residuals, which near the
         optimum of a target with any misfit or noise of its own moves the gradient as much or more (refine.py's
         settled test). The earlier Jacobians' noise, which both terms share, is left out."""
-        w, jacobians = self.loss_weights, self.all_jacobians
-        total, n = jacobians.sum(axis=0), len(jacobians)
-        terms = [((total - a) / (n - 1)) * (w * v)[:, None] for a, v in zip(self.jacobians, self.residuals)]
-        half_difference = 0.5 * (terms[0] - terms[1])
-        per_pixel = half_difference.reshape(-1, CHANNELS, half_difference.shape[1]).sum(axis=1)
-        return per_pixel.T @ per_pixel
+        w = self.loss_weights
+        terms = [other * (w * v)[:, None] for other, v in zip(self._others(), self.residuals)]
+        return _pixel_covariance(0.5 * (terms[0] - terms[1]))
 
     @property
     def noise_covariance(self) -> np.ndarray:
@@ -140,8 +142,7 @@ class Linearization:
         noise covariance and none of the target's scatter: Σ over pixels of (Σ_c w a d)(Σ_c w a d)ᵀ."""
         w, a = self.loss_weights, self.mean_jacobian
         half_difference = 0.5 * (self.residuals[0] - self.residuals[1])
-        per_pixel = ((w * half_difference)[:, None] * a).reshape(-1, CHANNELS, a.shape[1]).sum(axis=1)
-        return per_pixel.T @ per_pixel
+        return _pixel_covariance((w * half_difference)[:, None] * a)
 
     @property
     def step_covariance(self) -> np.ndarray:
@@ -191,6 +192,13 @@ class Linearization:
     @property
     def mean_jacobian(self) -> np.ndarray:
         return self.all_jacobians.mean(axis=0)
+
+
+def _pixel_covariance(terms: np.ndarray) -> np.ndarray:
+    """(p, p): Σ over pixels (or pooled blocks) of d dᵀ, d the sum of a pixel's CHANNELS rows of `terms` (N, p):
+    the covariance of Σ terms where a pixel's channels, which share their paths, move together and pixels do not."""
+    per_pixel = terms.reshape(-1, CHANNELS, terms.shape[1]).sum(axis=1)
+    return per_pixel.T @ per_pixel
 
 
 def crossed_curvature(jacobians: np.ndarray, weights: np.ndarray) -> np.ndarray:

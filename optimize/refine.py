@@ -33,17 +33,16 @@ Every linearisation renders with fresh seeds, so each step's end point carries t
 common seeds every step would converge to the same noisy point). The result is the mean of the end points of
 steps taken from settled points, which scatter around the optimum as Adam's last iterates do; `mean_covariance`
 is its Monte Carlo error. A point is settled when the gradient there is zero within our render noise (its χ²
-against `noise_covariance` below the SETTLED quantile): a step from it lands where a step from the optimum would,
-up to that noise, and so does every step after. Before, the refinement averaged the later half of its steps
-whatever the first half did; Adam usually leaves the fit a few steps short of settled, and a photo waited
-through 12 of its 24. (Pooling no Jacobian from before a far step, so that none from Adam's end point leans the
-settled steps, was tried: a single linearisation's curvature sent fur_patch's second step from albedo 0.55 to
-0.38 and its refinement into a region it took 20 steps to leave.) A refinement of
-`steps` planned steps still averages `averaged_points(steps)` end points (the precision those steps were sized
-for: settings.refine_steps, identify.py) and counts its points as settled by force where the old rule began to
-average, so it takes no more steps than planned unless its points drift: from a start far from the optimum, in
-a curved valley, the steps can creep, and while the averaged points still follow a trend (`drift_statistic`),
-the refinement takes more steps, up to MAX_EXTENSION times as many, and says so if they never settle.
+against `Linearization.gradient_covariance` below the SETTLED quantile): a step from it lands where a step from
+the optimum would, up to that noise, and so does every step after; Adam usually leaves the fit a few steps short
+of it. (Pooling no Jacobian from before a far step, so that none from Adam's end point leans the settled steps,
+was tried: a single linearisation's curvature sent fur_patch's second step from albedo 0.55 to 0.38 and its
+refinement into a region it took 20 steps to leave.) A refinement of `steps` planned steps averages
+`averaged_points(steps)` end points (the precision those steps were sized for: settings.refine_steps,
+identify.py) and counts its points as settled by force where the later half of its steps begins, so it takes no
+more steps than planned unless its points drift: from a start far from the optimum, in a curved valley, the
+steps can creep, and while the averaged points still follow a trend (`drift_statistic`), the refinement takes
+more steps, up to MAX_EXTENSION times as many, and says so if they never settle.
 
 L2 and relative L2 are sums of squares as they stand; the L1 loss is not, and is not refined.
 """
@@ -77,8 +76,8 @@ DRIFT_T = 3.0  # a trend in the averaged points this many standard errors strong
 DRIFT_POINTS = 5  # fewer averaged points do not tell a trend (a t statistic with 3 degrees of freedom or more)
 MAX_EXTENSION = 3  # a refinement whose points still move runs on, up to this many times its planned steps
 # A point is settled when its gradient's χ² against its noise is below this quantile of the χ² distribution (one
-# optimum in a hundred is taken for unsettled, and costs a step; the gradient's noise leaves out the Jacobian's, so
-# the test errs that way).
+# optimum in a hundred is taken for unsettled, and costs a step; the gradient's noise leaves out the earlier
+# Jacobians', so the test errs that way).
 SETTLED = 0.99
 
 
@@ -170,10 +169,10 @@ class GaussNewton:
             self.seed + SEED_STRIDE * k,
             threads=self.settings.threads,
             scenes=self.scenes(self.seed + SEED_STRIDE * k) if callable(self.scenes) else self.scenes,
-            gain_columns=self._gain_columns(k),
+            gain_columns=self._gain_columns(),
         )
 
-    def _gain_columns(self, k: int):
+    def _gain_columns(self):
         """For a photo's gains, once a point has settled, the mean render of the settled linearisations before this
         one (the last JACOBIAN_WINDOW − 1), instead of the target (nuisance.Nuisance.projection): near the optimum
         it removes the lean that the target's noise gives the steps, where from afar the target's columns step more
@@ -257,10 +256,12 @@ class GaussNewton:
         self.steps.append(record)
         return record
 
-    def _averaged_points(self) -> list:
+    def _averaged_points(self, scatters: bool = False) -> list:
         """The end points averaged into the estimate: the last `needed` of those stepped from settled points; the
-        later half of all kept points where none was (a refinement stopped before any point settled)."""
-        return self.averaged[-self.needed :] if self.averaged and self.needed else _later(self.kept)
+        later half of all kept points where none was (a refinement stopped before any point settled). `scatters`:
+        their linearisations' scatter estimates instead."""
+        points, fallback = (self.averaged_scatters, self.scatters) if scatters else (self.averaged, self.kept)
+        return points[-self.needed :] if self.averaged and self.needed else _later(fallback)
 
     def result(self) -> Refinement:
         """The mean of the end points of the steps from settled points, linearised there (see the module
@@ -268,7 +269,7 @@ class GaussNewton:
         # Each linearisation's own render noise moves its step's end point; the kept points from settled ones
         # scatter around the optimum, and their mean scatters less.
         averaged = self._averaged_points()
-        scatters = self.averaged_scatters[-self.needed :] if self.averaged and self.needed else _later(self.scatters)
+        scatters = self._averaged_points(scatters=True)
         notes = () if not drifting(averaged) else (_unsettled(averaged, self.k, self.names),)
         if len(self.kept) < 2:
             final, mc = self._best_of(self.lin), None

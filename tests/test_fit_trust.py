@@ -3,6 +3,7 @@ of fit against the noise model, and failures said as failures."""
 
 from __future__ import annotations
 
+import dataclasses
 import types
 
 import numpy as np
@@ -119,10 +120,8 @@ def test_gradient_covariance_counts_the_jacobians_noise():
     lins = []
     for _ in range(400):
         lin = _linearization(rng, misfit, np.full(n, 0.1), jacobian)
-        lin.jacobians = jacobian + 2.0 * rng.standard_normal((2, n, 2))
-        lin.curvature = None
-        lin.__post_init__()
-        lins.append(lin)
+        noisy = jacobian + 2.0 * rng.standard_normal((2, n, 2))
+        lins.append(dataclasses.replace(lin, jacobians=noisy, curvature=None, scatter=None))
     scatter = np.cov(np.array([lin.gradient for lin in lins]).T)
     predicted = np.mean([lin.gradient_covariance for lin in lins], axis=0)
     np.testing.assert_allclose(np.diag(predicted), np.diag(scatter), rtol=0.15)
