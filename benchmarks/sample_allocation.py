@@ -8,7 +8,10 @@ q_b / s_b to its variance, measured along every control alike (the trace of H⁻
 per-sample noise covariance, D normalising each control by the step's own variance), where s_b is the block's
 samples per pixel. For a fixed total, Σ q_b / s_b is least at s_b ∝ √q_b (Neyman's allocation), and the gain against
 even samples is n Σ q_b / (Σ √q_b)². A block's q_b is taken from the pooled Jacobian and its pixels' per-sample
-variances (channels independent: an approximation; they share their paths). Printed per target, at the truth:
+variances, weighted as the loss weighs them (channels independent: an approximation; they share their paths). It
+counts the residuals' noise only, not the Jacobians' noise times the residuals that `Linearization.gradient_covariance`
+also counts. Photo targets are left out: their renders are scaled by gains this script does not fit. Printed per
+target, at the truth:
 
 - the gain were the allotment made from accurate q_b (a render at --oracle-spp: what no fit knows),
 - the gain of an allotment made from one linearisation's own renders at --spp (what a fit would know), each
@@ -23,13 +26,14 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 import warnings
 
 import numpy as np
 
-from optimize import load_target
+from optimize import camera, load_target
 from optimize.latents import hair_and_gain
-from optimize.linearize import COLUMNS, inverse_curvature, linearize, pool_like_loss
+from optimize.linearize import COLUMNS, inverse_curvature, linearize, loss_weights, pool_like_loss
 from optimize.settings import FitSettings
 from optimize.target import SHIPPED_TARGETS
 from warp_hair.renderer.gradients import render_jacobian
@@ -51,8 +55,10 @@ def block_noise(target, values, lin, metric, spp, seed) -> list:
         a, _ = pool_like_loss(image, columns, None, settings.pool)
         per_sample = stderr.astype(np.float64) ** 2 * spp
         _, v = pool_like_loss(image, np.zeros_like(per_sample), per_sample, settings.pool)
-        a = a.reshape(-1, 3, a.shape[-1]) * lin.loss_weights[first[k]]
-        out.append(np.maximum(np.einsum("bcp,bc,bcq,qp->b", a, v.reshape(-1, 3), a, metric), 0.0))
+        reference, _ = pool_like_loss(image, image.image, None, settings.pool)
+        scale = loss_weights(reference, settings.loss).reshape(-1, 3)  # the loss's weight of each residual
+        a = a.reshape(-1, 3, a.shape[-1]) * (scale * lin.loss_weights[first[k]])[..., None]
+        out.append(np.maximum(np.einsum("bcp,bc,bcq,qp->b", a, v.reshape(-1, 3) * scale**2, a, metric), 0.0))
     return out
 
 
@@ -79,6 +85,9 @@ def main() -> None:
     print("| --- | ---: | ---: | ---: | ---: | --- |")
     for name in args.names:
         target = load_target(SHIPPED_TARGETS / name)
+        if camera.fitted(target):
+            print(f"{name}: left out, a photo target (its gains are not fitted here)", file=sys.stderr)
+            continue
         truth = json.loads((SHIPPED_TARGETS / name / "truth.json").read_text())
         values = {n: truth[n] for n in FitSettings().controls if n in truth}
         lin = linearize(target, values, FitSettings(), args.spp, 1234)
