@@ -126,7 +126,7 @@ def table(out: Path, names) -> str:
         gain_err = [100 * (cam["gains"][v][0] / cam_truth["gains"][v] - 1) for v in ("front", "back")]
         wb_err = [100 * (w / t - 1) for w, t in zip(cam["white_balance"]["value"], cam_truth["white_balance"])]
         rows.append(
-            f"| {name} ({kind}) | {pin_text if c else '?'} "
+            f"| {name} ({kind}) | {pin_text if c else 'not checked'} "
             f"| ({values[0]:.3f}, {values[1]:.3f}, {values[2]:.3f}) ± ({sigma[0]:.3f}, {sigma[1]:.3f}, {sigma[2]:.3f})"
             f" / {values[3]:.3f} ± {sigma[3]:.3f} / {values[4]:.3f} ± {sigma[4]:.3f} "
             f"| ({error[0]:+.3f}, {error[1]:+.3f}, {error[2]:+.3f}) / {error[3]:+.3f} / {error[4]:+.3f} "
@@ -134,6 +134,11 @@ def table(out: Path, names) -> str:
             f"| {np.max(np.abs(error) / sigma):.1f} "
             f"| {gain_err[0]:+.1f}%, {gain_err[1]:+.1f}% | {wb_err[0]:+.1f}%, {wb_err[2]:+.1f}% "
             f"| {sum(f['left_out'])} | {f['seconds']:.0f} s |"
+        )
+    if any("| not checked |" in row for row in rows):
+        rows.append(
+            f"\nnot checked: no `check` result in {out} (run `photo_acceptance.py check --out {out}`); the bounds are "
+            "applied to every component of those rows, as if the check had called each pinned"
         )
     return "\n".join(rows)
 
