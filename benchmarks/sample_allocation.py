@@ -7,14 +7,15 @@ A step's end point moves with the noise of the gradient Aᵀ W r̄ (optimize/lin
 q_b / s_b to its variance, measured along every control alike (the trace of H⁻¹ D H⁻¹ against the block's
 per-sample noise covariance, D normalising each control by the step's own variance), where s_b is the block's
 samples per pixel. For a fixed total, Σ q_b / s_b is least at s_b ∝ √q_b (Neyman's allocation), and the gain against
-even samples is n Σ q_b / (Σ √q_b)². A block's q_b is taken from the pooled Jacobian and its pixels' per-sample
-variances, weighted as the loss weighs them (channels independent: an approximation; they share their paths). It
+even samples is n Σ q_b / (Σ √q_b)². A block's q_b is taken from a linearisation's pooled Jacobian and Monte Carlo
+variances, weighted as the loss weighs them (`linearize`; channels independent: an approximation, they share their
+paths). It
 counts the residuals' noise only, not the Jacobians' noise times the residuals that `Linearization.gradient_covariance`
 also counts. Photo targets are left out: their renders are scaled by gains this script does not fit. Printed per
 target, at the truth:
 
-- the gain were the allotment made from accurate q_b (a render at --oracle-spp: what no fit knows),
-- the gain of an allotment made from one linearisation's own renders at --spp (what a fit would know), each
+- the gain were the allotment made from accurate q_b (a linearisation at --oracle-spp: what no fit knows),
+- the gain of an allotment made from one linearisation at --spp (what a fit would know), each
   block at least 2 samples a pixel (a pixel's standard error needs two), measured against the accurate q_b,
 - the same with one sample count per image (its blocks' summed q), and each image's share of the step's variance.
 
@@ -25,6 +26,7 @@ the fit: it measures a lever (docs/benchmarks.md, issue 45).
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import sys
 import warnings
@@ -32,34 +34,22 @@ import warnings
 import numpy as np
 
 from optimize import camera, load_target
-from optimize.latents import hair_and_gain
-from optimize.linearize import COLUMNS, inverse_curvature, linearize, loss_weights, pool_like_loss
+from optimize.linearize import inverse_curvature, linearize
 from optimize.settings import FitSettings
 from optimize.target import SHIPPED_TARGETS
-from warp_hair.renderer.gradients import render_jacobian
 from warp_hair.renderer.prepare import prepare
-from warp_hair.torch import scene_with_controls
 
 MIN_SAMPLES = 2  # a pixel's standard error needs two samples
 
 
-def block_noise(target, values, lin, metric, spp, seed) -> list:
-    """Per image, each loss block's q_b: its share of the step's variance per sample a pixel."""
-    settings = FitSettings()
-    hair, _ = hair_and_gain(values)
-    first = np.cumsum((0, *lin.image_residuals))
-    out = []
-    for k, image in enumerate(target.images):
-        jacobian, _, stderr = render_jacobian(scene_with_controls(prepare(image.scene), hair), spp=spp, seed=seed + k)
-        columns = np.concatenate([jacobian[..., COLUMNS[name]] for name in values], axis=-1).astype(np.float64)
-        a, _ = pool_like_loss(image, columns, None, settings.pool)
-        per_sample = stderr.astype(np.float64) ** 2 * spp
-        _, v = pool_like_loss(image, np.zeros_like(per_sample), per_sample, settings.pool)
-        reference, _ = pool_like_loss(image, image.image, None, settings.pool)
-        scale = loss_weights(reference, settings.loss).reshape(-1, 3)  # the loss's weight of each residual
-        a = a.reshape(-1, 3, a.shape[-1]) * (scale * lin.loss_weights[first[k]])[..., None]
-        out.append(np.maximum(np.einsum("bcp,bc,bcq,qp->b", a, v.reshape(-1, 3) * scale**2, a, metric), 0.0))
-    return out
+def block_noise(lin, metric, spp: int) -> list:
+    """Per image, each loss block's q_b: its share of the step's variance per sample a pixel, from a linearisation's
+    own weighted, pooled Jacobians and Monte Carlo variances (`linearize` weighs them as the loss does)."""
+    a = lin.mean_jacobian * lin.loss_weights[:, None]
+    per_sample = lin.variances.mean(axis=0) * spp
+    q = np.einsum("np,n,nq,qp->n", a, per_sample, a, metric).reshape(-1, 3).sum(axis=1)
+    bounds = np.cumsum((0, *lin.image_residuals)) // 3
+    return [np.maximum(q[b0:b1], 0.0) for b0, b1 in itertools.pairwise(bounds)]
 
 
 def gain(q: np.ndarray, samples: np.ndarray) -> float:
@@ -90,11 +80,13 @@ def main() -> None:
             continue
         truth = json.loads((SHIPPED_TARGETS / name / "truth.json").read_text())
         values = {n: truth[n] for n in FitSettings().controls if n in truth}
-        lin = linearize(target, values, FitSettings(), args.spp, 1234)
+        scenes = [prepare(image.scene) for image in target.images]
+        lin = linearize(target, values, FitSettings(), args.spp, 1234, scenes=scenes)
         h_inv = inverse_curvature(lin.curvature)
         metric = h_inv @ np.diag(1.0 / np.diag(lin.step_covariance)) @ h_inv
-        accurate = block_noise(target, values, lin, metric, args.oracle_spp, 77)
-        noisy = block_noise(target, values, lin, metric, args.spp, 5)
+        oracle = linearize(target, values, FitSettings(), args.oracle_spp, 77, scenes=scenes)
+        accurate = block_noise(oracle, metric, args.oracle_spp)
+        noisy = block_noise(lin, metric, args.spp)
         q, q_noisy = np.concatenate(accurate), np.concatenate(noisy)
         per_image = np.concatenate([np.full(b.size, np.sqrt(b.mean())) for b in noisy])
         shares = ", ".join(f"{float(b.sum() / q.sum()):.3f}" for b in accurate)
