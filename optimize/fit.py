@@ -742,7 +742,7 @@ class FitRun:
         arrangement: dict | None = None,
     ) -> FitResult:
         warnings = [] if refinement is None else list(refinement.warnings)
-        note = interpenetration_note(self.target)
+        note = interpenetration_note(self.target, target_model_error(self.target, self.settings.model_error))
         if note is not None:
             warnings.append(note)
         if uncertainty is not None:

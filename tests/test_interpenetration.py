@@ -288,11 +288,15 @@ def test_a_fit_notes_interpenetrating_strands_only_when_another_renderer_made_th
         shutil.copytree(targets.path("black_straight"), copy)
         spec = copy / "target.toml"
         spec.write_text('renderer = "cycles"\n' + spec.read_text())
-        note = interpenetration_note(load_target(copy))
+        target = load_target(copy)
+        note = interpenetration_note(target)
+        counted = interpenetration_note(target, 0.01)
     assert note.startswith(
         "the target's strands interpenetrate (237 pairs of 240 strands) and its images were rendered by cycles"
     )
     assert 'interpenetration = "enter"' in note
+    # With the model error the fit counts, the note says σ need not cover the renderers' disagreement there.
+    assert counted.startswith(note) and "Its σ counts a 1% model error" in counted and "need not cover" in counted
 
 
 def test_the_gradient_pass_traces_the_exit_rule_paths():
