@@ -32,6 +32,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from ray_steps import worktree  # a detached `git worktree` of a commit, as ray_steps.py times its versions
 from tqdm import tqdm
 
 REPO = Path(__file__).resolve().parent.parent
@@ -43,14 +44,9 @@ def git(*args: str) -> str:
     return subprocess.run(["git", "-C", str(REPO), *args], check=True, capture_output=True, text=True).stdout.strip()
 
 
-def worktree(rev: str, folder: Path) -> Path:
-    """A detached checkout of `rev` in `folder` (git worktree), with the shared/ folder beside it as in this one."""
-    path = folder / rev[:12]
-    git("worktree", "add", "--detach", "--quiet", str(path), rev)
-    shared = REPO.parent / "shared"
-    if shared.exists() and not (folder / "shared").exists():
-        (folder / "shared").symlink_to(shared)
-    return path
+def load_average() -> str:
+    load = os.getloadavg()
+    return f"load average {load[0]:.2f}, {load[1]:.2f}, {load[2]:.2f}"
 
 
 def run_fit(code: Path, fit: str, out: Path, threads: int | None, workdir: Path) -> dict:
@@ -121,10 +117,9 @@ def main() -> None:
         )
     except subprocess.CalledProcessError as error:
         parser.error(f"not a commit of this repository: {error.stderr.strip()}")
-    load = os.getloadavg()
     print(
         f"fit wall time, {base[:7]} against {head[:7]}: {len(fits)} fits, {args.rounds} rounds; "
-        f"load average {load[0]:.2f}, {load[1]:.2f}, {load[2]:.2f} ({os.cpu_count()} cores)"
+        f"{load_average()} ({os.cpu_count()} cores)"
     )
     with tempfile.TemporaryDirectory(prefix="fit_wall_time_") as tmp:
         folder = Path(tmp)
@@ -144,9 +139,8 @@ def main() -> None:
         finally:
             for path in codes.values():
                 git("worktree", "remove", "--force", str(path))
-    load = os.getloadavg()
     print(table(fits, base, head, results))
-    print(f"end: load average {load[0]:.2f}, {load[1]:.2f}, {load[2]:.2f}")
+    print(f"end: {load_average()}")
 
 
 if __name__ == "__main__":
