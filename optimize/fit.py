@@ -471,6 +471,11 @@ class FitRun:
     def final_spp(self) -> int:
         return gauss_newton_spp(self.settings, self.target)
 
+    @property
+    def model_error(self) -> float:
+        """The relative brightness disagreement σ counts for this target (uncertainty.target_model_error)."""
+        return target_model_error(self.target, self.settings.model_error)
+
     def sparse_linearisation_note(self, uncertainty: Uncertainty) -> str | None:
         """A hint where a control's σ is above its acceptance bound (identify.BOUNDS) and the Gauss–Newton renders
         ran at fewer samples than FINAL_SPP_FACTOR × spp because the images hold more pixels than settings.batch
@@ -611,7 +616,7 @@ class FitRun:
         there (goodness.py), whose Birge factor scales them where the images differ from the fitted look by more
         than noise; and where the target states a prior over how the strands lie, its estimate (`arrangement`)."""
         lin, mc = evaluation.linearization, None if refinement is None else refinement.mc_covariance
-        model_error = target_model_error(self.target, self.settings.model_error)
+        model_error = self.model_error
         if not self.random:
             goodness = self.goodness(lin)
             determined, unpinned = pinned(lin)
@@ -742,7 +747,7 @@ class FitRun:
         arrangement: dict | None = None,
     ) -> FitResult:
         warnings = [] if refinement is None else list(refinement.warnings)
-        note = interpenetration_note(self.target, target_model_error(self.target, self.settings.model_error))
+        note = interpenetration_note(self.target, self.model_error)
         if note is not None:
             warnings.append(note)
         if uncertainty is not None:
@@ -793,7 +798,7 @@ class FitRun:
         hair_covariance = lin.statistical_covariance + (0 if mc is None else mc)
         # With a grey card the gains take part of a brightness disagreement and follow the hair's share of it.
         shift = None if lin.camera is None or lin.camera.direct is None else brightness_sensitivity(lin)
-        model_error = target_model_error(self.target, self.settings.model_error)
+        model_error = self.model_error
         return self.nuisance.report(
             lin.camera, hair_covariance, lin.scatter, model_error, shift, self.camera_realisation
         )
